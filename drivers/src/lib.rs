@@ -1,0 +1,6 @@
+//! Device capability traits, safety wrappers and real protocol clients.
+//!
+//! Each protocol is layered `frame` (pure data) / `codec` (bytes, no I/O) / `client`
+//! (session, sequencing, deadlines). Every device error maps to a shared [`ErrorKind`]
+//! so the acquisition engine can decide retry / skip / abort without knowing the vendor.
+#![warn(missing_docs)]

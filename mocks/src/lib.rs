@@ -1,0 +1,5 @@
+//! Simulated devices serving the real wire protocols over an independent physics world.
+//!
+//! The world holds the true robot (a URDF-style chain with its own forward kinematics,
+//! never the root crate's model) and its hidden physical effects.
+#![warn(missing_docs)]

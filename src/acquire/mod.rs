@@ -1,0 +1,1 @@
+//! acquire (filled by its issue).

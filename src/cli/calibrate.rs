@@ -1,0 +1,36 @@
+//! `robocal calibrate <what>`: one file per calibration under `src/cli/calibrate/`.
+
+pub mod kinematics;
+pub mod laser;
+pub mod nominal;
+pub mod pivot;
+
+/// Arguments of `robocal calibrate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    pub what: What,
+}
+
+/// What to calibrate.
+#[derive(Debug, clap::Subcommand)]
+pub enum What {
+    /// Nominal model with only the tracker→base and flange→marker transforms fitted (the "before").
+    Nominal(nominal::Args),
+    /// Full kinematic identification (MDH + Hayati, base, tool), bootstrap, metrics.
+    Kinematics(kinematics::Args),
+    /// Pivot calibration of a probe tip from `pivot` records.
+    Pivot(pivot::Args),
+    /// Laser range sensor hand-eye calibration from planes (seed 000).
+    Laser(laser::Args),
+}
+
+/// Run `robocal calibrate`.
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    match args.what {
+        What::Nominal(a) => nominal::exec(a),
+        What::Kinematics(a) => kinematics::exec(a),
+        What::Pivot(a) => pivot::exec(a),
+        What::Laser(a) => laser::exec(a),
+    }
+}

@@ -1,0 +1,1 @@
+//! diagnose (filled by its issue).

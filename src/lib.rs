@@ -1,0 +1,17 @@
+//! robocal: plans poses, drives the calibration cell, identifies kinematic and hand-eye
+//! parameters, then closes the loop by diagnosing the residual the model leaves.
+//!
+//! Units inside the library: lengths in millimetres, angles in radians, time in seconds.
+//! Files use millimetres and degrees (see `dataset`), conversion happens at the file edge.
+//!
+//! Estimation code (`model`, `solve`, `diagnose`, `plan`) never depends on `robocal_mocks`;
+//! only the CLI layer wires the simulators in for dry runs.
+
+pub mod acquire;
+pub mod cli;
+pub mod dataset;
+pub mod diagnose;
+pub mod model;
+pub mod plan;
+pub mod report;
+pub mod solve;

@@ -1,0 +1,1 @@
+//! model (filled by its issue).

@@ -1,0 +1,1 @@
+//! plan (filled by its issue).

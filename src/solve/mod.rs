@@ -1,0 +1,1 @@
+//! solve (filled by its issue).

@@ -1,0 +1,2 @@
+//! The one integration-test binary (see `Cargo.toml`: `autotests = false`).
+//! Each area adds a module here.
