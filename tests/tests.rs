@@ -1,2 +1,3 @@
 //! The one integration-test binary (see `Cargo.toml`: `autotests = false`).
 //! Each area adds a module here.
+mod model;
