@@ -1,3 +1,4 @@
 //! The one integration-test binary (see `Cargo.toml`: `autotests = false`).
 //! Each area adds a module here.
 mod model;
+mod dataset;

@@ -165,6 +165,8 @@ pub struct EventRecord {
 }
 
 /// Any record line after the header.
+// Pose records dominate every dataset; boxing them would only add an allocation each.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum Record {
@@ -190,7 +192,8 @@ impl Dataset {
     }
     /// `pose` records whose `group` equals `group`.
     pub fn poses_in<'a>(&'a self, group: &'a str) -> impl Iterator<Item = &'a PoseRecord> + 'a {
-        self.poses().filter(move |p| p.group.as_deref() == Some(group))
+        self.poses()
+            .filter(move |p| p.group.as_deref() == Some(group))
     }
 }
 
