@@ -4,3 +4,11 @@
 //! (session, sequencing, deadlines). Every device error maps to a shared [`ErrorKind`]
 //! so the acquisition engine can decide retry / skip / abort without knowing the vendor.
 #![warn(missing_docs)]
+
+pub mod error;
+pub mod fake;
+pub mod safety;
+pub mod traits;
+
+pub use error::{DeviceError, DriverError, DriverResult, ErrorKind};
+pub use traits::*;
