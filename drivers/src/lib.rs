@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod fake;
+pub mod ndi;
 pub mod safety;
 pub mod traits;
 
