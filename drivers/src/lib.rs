@@ -10,6 +10,7 @@ pub mod fake;
 pub mod ndi;
 pub mod safety;
 pub mod traits;
+pub mod ur;
 
 pub use error::{DeviceError, DriverError, DriverResult, ErrorKind};
 pub use traits::*;
