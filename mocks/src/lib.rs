@@ -3,3 +3,10 @@
 //! The world holds the true robot (a URDF-style chain with its own forward kinematics,
 //! never the root crate's model) and its hidden physical effects.
 #![warn(missing_docs)]
+
+pub mod scenario;
+pub mod serve;
+pub mod world;
+
+pub use scenario::Scenario;
+pub use world::WorldHandle;
