@@ -2,3 +2,5 @@
 //! Each area adds a module here.
 mod model;
 mod dataset;
+mod cli;
+mod plan;

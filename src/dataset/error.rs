@@ -27,13 +27,13 @@ impl std::fmt::Display for Location {
 #[non_exhaustive]
 pub enum DatasetError {
     /// The file could not be opened, read, written or synced.
-    #[error("{}: {source}", file.display())]
+    // The OS error is part of the message (not a `source`) so `{:#}` prints it once.
+    #[error("{}: {error}", file.display())]
     Io {
         /// The file.
         file: PathBuf,
         /// The OS error.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A line (or the whole calibration file) is not valid JSON, or not an object.
     #[error("{at}: {msg}")]
@@ -68,7 +68,7 @@ impl DatasetError {
     pub(crate) fn io(file: &Path, source: std::io::Error) -> Self {
         DatasetError::Io {
             file: file.to_path_buf(),
-            source,
+            error: source,
         }
     }
 
