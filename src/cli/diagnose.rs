@@ -1,10 +1,154 @@
-//! `robocal diagnose`.
+//! `robocal diagnose`: fit the geometric model, find the effect the residual points to,
+//! add it, and report the held-out error before and after.
+//!
+//! Writes `DIR/diagnosis.json`, `DIR/calibration.json` (`robocal-calibration/1` with the
+//! effects, read by `robocal predict`), `DIR/report.md`, `DIR/heldout_predictions.csv`
+//! (`id,x_mm,y_mm,z_mm` of every held-out pose, predicted with the full session context) and
+//! one `DIR/effect_<n>_<kind>.svg` partial-residual plot per accepted effect.
+use std::path::PathBuf;
+
+use anyhow::Context;
+use serde_json::{json, Map, Value};
+
+use crate::dataset::{CalibrationFile, PoseRecord};
+use crate::diagnose::{self, data, effects, plot, Options};
+use crate::model::KinematicModel;
 
 /// Arguments of `robocal diagnose`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Dataset (`robocal-dataset/1`); `group: validation` records are held out.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output directory (created).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Start from this calibration's parameters instead of the header's nominal chain.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Held-out poses in a separate dataset of the same session.
+    #[arg(long)]
+    pub heldout: Option<PathBuf>,
+    /// Do not add a nonparametric correction even if structured residual remains.
+    #[arg(long)]
+    pub no_nonparametric: bool,
+}
 
 /// Run `robocal diagnose`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::not_yet("diagnose")
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let out = run(&args)?;
+    println!("{out}");
+    Ok(())
+}
+
+/// Run and return the short console summary.
+pub fn run(args: &Args) -> anyhow::Result<String> {
+    let main = data::load_jsonl(&args.data)?;
+    for w in &main.warnings {
+        tracing::warn!("{w}");
+    }
+    let extra = match &args.heldout {
+        Some(p) => Some(data::load_jsonl(p)?),
+        None => None,
+    };
+    let mut model = KinematicModel::from_robot_block(&main.header.robot)
+        .with_context(|| format!("{}: robot block", args.data.display()))?;
+    if let Some(c) = &args.calibration {
+        let text = std::fs::read_to_string(c).with_context(|| format!("{}", c.display()))?;
+        let cal: CalibrationFile =
+            serde_json::from_str(&text).with_context(|| format!("{}", c.display()))?;
+        model
+            .apply_cal_params(&cal.params)
+            .with_context(|| format!("{}: params", c.display()))?;
+    }
+    let dof = model.dof();
+    let mut session: Vec<&PoseRecord> = main.poses.iter().collect();
+    if let Some(x) = &extra {
+        session.extend(x.poses.iter());
+    }
+    let is_val = |p: &PoseRecord| p.group.as_deref() == Some("validation");
+    let train_recs: Vec<&PoseRecord> = main.poses.iter().filter(|p| !is_val(p)).collect();
+    let mut held_recs: Vec<&PoseRecord> = main.poses.iter().filter(|p| is_val(p)).collect();
+    if let Some(x) = &extra {
+        held_recs.extend(x.poses.iter());
+    }
+    let train = data::observations(&train_recs, &session, dof);
+    let held = data::observations(&held_recs, &session, dof);
+    if train.len() < 20 {
+        anyhow::bail!(
+            "{}: only {} usable training poses (need ≥ 20)",
+            args.data.display(),
+            train.len()
+        );
+    }
+    let opt = Options {
+        allow_nonparametric: !args.no_nonparametric,
+        ..Options::default()
+    };
+    let d = diagnose::diagnose(&model, &train, &held, &opt)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("{}", args.out.display()))?;
+    let w = |name: &str, text: &str| -> anyhow::Result<()> {
+        let p = args.out.join(name);
+        std::fs::write(&p, text).with_context(|| format!("{}", p.display()))
+    };
+    w(
+        "diagnosis.json",
+        &serde_json::to_string_pretty(&d.to_json())?,
+    )?;
+    w("report.md", &d.report_md())?;
+    let mut metrics = Map::new();
+    let num = |v: Option<f64>| {
+        v.filter(|x| x.is_finite())
+            .map(|x| json!(x))
+            .unwrap_or(Value::Null)
+    };
+    metrics.insert("train_rms_mm".into(), num(Some(d.train_rms_final)));
+    metrics.insert("heldout_rms_mm_before".into(), num(d.heldout_rms_nominal));
+    metrics.insert(
+        "heldout_rms_mm_geometric".into(),
+        num(d.heldout_rms_geometric),
+    );
+    metrics.insert("heldout_rms_mm_after".into(), num(d.heldout_rms_final));
+    let cal = CalibrationFile {
+        format: "robocal-calibration/1".into(),
+        robot: main.header.robot.clone(),
+        params: d.state.model.to_cal_params(),
+        effects: d.cal_effects(),
+        metrics,
+        extra: Map::new(),
+    };
+    w("calibration.json", &serde_json::to_string_pretty(&cal)?)?;
+    let mut csv = String::from("id,x_mm,y_mm,z_mm\n");
+    for o in &held {
+        let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
+        csv.push_str(&format!("{},{:.5},{:.5},{:.5}\n", o.ctx.id, p.x, p.y, p.z));
+    }
+    w("heldout_predictions.csv", &csv)?;
+    for (i, e) in d.state.effects.iter().enumerate() {
+        let (pts, xl, yl) = plot::partial_residual(&d.state, &train, i);
+        let name = format!("effect_{}_{}.svg", i + 1, e.block.kind());
+        plot::write_svg(&args.out.join(&name), &e.block.label(), &pts, &xl, &yl)?;
+    }
+    let f = |v: Option<f64>| v.map(|x| format!("{x:.4}")).unwrap_or_else(|| "—".into());
+    let mut s = format!(
+        "held-out RMS (mm): nominal {} → geometric {} → final {}\n",
+        f(d.heldout_rms_nominal),
+        f(d.heldout_rms_geometric),
+        f(d.heldout_rms_final)
+    );
+    for st in &d.steps {
+        s.push_str(&format!(
+            "  + {}: train {:.4} → {:.4} mm, held-out {} → {} mm\n",
+            st.evidence.label,
+            st.train_rms_before,
+            st.train_rms_after,
+            f(st.heldout_rms_before),
+            f(st.heldout_rms_after)
+        ));
+    }
+    if d.steps.is_empty() {
+        s.push_str("  no effect added\n");
+    }
+    s.push_str(&format!("wrote {}", args.out.display()));
+    Ok(s)
 }

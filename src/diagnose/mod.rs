@@ -1,1 +1,684 @@
-//! diagnose (filled by its issue).
+//! Residual diagnosis: find the residual a geometric calibration leaves, trace it to a
+//! physical effect the model lacks, add that effect, refit, and report the held-out error
+//! before and after (issue 9, `robocal diagnose`).
+//!
+//! Method (`docs/effects.md` §5.2 / §7 of the shared docs): after the geometric fit, every
+//! candidate effect of the library ([`effects::Block`]) gives a block `G` of regressor
+//! columns on the stacked residual. Each block is orthogonalised against the current model
+//! Jacobian `J` (`G̃ = (I − P_J) G`) and scored by the nested-model F test, ΔBIC and the
+//! time-blocked cross-validated RMS gain; a block that the model absorbs (small
+//! [`stats::independence`]) is "not identifiable", never an effect. The best significant
+//! block (Bonferroni over the number of tests) is added, all parameters are refitted
+//! jointly, and the loop repeats until nothing significant remains. Only then, if a kernel
+//! regression of the residual on joint space still predicts held-out folds clearly better
+//! than zero, a `nonparametric` correction is added and the report says that no physical
+//! effect of the library explained that part.
+//!
+//! Units inside: mm, rad, s. Files: mm, degrees, seconds.
+use nalgebra::{DMatrix, DVector, Vector3};
+use serde_json::{json, Value};
+
+pub mod data;
+pub mod effects;
+pub mod fit;
+pub mod nonparam;
+pub mod plot;
+pub mod stats;
+
+use data::Obs;
+use effects::{block_columns, eval_pose, mass_points, Block, Driver, Effect};
+use fit::{fit, fit_nominal, residuals, rms3, stack, State};
+use stats::{f_sf, independence, orth_basis, project_out, CvBase};
+
+use crate::model::KinematicModel;
+
+/// Tuning of the selection (defaults are the documented ones).
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Family-wise false-positive level of one selection round (Bonferroni-divided by the
+    /// number of tests).
+    pub alpha: f64,
+    /// Minimum ΔBIC of an accepted effect (10 = "strong").
+    pub min_delta_bic: f64,
+    /// Minimum relative gain of the time-blocked cross-validated RMS.
+    pub min_cv_gain: f64,
+    /// Minimum independence of a block from the current model (0..1).
+    pub min_independence: f64,
+    /// At most this many physical effects.
+    pub max_effects: usize,
+    /// Number of contiguous time blocks for cross-validation.
+    pub n_folds: usize,
+    /// Minimum relative CV gain of the nonparametric correction.
+    pub nonparam_min_gain: f64,
+    /// Whether a nonparametric correction may be added.
+    pub allow_nonparametric: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            alpha: 0.01,
+            min_delta_bic: 10.0,
+            min_cv_gain: 0.01,
+            min_independence: 0.1,
+            max_effects: 4,
+            n_folds: 5,
+            nonparam_min_gain: 0.10,
+            allow_nonparametric: true,
+        }
+    }
+}
+
+/// Evidence for one candidate in one round.
+#[derive(Debug, Clone)]
+pub struct Score {
+    pub label: String,
+    pub block: Block,
+    pub df: usize,
+    pub f: f64,
+    pub p_value: f64,
+    pub delta_bic: f64,
+    /// `1 − cv_with/cv_without` (time-blocked CV of the linearised augmented fit).
+    pub cv_gain: f64,
+    pub independence: f64,
+    /// Number of tests this candidate stands for (change-point grids count every point).
+    pub tests: usize,
+}
+
+/// One accepted step of the chain.
+#[derive(Debug, Clone)]
+pub struct Step {
+    pub effect: Effect,
+    pub evidence: Score,
+    pub train_rms_before: f64,
+    pub train_rms_after: f64,
+    pub heldout_rms_before: Option<f64>,
+    pub heldout_rms_after: Option<f64>,
+}
+
+/// The result of a diagnosis.
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub nominal: State,
+    pub geometric: State,
+    pub state: State,
+    pub steps: Vec<Step>,
+    /// All candidate scores per round (round 0 = after the geometric fit).
+    pub rounds: Vec<Vec<Score>>,
+    /// Candidates that were significant but absorbed by the model (not identifiable).
+    pub not_identifiable: Vec<Score>,
+    /// Nonparametric correction, when one was needed: (CV RMS before, after).
+    pub nonparametric: Option<(f64, f64)>,
+    /// Residuals of the training data before the first effect (for plots).
+    pub train_rms_nominal: f64,
+    pub train_rms_geometric: f64,
+    pub train_rms_final: f64,
+    pub heldout_rms_nominal: Option<f64>,
+    pub heldout_rms_geometric: Option<f64>,
+    pub heldout_rms_final: Option<f64>,
+    pub n_train: usize,
+    pub n_heldout: usize,
+    /// Effects considered but not testable on this data, with the reason.
+    pub untestable: Vec<(String, String)>,
+}
+
+impl Diagnosis {
+    /// Whether the chain found a physical effect.
+    pub fn found_physical(&self) -> bool {
+        self.steps
+            .iter()
+            .any(|s| !matches!(s.effect.block, Block::Nonparametric(_)))
+    }
+}
+
+/// Time-block fold of every observation (obs sorted by time).
+fn folds(obs: &[Obs], k: usize) -> Vec<usize> {
+    let n = obs.len().max(1);
+    (0..obs.len()).map(|i| (i * k / n).min(k - 1)).collect()
+}
+
+fn row_folds(obs_fold: &[usize]) -> Vec<usize> {
+    obs_fold.iter().flat_map(|f| [*f, *f, *f]).collect()
+}
+
+/// The candidate library for this data (and the effects it cannot test, with reasons).
+pub fn candidates(
+    model: &KinematicModel,
+    train: &[Obs],
+) -> (Vec<Vec<Block>>, Vec<(String, String)>) {
+    let n = model.dof();
+    let mut out: Vec<Vec<Block>> = Vec::new();
+    let mut untestable = Vec::new();
+    for j in 1..=n {
+        let pts = mass_points(model, j);
+        if !pts.is_empty() {
+            // Skip joints whose gravity torque does not vary (vertical axes).
+            let taus: Vec<f64> = train
+                .iter()
+                .map(|o| {
+                    effects::gravity_torques(model, &o.ctx.q, j, &pts)
+                        .iter()
+                        .sum::<f64>()
+                })
+                .collect();
+            let m = taus.iter().sum::<f64>() / taus.len().max(1) as f64;
+            let sd = (taus.iter().map(|t| (t - m).powi(2)).sum::<f64>() / taus.len().max(1) as f64)
+                .sqrt();
+            if sd > 0.05 {
+                out.push(vec![Block::Compliance {
+                    joint: j,
+                    points: pts,
+                }]);
+            }
+        }
+        let plus = train
+            .iter()
+            .filter(|o| o.ctx.approach.get(j - 1) == Some(&1.0))
+            .count();
+        let minus = train
+            .iter()
+            .filter(|o| o.ctx.approach.get(j - 1) == Some(&-1.0))
+            .count();
+        if plus >= 5 && minus >= 5 {
+            out.push(vec![Block::Backlash { joint: j }]);
+        }
+        out.push(vec![Block::Eccentricity { joint: j }]);
+    }
+    let t0 = train.iter().map(|o| o.ctx.t).fold(f64::INFINITY, f64::min);
+    let t1 = train
+        .iter()
+        .map(|o| o.ctx.t)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let temps: Vec<f64> = train.iter().filter_map(|o| o.ctx.temp_c).collect();
+    let mut drivers = Vec::new();
+    if t1 - t0 > 60.0 {
+        drivers.push(Driver::Time { t0_s: t0 });
+    } else {
+        untestable.push((
+            "thermal_drift (time)".into(),
+            "the session spans less than a minute".into(),
+        ));
+    }
+    if temps.len() == train.len() && !temps.is_empty() {
+        let lo = temps.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        if hi - lo > 0.5 {
+            drivers.push(Driver::Temp { t0_c: lo });
+        }
+    }
+    for d in &drivers {
+        for j in 1..=n {
+            out.push(vec![Block::JointDrift {
+                joint: j,
+                driver: *d,
+            }]);
+        }
+        out.push(vec![Block::LengthDrift { driver: *d }]);
+    }
+    out.push(vec![Block::TrackerScale]);
+    if train.len() >= 20 && t1 > t0 {
+        let mut ts: Vec<f64> = train.iter().map(|o| o.ctx.t).collect();
+        ts.sort_by(|a, b| a.total_cmp(b));
+        let grid: Vec<Block> = (2..=18)
+            .map(|k| {
+                let i = k * (ts.len() - 1) / 20;
+                // change point half-way between two consecutive poses
+                let t = 0.5 * (ts[i] + ts[(i + 1).min(ts.len() - 1)]);
+                Block::BaseShift { t_change: t }
+            })
+            .collect();
+        out.push(grid);
+    }
+    let with_qd = train.iter().filter(|o| o.ctx.qd.is_some()).count();
+    if with_qd * 2 >= train.len() && with_qd > 0 {
+        out.push(vec![Block::Latency]);
+    } else {
+        untestable.push((
+            "latency".into(),
+            "records carry no joint velocity (stop-and-measure data): latency is unobservable and irrelevant".into(),
+        ));
+    }
+    (out, untestable)
+}
+
+/// Score every candidate against the residual of `state` on `train`.
+pub fn score_round(
+    state: &State,
+    train: &[Obs],
+    cands: &[Vec<Block>],
+    opt: &Options,
+) -> Vec<Score> {
+    let (r, j) = stack(state, train);
+    let nrow = r.len();
+    let q = orth_basis(&j);
+    let rank_j = q.ncols();
+    let rss0 = r.norm_squared();
+    let rf = row_folds(&folds(train, opt.n_folds));
+    let cvb = CvBase::new(&j, &r, &rf, opt.n_folds);
+    let cv0 = cvb.rms(&j, &DMatrix::zeros(nrow, 0), &r);
+    // per-pose model Jacobian and prediction
+    let evals: Vec<_> = train
+        .iter()
+        .map(|o| eval_pose(&state.model, &state.effects, &o.ctx))
+        .collect();
+    let raw_pred: Vec<_> = train
+        .iter()
+        .map(|o| {
+            let d = effects::joint_offsets(&state.model, &state.effects, &o.ctx);
+            let th: Vec<f64> = o.ctx.q.iter().zip(&d).map(|(a, b)| a + b).collect();
+            effects::pose_model(&state.model, &state.effects, &o.ctx).measured_point(&th)
+        })
+        .collect();
+    let mut out = Vec::new();
+    for group in cands {
+        let mut best: Option<(Score, DMatrix<f64>)> = None;
+        for b in group {
+            let pk = b.n_coefs();
+            let mut g = DMatrix::zeros(nrow, pk);
+            for (k, o) in train.iter().enumerate() {
+                let cols =
+                    block_columns(b, &state.model, &evals[k].jac_model, &raw_pred[k], &o.ctx);
+                for (c, v) in cols.iter().enumerate() {
+                    for a in 0..3 {
+                        g[(3 * k + a, c)] = v[a];
+                    }
+                }
+            }
+            if g.iter().all(|v| v.abs() < 1e-15) {
+                continue;
+            }
+            let gp = project_out(&q, &g);
+            let indep = independence(&g, &gp);
+            let qg = orth_basis(&gp);
+            let df = qg.ncols();
+            if df == 0 {
+                continue;
+            }
+            let ess = (qg.transpose() * &r).norm_squared().min(rss0);
+            let rss1 = (rss0 - ess).max(1e-300);
+            let df2 = nrow.saturating_sub(rank_j + df).max(1) as f64;
+            let f = (ess / df as f64) / (rss1 / df2);
+            let p = f_sf(f, df as f64, df2);
+            let dbic = nrow as f64 * (rss0 / rss1).ln() - df as f64 * (nrow as f64).ln();
+            let s = Score {
+                label: b.label(),
+                block: b.clone(),
+                df,
+                f,
+                p_value: p,
+                delta_bic: dbic,
+                cv_gain: f64::NAN,
+                independence: indep,
+                tests: group.len(),
+            };
+            if best
+                .as_ref()
+                .is_none_or(|(bs, _)| s.delta_bic > bs.delta_bic)
+            {
+                best = Some((s, g));
+            }
+        }
+        if let Some((mut s, g)) = best {
+            let cv1 = cvb.rms(&j, &g, &r);
+            s.cv_gain = 1.0 - cv1 / cv0;
+            out.push(s);
+        }
+    }
+    out.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
+    out
+}
+
+fn accepted(s: &Score, m_tests: usize, opt: &Options) -> bool {
+    s.p_value < opt.alpha / m_tests as f64
+        && s.delta_bic > opt.min_delta_bic
+        && s.cv_gain > opt.min_cv_gain
+        && s.independence >= opt.min_independence
+}
+
+fn heldout_rms(state: &State, heldout: &[Obs]) -> Option<f64> {
+    (!heldout.is_empty()).then(|| rms3(&residuals(state, heldout)))
+}
+
+/// Run the whole diagnosis. `model` is the nominal model (its free flags are used for the
+/// geometric fit after [`KinematicModel::fix_point_redundancies`]).
+pub fn diagnose(
+    model: &KinematicModel,
+    train: &[Obs],
+    heldout: &[Obs],
+    opt: &Options,
+) -> anyhow::Result<Diagnosis> {
+    let mut model = model.clone();
+    model.fix_point_redundancies();
+    fit_nominal(&mut model, train)?;
+    let nominal = State {
+        model: model.clone(),
+        effects: vec![],
+    };
+    let train_rms_nominal = rms3(&residuals(&nominal, train));
+    let mut state = nominal.clone();
+    let rep = fit(&mut state, train, 50);
+    if rep.rank < rep.n_params {
+        tracing::warn!(
+            "geometric identification Jacobian has rank {} < {} parameters",
+            rep.rank,
+            rep.n_params
+        );
+    }
+    tracing::debug!(
+        "geometric fit: {} iterations, rank {}",
+        rep.iterations,
+        rep.rank
+    );
+    let geometric = state.clone();
+    let train_rms_geometric = rms3(&residuals(&geometric, train));
+    let (cands, untestable) = candidates(&state.model, train);
+    let mut remaining = cands;
+    let mut steps = Vec::new();
+    let mut rounds = Vec::new();
+    let mut not_identifiable: Vec<Score> = Vec::new();
+    for _ in 0..opt.max_effects {
+        let t_round = std::time::Instant::now();
+        let scores = score_round(&state, train, &remaining, opt);
+        tracing::debug!(
+            "scored {} candidates in {:?}",
+            scores.len(),
+            t_round.elapsed()
+        );
+        let m_tests: usize = remaining.iter().map(|g| g.len()).sum::<usize>().max(1);
+        for s in &scores {
+            let signif = s.p_value < opt.alpha / m_tests as f64 && s.delta_bic > opt.min_delta_bic;
+            if signif
+                && s.independence < opt.min_independence
+                && !not_identifiable.iter().any(|x| x.label == s.label)
+            {
+                not_identifiable.push(s.clone());
+            }
+        }
+        let pick = scores.iter().find(|s| accepted(s, m_tests, opt)).cloned();
+        rounds.push(scores);
+        let Some(best) = pick else {
+            break;
+        };
+        let before_train = rms3(&residuals(&state, train));
+        let before_held = heldout_rms(&state, heldout);
+        state.effects.push(Effect::zero(best.block.clone()));
+        let t_fit = std::time::Instant::now();
+        let rep = fit(&mut state, train, 50);
+        tracing::debug!(
+            "refit with {}: {} iterations in {:?}",
+            best.label,
+            rep.iterations,
+            t_fit.elapsed()
+        );
+        let effect = state.effects.last().cloned().expect("just pushed");
+        steps.push(Step {
+            effect,
+            evidence: best.clone(),
+            train_rms_before: before_train,
+            train_rms_after: rms3(&residuals(&state, train)),
+            heldout_rms_before: before_held,
+            heldout_rms_after: heldout_rms(&state, heldout),
+        });
+        // Drop the group the accepted block came from (one base shift, one per kind+joint).
+        remaining.retain(|g| {
+            !g.iter().any(|b| {
+                b.label() == best.block.label()
+                    || (matches!(b, Block::BaseShift { .. })
+                        && matches!(best.block, Block::BaseShift { .. }))
+            })
+        });
+    }
+    // Nonparametric correction of what remains, only if it predicts held-out folds.
+    let mut nonparametric = None;
+    if opt.allow_nonparametric && train.len() >= 40 {
+        let r = residuals(&state, train);
+        let qs: Vec<Vec<f64>> = train.iter().map(|o| o.ctx.q.clone()).collect();
+        let rv: Vec<Vector3<f64>> = (0..train.len())
+            .map(|k| Vector3::new(r[3 * k], r[3 * k + 1], r[3 * k + 2]))
+            .collect();
+        let fo = folds(train, opt.n_folds);
+        if let Some(cv) = nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds) {
+            if cv.cv_rms_after < (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
+                if let Some(rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) {
+                    let before_train = rms3(&r);
+                    let before_held = heldout_rms(&state, heldout);
+                    let e = Effect {
+                        block: Block::Nonparametric(Box::new(rbf)),
+                        coefs: vec![],
+                        std: vec![],
+                    };
+                    state.effects.push(e.clone());
+                    let ev = Score {
+                        label: "nonparametric".into(),
+                        block: e.block.clone(),
+                        df: train.len() * 3,
+                        f: f64::NAN,
+                        p_value: f64::NAN,
+                        delta_bic: f64::NAN,
+                        cv_gain: 1.0 - cv.cv_rms_after / cv.cv_rms_before,
+                        independence: f64::NAN,
+                        tests: 9,
+                    };
+                    steps.push(Step {
+                        effect: e,
+                        evidence: ev,
+                        train_rms_before: before_train,
+                        train_rms_after: rms3(&residuals(&state, train)),
+                        heldout_rms_before: before_held,
+                        heldout_rms_after: heldout_rms(&state, heldout),
+                    });
+                    nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
+                }
+            }
+        }
+    }
+    Ok(Diagnosis {
+        heldout_rms_nominal: heldout_rms(&nominal, heldout),
+        heldout_rms_geometric: heldout_rms(&geometric, heldout),
+        heldout_rms_final: heldout_rms(&state, heldout),
+        train_rms_nominal,
+        train_rms_geometric,
+        train_rms_final: rms3(&residuals(&state, train)),
+        n_train: train.len(),
+        n_heldout: heldout.len(),
+        nominal,
+        geometric,
+        state,
+        steps,
+        rounds,
+        not_identifiable,
+        nonparametric,
+        untestable,
+    })
+}
+
+fn fnum(v: f64) -> Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        Value::Null
+    }
+}
+
+fn onum(v: Option<f64>) -> Value {
+    v.map(fnum).unwrap_or(Value::Null)
+}
+
+fn score_json(s: &Score) -> Value {
+    json!({
+        "candidate": s.label, "kind": s.block.kind(), "joint": s.block.joint(),
+        "df": s.df, "F": fnum(s.f), "p_value": fnum(s.p_value), "delta_bic": fnum(s.delta_bic),
+        "cv_gain": fnum(s.cv_gain), "independence": fnum(s.independence), "tests": s.tests,
+    })
+}
+
+impl Diagnosis {
+    /// `diagnosis.json` content.
+    pub fn to_json(&self) -> Value {
+        let chain: Vec<Value> = self
+            .steps
+            .iter()
+            .map(|s| {
+                let coefs: Vec<Value> = s
+                    .effect
+                    .block
+                    .coef_names()
+                    .iter()
+                    .zip(&s.effect.coefs)
+                    .zip(&s.effect.std)
+                    .map(|((n, v), sd)| {
+                        json!({"name": n, "value": fnum(*v), "std": fnum(*sd),
+                               "ci95": [fnum(v - 1.96 * sd), fnum(v + 1.96 * sd)]})
+                    })
+                    .collect();
+                json!({
+                    "effect": s.effect.to_cal(),
+                    "label": s.evidence.label,
+                    "evidence": score_json(&s.evidence),
+                    "coefficients": coefs,
+                    "train_rms_mm_before": fnum(s.train_rms_before),
+                    "train_rms_mm_after": fnum(s.train_rms_after),
+                    "heldout_rms_mm_before": onum(s.heldout_rms_before),
+                    "heldout_rms_mm_after": onum(s.heldout_rms_after),
+                })
+            })
+            .collect();
+        json!({
+            "format": "robocal-diagnosis/1",
+            "n_train": self.n_train,
+            "n_heldout": self.n_heldout,
+            "physical_effect_found": self.found_physical(),
+            "nonparametric_used": self.nonparametric.is_some(),
+            "train_rms_mm": {"nominal": fnum(self.train_rms_nominal), "geometric": fnum(self.train_rms_geometric), "final": fnum(self.train_rms_final)},
+            "heldout_rms_mm": {"nominal": onum(self.heldout_rms_nominal), "geometric": onum(self.heldout_rms_geometric), "final": onum(self.heldout_rms_final)},
+            "chain": chain,
+            "rounds": self.rounds.iter().map(|r| r.iter().map(score_json).collect::<Vec<_>>()).collect::<Vec<_>>(),
+            "not_identifiable": self.not_identifiable.iter().map(score_json).collect::<Vec<_>>(),
+            "untestable": self.untestable.iter().map(|(a, b)| json!({"effect": a, "reason": b})).collect::<Vec<_>>(),
+        })
+    }
+
+    /// Effects in calibration-file form.
+    pub fn cal_effects(&self) -> Vec<crate::dataset::CalEffect> {
+        self.state.effects.iter().map(Effect::to_cal).collect()
+    }
+
+    /// Human report (Markdown).
+    pub fn report_md(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let f = |v: Option<f64>| v.map(|x| format!("{x:.4}")).unwrap_or_else(|| "—".into());
+        let _ = writeln!(s, "# Residual diagnosis\n");
+        let _ = writeln!(
+            s,
+            "{} training poses, {} held-out poses. RMS = 3-D point error (mm).\n",
+            self.n_train, self.n_heldout
+        );
+        let _ = writeln!(s, "| model | train RMS | held-out RMS |\n|---|---|---|");
+        let _ = writeln!(
+            s,
+            "| nominal (base + tool fitted) | {:.4} | {} |",
+            self.train_rms_nominal,
+            f(self.heldout_rms_nominal)
+        );
+        let _ = writeln!(
+            s,
+            "| geometric (all identifiable kinematic parameters) | {:.4} | {} |",
+            self.train_rms_geometric,
+            f(self.heldout_rms_geometric)
+        );
+        let _ = writeln!(
+            s,
+            "| final (geometric + effects) | {:.4} | {} |\n",
+            self.train_rms_final,
+            f(self.heldout_rms_final)
+        );
+        let _ = writeln!(s, "## Chain\n");
+        if self.steps.is_empty() {
+            let _ = writeln!(s, "No effect was added: no candidate explained a significant part of the residual (Bonferroni α over the candidate count, ΔBIC, cross-validated gain).\n");
+        }
+        for (i, st) in self.steps.iter().enumerate() {
+            let e = &st.evidence;
+            let _ = writeln!(
+                s,
+                "{}. train RMS {:.4} mm → **{}** → {:.4} mm; held-out {} → {} mm",
+                i + 1,
+                st.train_rms_before,
+                e.label,
+                st.train_rms_after,
+                f(st.heldout_rms_before),
+                f(st.heldout_rms_after)
+            );
+            if matches!(st.effect.block, Block::Nonparametric(_)) {
+                let _ = writeln!(s, "   - evidence: kernel regression on joint space, CV gain {:.1} % (time-blocked folds)", 100.0 * e.cv_gain);
+            } else {
+                let _ = writeln!(s, "   - evidence: F = {:.1} (df {}), p = {:.2e} over {} test(s), ΔBIC = {:.1}, CV gain {:.1} %, independence from the geometric model {:.2}", e.f, e.df, e.p_value, e.tests, e.delta_bic, 100.0 * e.cv_gain, e.independence);
+                for ((n, v), sd) in st
+                    .effect
+                    .block
+                    .coef_names()
+                    .iter()
+                    .zip(&st.effect.coefs)
+                    .zip(&st.effect.std)
+                {
+                    let _ = writeln!(
+                        s,
+                        "   - {n} = {v:.4e} ± {:.1e} (95 %: {:.4e} … {:.4e})",
+                        1.96 * sd,
+                        v - 1.96 * sd,
+                        v + 1.96 * sd
+                    );
+                }
+            }
+        }
+        let _ = writeln!(s);
+        if !self.found_physical() && self.nonparametric.is_some() {
+            let _ = writeln!(s, "**No physical effect was identified.** The residual is structured (a kernel regression on joint space predicts held-out folds {:.1} % better than zero), but no effect of the library explains it; a `nonparametric` correction was used instead. Inspect the data for an effect the library does not contain.\n", 100.0 * (1.0 - self.nonparametric.map(|(a, b)| b / a).unwrap_or(1.0)));
+        } else if self.nonparametric.is_some() {
+            let _ = writeln!(s, "Structured residual remained after the physical effects; no further library effect explained it, so a `nonparametric` correction was added.\n");
+        }
+        if !self.not_identifiable.is_empty() {
+            let _ = writeln!(s, "## Significant but not identifiable with this data\n");
+            for x in &self.not_identifiable {
+                let _ = writeln!(s, "- {}: ΔBIC {:.1}, but independence from the geometric model only {:.3}: the geometric parameters absorb it. Excite it with more varied poses (see effects.md §5.3).", x.label, x.delta_bic, x.independence);
+            }
+            let _ = writeln!(s);
+        }
+        if !self.untestable.is_empty() {
+            let _ = writeln!(s, "## Not testable on this data\n");
+            for (a, b) in &self.untestable {
+                let _ = writeln!(s, "- {a}: {b}");
+            }
+            let _ = writeln!(s);
+        }
+        if let Some(r0) = self.rounds.first() {
+            let _ = writeln!(
+                s,
+                "## Candidates after the geometric fit (top 10 by ΔBIC)\n"
+            );
+            let _ = writeln!(s, "| candidate | df | F | p | ΔBIC | CV gain | independence |\n|---|---|---|---|---|---|---|");
+            for x in r0.iter().take(10) {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.2} | {:.2e} | {:.1} | {:.2} % | {:.3} |",
+                    x.label,
+                    x.df,
+                    x.f,
+                    x.p_value,
+                    x.delta_bic,
+                    100.0 * x.cv_gain,
+                    x.independence
+                );
+            }
+        }
+        s
+    }
+}
+
+/// Stacked residual of `state` as 3-vectors per observation.
+pub fn residual_vectors(state: &State, obs: &[Obs]) -> Vec<Vector3<f64>> {
+    let r: DVector<f64> = residuals(state, obs);
+    (0..obs.len())
+        .map(|k| Vector3::new(r[3 * k], r[3 * k + 1], r[3 * k + 2]))
+        .collect()
+}

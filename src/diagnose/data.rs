@@ -1,0 +1,229 @@
+//! Observations for the diagnosis: pose records turned into joint angles (rad), measured
+//! marker points (mm, tracker frame) and the side data effects need (time, temperature,
+//! approach direction per joint, joint velocity when recorded).
+use nalgebra::Point3;
+use std::path::Path;
+
+use crate::dataset::{Header, PoseRecord, Record};
+
+/// Side data of one pose that effect regressors use (internal units: rad, s, °C).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObsCtx {
+    /// Record id (acquisition order).
+    pub id: u64,
+    /// Seconds since the header's `created`.
+    pub t: f64,
+    /// Measured joint angles (rad).
+    pub q: Vec<f64>,
+    /// Approach direction of each joint: sign of `q_i(k) − q_i(k−1)` in acquisition order
+    /// (`0` when unknown or the joint did not move).
+    pub approach: Vec<f64>,
+    /// Temperature (°C) when recorded.
+    pub temp_c: Option<f64>,
+    /// Joint velocity (rad/s) when recorded (`qd` field, deg/s in files).
+    pub qd: Option<Vec<f64>>,
+}
+
+/// One measured pose: context and the measured marker origin (mm, tracker frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Obs {
+    pub ctx: ObsCtx,
+    pub y: Point3<f64>,
+}
+
+/// A loaded dataset: header and pose records in file order.
+#[derive(Debug, Clone)]
+pub struct Loaded {
+    pub header: Header,
+    pub poses: Vec<PoseRecord>,
+    /// Warnings (e.g. a torn last line dropped).
+    pub warnings: Vec<String>,
+}
+
+/// Read a `robocal-dataset/1` JSON Lines file. A torn last line (no newline, not JSON) is
+/// dropped with a warning; any other bad line is an error naming the line.
+pub fn load_jsonl(path: &Path) -> anyhow::Result<Loaded> {
+    let text =
+        std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    parse_jsonl(&text, &path.display().to_string())
+}
+
+/// Parse the text of a dataset (see [`load_jsonl`]); `label` names it in errors.
+pub fn parse_jsonl(text: &str, label: &str) -> anyhow::Result<Loaded> {
+    let ends_with_newline = text.ends_with('\n');
+    let lines: Vec<&str> = text.lines().collect();
+    let mut warnings = Vec::new();
+    let first = lines
+        .first()
+        .ok_or_else(|| anyhow::anyhow!("{label}: empty file"))?;
+    let header: Header =
+        serde_json::from_str(first).map_err(|e| anyhow::anyhow!("{label}:1: bad header: {e}"))?;
+    if header.format != "robocal-dataset/1" {
+        anyhow::bail!(
+            "{label}:1: field \"format\": expected robocal-dataset/1, got {}",
+            header.format
+        );
+    }
+    let mut poses = Vec::new();
+    for (i, line) in lines.iter().enumerate().skip(1) {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let is_last = i + 1 == lines.len();
+        match serde_json::from_str::<Record>(line) {
+            Ok(Record::Pose(p)) => poses.push(p),
+            Ok(_) => {}
+            Err(e) => {
+                let torn = is_last
+                    && !ends_with_newline
+                    && serde_json::from_str::<serde_json::Value>(line).is_err();
+                if torn {
+                    warnings.push(format!("{label}:{}: torn last line dropped", i + 1));
+                } else {
+                    anyhow::bail!("{label}:{}: {e}", i + 1);
+                }
+            }
+        }
+    }
+    Ok(Loaded {
+        header,
+        poses,
+        warnings,
+    })
+}
+
+/// Whether a pose record carries a usable marker measurement.
+fn marker_point(p: &PoseRecord) -> Option<Point3<f64>> {
+    let m = p.marker.as_ref()?;
+    if !m.visible {
+        return None;
+    }
+    let v = m.p?;
+    v.iter()
+        .all(|x| x.is_finite())
+        .then(|| Point3::new(v[0], v[1], v[2]))
+}
+
+fn joint_rad(p: &PoseRecord, dof: usize) -> Option<Vec<f64>> {
+    let q = p.q.as_ref()?;
+    (q.len() == dof && q.iter().all(|x| x.is_finite()))
+        .then(|| q.iter().map(|d| d.to_radians()).collect())
+}
+
+fn qd_rad(p: &PoseRecord, dof: usize) -> Option<Vec<f64>> {
+    let v = p.extra.get("qd")?.as_array()?;
+    let out: Vec<f64> = v.iter().filter_map(|x| x.as_f64()).collect();
+    (out.len() == dof && out.iter().all(|x| x.is_finite()))
+        .then(|| out.iter().map(|d| d.to_radians()).collect())
+}
+
+/// Contexts of every record that has joint angles, in acquisition order (sorted by `t`,
+/// then `id`), with the approach direction computed from that order. Pass the records of
+/// all files of one session together (train and held-out interleave in time), so that the
+/// approach direction of a held-out pose is taken from the pose measured just before it.
+/// An explicit `approach` array on a record (signs per joint) overrides the computed one.
+pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(u64, ObsCtx)> {
+    let mut v: Vec<(&PoseRecord, Vec<f64>)> = records
+        .iter()
+        .filter_map(|p| joint_rad(p, dof).map(|q| (*p, q)))
+        .filter(|(p, _)| p.t.is_finite())
+        .collect();
+    v.sort_by(|a, b| a.0.t.total_cmp(&b.0.t).then(a.0.id.cmp(&b.0.id)));
+    let mut out = Vec::with_capacity(v.len());
+    let mut prev: Option<Vec<f64>> = None;
+    // Motions smaller than this (rad) do not change the approach direction.
+    const MOVE_EPS: f64 = 1e-6;
+    let mut last_sign = vec![0.0; dof];
+    for (p, q) in v {
+        if let Some(pq) = &prev {
+            for i in 0..dof {
+                let dq = q[i] - pq[i];
+                if dq.abs() > MOVE_EPS {
+                    last_sign[i] = dq.signum();
+                }
+            }
+        }
+        let mut approach = last_sign.clone();
+        if let Some(a) = p.extra.get("approach").and_then(|a| a.as_array()) {
+            let s: Vec<f64> = a.iter().filter_map(|x| x.as_f64()).collect();
+            if s.len() == dof {
+                approach = s.iter().map(|x| x.signum()).collect();
+            }
+        }
+        prev = Some(q.clone());
+        out.push((
+            p.id,
+            ObsCtx {
+                id: p.id,
+                t: p.t,
+                q,
+                approach,
+                temp_c: p.temp_c.filter(|x| x.is_finite()),
+                qd: qd_rad(p, dof),
+            },
+        ));
+    }
+    out
+}
+
+/// Observations (records with joints and a visible marker) from `records`, using the
+/// contexts computed over `session` (all records of the session, see [`contexts`]).
+pub fn observations(records: &[&PoseRecord], session: &[&PoseRecord], dof: usize) -> Vec<Obs> {
+    let ctx = contexts(session, dof);
+    let map: std::collections::HashMap<u64, &ObsCtx> = ctx.iter().map(|(id, c)| (*id, c)).collect();
+    let mut out: Vec<Obs> = records
+        .iter()
+        .filter_map(|p| {
+            let y = marker_point(p)?;
+            let c = map.get(&p.id)?;
+            Some(Obs {
+                ctx: (*c).clone(),
+                y,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| a.ctx.t.total_cmp(&b.ctx.t).then(a.ctx.id.cmp(&b.ctx.id)));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(id: u64, t: f64, q: [f64; 2]) -> String {
+        format!(
+            "{{\"kind\":\"pose\",\"id\":{id},\"t\":{t},\"q\":[{},{}],\"marker\":{{\"p\":[1,2,3]}}}}",
+            q[0], q[1]
+        )
+    }
+
+    #[test]
+    fn approach_from_session_order_and_torn_line() {
+        let header = r#"{"format":"robocal-dataset/1","robot":{"model":"x"}}"#;
+        let text = format!(
+            "{header}\n{}\n{}\n{}\n{{\"kind\":\"po",
+            rec(0, 0.0, [0.0, 10.0]),
+            rec(2, 2.0, [5.0, 10.0]),
+            rec(1, 1.0, [10.0, 5.0]),
+        );
+        let l = parse_jsonl(&text, "mem").unwrap();
+        assert_eq!(l.poses.len(), 3);
+        assert_eq!(l.warnings.len(), 1);
+        let refs: Vec<&PoseRecord> = l.poses.iter().collect();
+        let obs = observations(&refs, &refs, 2);
+        assert_eq!(
+            obs.iter().map(|o| o.ctx.id).collect::<Vec<_>>(),
+            vec![0, 1, 2]
+        );
+        assert_eq!(obs[1].ctx.approach, vec![1.0, -1.0]);
+        // joint 2 did not move from id 1 to id 2: keeps its last direction
+        assert_eq!(obs[2].ctx.approach, vec![-1.0, -1.0]);
+        // a bad line that is not the last is an error naming the line
+        let bad = format!(
+            "{header}\n{{\"kind\":\"pose\"}}\n{}\n",
+            rec(0, 0.0, [0.0, 0.0])
+        );
+        let e = parse_jsonl(&bad, "mem").unwrap_err().to_string();
+        assert!(e.contains("mem:2"), "{e}");
+    }
+}

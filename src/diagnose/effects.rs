@@ -1,0 +1,710 @@
+//! The effect library: physical effects a geometric model lacks, each as a block of
+//! regressors that is linear in its coefficients, and the exact (nonlinear) way the fitted
+//! effect changes a prediction.
+//!
+//! Internal units: mm, rad, s, kg, N·m. Calibration files use degrees (see [`Effect::to_cal`]).
+//!
+//! Prediction of a marker point with effects (tracker frame):
+//! 1. joint-angle effects add `δθ_j = Σ_c coef_c · f_c(q, ctx)` to the measured angle `q_j`
+//!    (compliance, backlash, eccentricity, per-joint thermal drift, latency);
+//! 2. frame effects change the model used for that pose (base shift after a change point,
+//!    thermal growth of link lengths);
+//! 3. `tracker_scale` scales the point about the tracker origin: `y = (1 + s) p`;
+//! 4. `nonparametric` adds a kernel correction of `q` (see [`super::nonparam`]).
+use nalgebra::{Matrix3xX, Point3, Vector3};
+use serde_json::{json, Map, Value};
+use std::borrow::Cow;
+
+use super::data::ObsCtx;
+use super::nonparam::Rbf;
+use crate::dataset::CalEffect;
+use crate::model::{KinematicModel, ParamGroup};
+
+/// Standard gravity (m/s²).
+pub const GRAVITY: f64 = 9.80665;
+/// Gravity direction in the robot base frame (the base z axis points up).
+pub const GRAVITY_DIR: [f64; 3] = [0.0, 0.0, -1.0];
+
+/// A point of the generic mass model: an MDH frame origin (1-based frame index) or the
+/// marker/tool point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MassPoint {
+    Frame(usize),
+    Marker,
+}
+
+impl MassPoint {
+    fn label(&self) -> String {
+        match self {
+            MassPoint::Frame(k) => format!("frame{k}"),
+            MassPoint::Marker => "marker".into(),
+        }
+    }
+    fn parse(s: &str) -> Option<Self> {
+        if s == "marker" {
+            return Some(MassPoint::Marker);
+        }
+        s.strip_prefix("frame")?.parse().ok().map(MassPoint::Frame)
+    }
+}
+
+/// What drives a thermal effect.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Driver {
+    /// Hours since `t0_s` (s).
+    Time { t0_s: f64 },
+    /// Temperature rise (°C) above `t0_c`.
+    Temp { t0_c: f64 },
+}
+
+impl Driver {
+    /// The driver value for one pose (hours or K).
+    pub fn value(&self, ctx: &ObsCtx) -> f64 {
+        match self {
+            Driver::Time { t0_s } => (ctx.t - t0_s) / 3600.0,
+            Driver::Temp { t0_c } => ctx.temp_c.map(|t| t - t0_c).unwrap_or(0.0),
+        }
+    }
+    fn unit(&self) -> &'static str {
+        match self {
+            Driver::Time { .. } => "hour",
+            Driver::Temp { .. } => "K",
+        }
+    }
+}
+
+/// One candidate effect, before its coefficients are known.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Block {
+    /// Joint compliance under gravity: `δθ_j = Σ_c coef_c τ_c(q)`, `τ_c` the gravity torque
+    /// (N·m) about joint `j` of 1 kg at mass point `c` (coef: rad·kg/(N·m) = compliance × mass).
+    Compliance {
+        joint: usize,
+        points: Vec<MassPoint>,
+    },
+    /// Backlash / lost motion: `δθ_j = b · s_j`, `s_j` the approach direction.
+    Backlash { joint: usize },
+    /// Encoder/gear eccentricity: `δθ_j = a1 sin q + b1 cos q + a2 sin 2q + b2 cos 2q`.
+    Eccentricity { joint: usize },
+    /// Thermal offset drift of one joint: `δθ_j = κ · x`, `x` the driver.
+    JointDrift { joint: usize, driver: Driver },
+    /// Thermal growth of every link length: `a_i, d_i ← (1 + g·x)·a_i, d_i`.
+    LengthDrift { driver: Driver },
+    /// Tracker scale about its origin.
+    TrackerScale,
+    /// Tracker–base shift: the base pose changes by a small twist after `t_change` (s).
+    BaseShift { t_change: f64 },
+    /// Timing latency: `y(t) = p(t − Δt)`, i.e. `δθ = −q̇ Δt` (needs recorded `qd`).
+    Latency,
+    /// A data-driven correction of the joint-space residual.
+    Nonparametric(Box<Rbf>),
+}
+
+impl Block {
+    /// Effect kind (the contract's names).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Block::Compliance { .. } => "joint_compliance",
+            Block::Backlash { .. } => "backlash",
+            Block::Eccentricity { .. } => "joint_eccentricity",
+            Block::JointDrift { .. } | Block::LengthDrift { .. } => "thermal_drift",
+            Block::TrackerScale => "tracker_scale",
+            Block::BaseShift { .. } => "base_shift",
+            Block::Latency => "latency",
+            Block::Nonparametric(_) => "nonparametric",
+        }
+    }
+    /// The joint (1-based) the effect belongs to, if any.
+    pub fn joint(&self) -> Option<usize> {
+        match self {
+            Block::Compliance { joint, .. }
+            | Block::Backlash { joint }
+            | Block::Eccentricity { joint }
+            | Block::JointDrift { joint, .. } => Some(*joint),
+            _ => None,
+        }
+    }
+    /// Number of linear coefficients.
+    pub fn n_coefs(&self) -> usize {
+        match self {
+            Block::Compliance { points, .. } => points.len(),
+            Block::Eccentricity { .. } => 4,
+            Block::BaseShift { .. } => 6,
+            Block::Nonparametric(_) => 0,
+            _ => 1,
+        }
+    }
+    /// A short human label, e.g. `joint_compliance(j2)`.
+    pub fn label(&self) -> String {
+        let extra = match self {
+            Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => match driver {
+                Driver::Time { .. } => ", time".to_string(),
+                Driver::Temp { .. } => ", temperature".to_string(),
+            },
+            Block::BaseShift { t_change } => format!(", t≥{t_change:.1}s"),
+            _ => String::new(),
+        };
+        let lengths = if matches!(self, Block::LengthDrift { .. }) {
+            "link lengths"
+        } else {
+            ""
+        };
+        match self.joint() {
+            Some(j) => format!("{}(j{j}{extra})", self.kind()),
+            None if extra.is_empty() && lengths.is_empty() => self.kind().to_string(),
+            None => format!("{}({lengths}{extra})", self.kind()),
+        }
+    }
+    /// Names of the coefficients with their internal unit.
+    pub fn coef_names(&self) -> Vec<String> {
+        match self {
+            Block::Compliance { points, .. } => points
+                .iter()
+                .map(|p| format!("c·m@{} [rad·kg/Nm]", p.label()))
+                .collect(),
+            Block::Backlash { .. } => vec!["half lost motion [rad]".into()],
+            Block::Eccentricity { .. } => vec![
+                "sin q [rad]".into(),
+                "cos q [rad]".into(),
+                "sin 2q [rad]".into(),
+                "cos 2q [rad]".into(),
+            ],
+            Block::JointDrift { driver, .. } => vec![format!("rate [rad/{}]", driver.unit())],
+            Block::LengthDrift { driver } => vec![format!("growth [1/{}]", driver.unit())],
+            Block::TrackerScale => vec!["scale [1]".into()],
+            Block::BaseShift { .. } => [
+                "dx [mm]",
+                "dy [mm]",
+                "dz [mm]",
+                "drx [rad]",
+                "dry [rad]",
+                "drz [rad]",
+            ]
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
+            Block::Latency => vec!["latency [s]".into()],
+            Block::Nonparametric(_) => vec![],
+        }
+    }
+
+    /// Sparse joint-angle regressors: `(joint index 0-based, coef index, feature)` so that
+    /// `δθ_joint += coef · feature`. Empty for effects that do not act on joint angles.
+    pub fn joint_features(&self, model: &KinematicModel, ctx: &ObsCtx) -> Vec<(usize, usize, f64)> {
+        let n = model.dof();
+        match self {
+            Block::Compliance { joint, points } => {
+                let j = *joint;
+                if j == 0 || j > n {
+                    return vec![];
+                }
+                gravity_torques(model, &ctx.q, j, points)
+                    .into_iter()
+                    .enumerate()
+                    .map(|(c, tau)| (j - 1, c, tau))
+                    .collect()
+            }
+            Block::Backlash { joint } => match ctx.approach.get(joint.wrapping_sub(1)) {
+                Some(s) if *joint >= 1 && *joint <= n => vec![(joint - 1, 0, *s)],
+                _ => vec![],
+            },
+            Block::Eccentricity { joint } => match ctx.q.get(joint.wrapping_sub(1)) {
+                Some(&q) if *joint >= 1 && *joint <= n => vec![
+                    (joint - 1, 0, q.sin()),
+                    (joint - 1, 1, q.cos()),
+                    (joint - 1, 2, (2.0 * q).sin()),
+                    (joint - 1, 3, (2.0 * q).cos()),
+                ],
+                _ => vec![],
+            },
+            Block::JointDrift { joint, driver } if *joint >= 1 && *joint <= n => {
+                vec![(joint - 1, 0, driver.value(ctx))]
+            }
+            Block::Latency => match &ctx.qd {
+                Some(qd) => qd
+                    .iter()
+                    .take(n)
+                    .enumerate()
+                    .map(|(j, v)| (j, 0, -v))
+                    .collect(),
+                None => vec![],
+            },
+            _ => vec![],
+        }
+    }
+}
+
+/// Gravity torque (N·m) about joint `joint` (1-based) of 1 kg at each mass point, at `q`.
+pub fn gravity_torques(
+    model: &KinematicModel,
+    q: &[f64],
+    joint: usize,
+    points: &[MassPoint],
+) -> Vec<f64> {
+    let n = model.dof();
+    let fj = model.joint_frame(q, joint.min(n));
+    let z = fj.rotation * Vector3::z();
+    let o = fj.translation.vector;
+    let g = Vector3::from(GRAVITY_DIR) * GRAVITY;
+    points
+        .iter()
+        .map(|p| {
+            let c = match p {
+                MassPoint::Frame(k) => model.joint_frame(q, (*k).min(n)).translation.vector,
+                MassPoint::Marker => model.tool_pose_in_base(q).translation.vector,
+            };
+            // mm → m
+            z.dot(&((c - o) * 1e-3).cross(&g))
+        })
+        .collect()
+}
+
+/// Distinct mass points downstream of joint `joint` (1-based): origins of the following
+/// MDH frames (frames that coincide, e.g. at a spherical wrist, count once) and the marker.
+pub fn mass_points(model: &KinematicModel, joint: usize) -> Vec<MassPoint> {
+    let n = model.dof();
+    let q0 = vec![0.0; n];
+    let mut pts: Vec<(MassPoint, Vector3<f64>)> = Vec::new();
+    let origin = model.joint_frame(&q0, joint.min(n)).translation.vector;
+    let mut last = origin;
+    for k in joint + 1..=n {
+        let p = model.joint_frame(&q0, k).translation.vector;
+        if (p - last).norm() > 30.0 {
+            pts.push((MassPoint::Frame(k), p));
+            last = p;
+        }
+    }
+    let m = model.tool_pose_in_base(&q0).translation.vector;
+    if pts.iter().all(|(_, p)| (p - m).norm() > 30.0) && (m - origin).norm() > 30.0 {
+        pts.push((MassPoint::Marker, m));
+    }
+    pts.into_iter().map(|(p, _)| p).collect()
+}
+
+/// A fitted effect: its block, coefficients (internal units) and their standard deviations.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Effect {
+    pub block: Block,
+    pub coefs: Vec<f64>,
+    pub std: Vec<f64>,
+}
+
+impl Effect {
+    /// A zero effect of a block.
+    pub fn zero(block: Block) -> Self {
+        let n = block.n_coefs();
+        Effect {
+            block,
+            coefs: vec![0.0; n],
+            std: vec![f64::NAN; n],
+        }
+    }
+}
+
+/// `δθ` (rad, per joint) of all joint-angle effects at one pose.
+pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Vec<f64> {
+    let mut d = vec![0.0; model.dof()];
+    for e in effects {
+        for (j, c, f) in e.block.joint_features(model, ctx) {
+            if let Some(v) = e.coefs.get(c) {
+                d[j] += v * f;
+            }
+        }
+    }
+    d
+}
+
+/// The model a pose is predicted with (base shift / link growth applied), borrowed when
+/// no frame effect applies.
+pub fn pose_model<'a>(
+    model: &'a KinematicModel,
+    effects: &[Effect],
+    ctx: &ObsCtx,
+) -> Cow<'a, KinematicModel> {
+    let mut out: Cow<KinematicModel> = Cow::Borrowed(model);
+    for e in effects {
+        match &e.block {
+            Block::BaseShift { t_change } if ctx.t >= *t_change && e.coefs.len() == 6 => {
+                let m = out.to_mut();
+                for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
+                    let name = format!("base_{sfx}");
+                    if let Some(v) = m.param(&name) {
+                        let _ = m.set_param(&name, v + e.coefs[k]);
+                    }
+                }
+            }
+            Block::LengthDrift { driver } if e.coefs.len() == 1 => {
+                let f = 1.0 + e.coefs[0] * driver.value(ctx);
+                let m = out.to_mut();
+                let mut v = m.param_values();
+                for (i, p) in m.params().iter().enumerate() {
+                    if matches!(p.group, ParamGroup::Joint(_))
+                        && (p.name.starts_with('a') && !p.name.starts_with("alpha")
+                            || p.name.starts_with('d'))
+                    {
+                        v[i] *= f;
+                    }
+                }
+                m.set_param_values(&v);
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+fn tracker_scale(effects: &[Effect]) -> f64 {
+    effects
+        .iter()
+        .filter(|e| matches!(e.block, Block::TrackerScale))
+        .filter_map(|e| e.coefs.first())
+        .sum()
+}
+
+/// Predicted marker origin (mm, tracker frame) of one pose with all effects applied.
+pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Point3<f64> {
+    let d = joint_offsets(model, effects, ctx);
+    let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
+    let m = pose_model(model, effects, ctx);
+    let p = m.measured_point(&th);
+    let mut y = p.coords * (1.0 + tracker_scale(effects));
+    for e in effects {
+        if let Block::Nonparametric(r) = &e.block {
+            y += r.predict(&ctx.q);
+        }
+    }
+    Point3::from(y)
+}
+
+/// Prediction, full parameter Jacobian of the (effect-adjusted) geometric model and the
+/// columns of every effect coefficient at one pose. Effect columns are in `effects` order.
+pub struct PoseEval {
+    pub pred: Point3<f64>,
+    /// d pred / d every model parameter (3 × params().len()).
+    pub jac_model: Matrix3xX<f64>,
+    /// d pred / d every coefficient of `effects`, concatenated.
+    pub jac_effects: Matrix3xX<f64>,
+}
+
+/// Evaluate one pose (see [`PoseEval`]).
+pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> PoseEval {
+    let d = joint_offsets(model, effects, ctx);
+    let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
+    let m = pose_model(model, effects, ctx);
+    let (p, jm) = m.point_param_jacobian(&th);
+    let s = 1.0 + tracker_scale(effects);
+    let mut pred = p.coords * s;
+    let ncol: usize = effects.iter().map(|e| e.block.n_coefs()).sum();
+    let mut je = Matrix3xX::zeros(ncol);
+    let mut off = 0;
+    for e in effects {
+        let cols = block_columns(&e.block, &m, &jm, &p, ctx);
+        for (k, c) in cols.iter().enumerate() {
+            je.set_column(off + k, &(c * s));
+        }
+        if let Block::TrackerScale = e.block {
+            // d/ds of (1+s)p is p itself, not scaled again
+            je.set_column(off, &p.coords);
+        }
+        if let Block::Nonparametric(r) = &e.block {
+            pred += r.predict(&ctx.q);
+        }
+        off += e.block.n_coefs();
+    }
+    PoseEval {
+        pred: Point3::from(pred),
+        jac_model: jm * s,
+        jac_effects: je,
+    }
+}
+
+/// Columns (d point / d coef) of one block at one pose, given the model the pose is
+/// evaluated with, its full parameter Jacobian and the point.
+pub fn block_columns(
+    block: &Block,
+    model: &KinematicModel,
+    jm: &Matrix3xX<f64>,
+    p: &Point3<f64>,
+    ctx: &ObsCtx,
+) -> Vec<Vector3<f64>> {
+    let mut cols = vec![Vector3::zeros(); block.n_coefs()];
+    let feats = block.joint_features(model, ctx);
+    for (j, c, f) in feats {
+        if let Some(ip) = model.param_index(&format!("phi{}", j + 1)) {
+            cols[c] += jm.column(ip) * f;
+        }
+    }
+    match block {
+        Block::BaseShift { t_change } => {
+            if ctx.t >= *t_change {
+                for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
+                    if let Some(ip) = model.param_index(&format!("base_{sfx}")) {
+                        cols[k] = jm.column(ip).into_owned();
+                    }
+                }
+            }
+        }
+        Block::LengthDrift { driver } => {
+            let x = driver.value(ctx);
+            for (i, pr) in model.params().iter().enumerate() {
+                if matches!(pr.group, ParamGroup::Joint(_))
+                    && (pr.name.starts_with('a') && !pr.name.starts_with("alpha")
+                        || pr.name.starts_with('d'))
+                {
+                    cols[0] += jm.column(i) * (pr.value * x);
+                }
+            }
+        }
+        Block::TrackerScale => cols[0] = p.coords,
+        _ => {}
+    }
+    cols
+}
+
+// ---------------------------------------------------------------------- file form
+
+fn num(v: f64) -> Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        Value::Null
+    }
+}
+
+impl Effect {
+    /// The calibration-file form (degrees where the internal unit is rad).
+    pub fn to_cal(&self) -> CalEffect {
+        let mut p = Map::new();
+        let c = &self.coefs;
+        let s = &self.std;
+        let deg = |v: f64| v.to_degrees();
+        match &self.block {
+            Block::Compliance { points, .. } => {
+                p.insert("model".into(), json!("gravity_point_masses"));
+                p.insert("gravity_dir".into(), json!(GRAVITY_DIR));
+                p.insert(
+                    "points".into(),
+                    json!(points.iter().map(|x| x.label()).collect::<Vec<_>>()),
+                );
+                p.insert(
+                    "c_times_mass_deg_kg_per_nm".into(),
+                    json!(c.iter().map(|v| deg(*v)).collect::<Vec<_>>()),
+                );
+                p.insert(
+                    "c_times_mass_std".into(),
+                    json!(s.iter().map(|v| num(deg(*v))).collect::<Vec<_>>()),
+                );
+                p.insert(
+                    "sum_c_times_mass_deg_kg_per_nm".into(),
+                    json!(deg(c.iter().sum::<f64>())),
+                );
+            }
+            Block::Backlash { .. } => {
+                p.insert("half_lost_motion_deg".into(), num(deg(c[0])));
+                p.insert("half_lost_motion_std".into(), num(deg(s[0])));
+            }
+            Block::Eccentricity { .. } => {
+                for (k, nm) in ["sin1_deg", "cos1_deg", "sin2_deg", "cos2_deg"]
+                    .iter()
+                    .enumerate()
+                {
+                    p.insert((*nm).into(), num(deg(c[k])));
+                }
+                p.insert(
+                    "std_deg".into(),
+                    json!(s.iter().map(|v| num(deg(*v))).collect::<Vec<_>>()),
+                );
+            }
+            Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => {
+                match driver {
+                    Driver::Time { t0_s } => {
+                        p.insert("driver".into(), json!("time"));
+                        p.insert("t0_s".into(), num(*t0_s));
+                    }
+                    Driver::Temp { t0_c } => {
+                        p.insert("driver".into(), json!("temp_c"));
+                        p.insert("t0_c".into(), num(*t0_c));
+                    }
+                }
+                if matches!(self.block, Block::JointDrift { .. }) {
+                    p.insert(format!("deg_per_{}", driver.unit()), num(deg(c[0])));
+                    p.insert("std".into(), num(deg(s[0])));
+                } else {
+                    p.insert("target".into(), json!("link_lengths"));
+                    p.insert(format!("ppm_per_{}", driver.unit()), num(c[0] * 1e6));
+                    p.insert("std".into(), num(s[0] * 1e6));
+                }
+            }
+            Block::TrackerScale => {
+                p.insert("scale_ppm".into(), num(c[0] * 1e6));
+                p.insert("std".into(), num(s[0] * 1e6));
+            }
+            Block::BaseShift { t_change } => {
+                p.insert("t_change_s".into(), num(*t_change));
+                for (k, nm) in ["dx_mm", "dy_mm", "dz_mm"].iter().enumerate() {
+                    p.insert((*nm).into(), num(c[k]));
+                }
+                for (k, nm) in ["drx_deg", "dry_deg", "drz_deg"].iter().enumerate() {
+                    p.insert((*nm).into(), num(deg(c[3 + k])));
+                }
+                p.insert(
+                    "std".into(),
+                    json!(s
+                        .iter()
+                        .enumerate()
+                        .map(|(k, v)| num(if k < 3 { *v } else { deg(*v) }))
+                        .collect::<Vec<_>>()),
+                );
+            }
+            Block::Latency => {
+                p.insert("latency_s".into(), num(c[0]));
+                p.insert("std".into(), num(s[0]));
+            }
+            Block::Nonparametric(r) => {
+                p = r.to_json();
+            }
+        }
+        CalEffect {
+            kind: self.block.kind().into(),
+            joint: self.block.joint(),
+            params: p,
+            extra: Map::new(),
+        }
+    }
+
+    /// Read an effect from its calibration-file form.
+    pub fn from_cal(e: &CalEffect) -> anyhow::Result<Effect> {
+        let p = &e.params;
+        let f = |k: &str| -> anyhow::Result<f64> {
+            p.get(k)
+                .and_then(|v| v.as_f64())
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| anyhow::anyhow!("effect {}: missing or bad number \"{k}\"", e.kind))
+        };
+        let arr = |k: &str| -> anyhow::Result<Vec<f64>> {
+            let a = p
+                .get(k)
+                .and_then(|v| v.as_array())
+                .ok_or_else(|| anyhow::anyhow!("effect {}: missing array \"{k}\"", e.kind))?;
+            a.iter()
+                .map(|v| {
+                    v.as_f64()
+                        .filter(|x| x.is_finite())
+                        .ok_or_else(|| anyhow::anyhow!("effect {}: bad number in \"{k}\"", e.kind))
+                })
+                .collect()
+        };
+        let joint = || {
+            e.joint
+                .filter(|j| *j >= 1)
+                .ok_or_else(|| anyhow::anyhow!("effect {}: needs a joint (1-based)", e.kind))
+        };
+        let driver = || -> anyhow::Result<Driver> {
+            match p.get("driver").and_then(|v| v.as_str()) {
+                Some("temp_c") => Ok(Driver::Temp { t0_c: f("t0_c")? }),
+                _ => Ok(Driver::Time { t0_s: f("t0_s")? }),
+            }
+        };
+        let rad = |v: f64| v.to_radians();
+        let (block, coefs) = match e.kind.as_str() {
+            "joint_compliance" => {
+                let pts = p
+                    .get("points")
+                    .and_then(|v| v.as_array())
+                    .ok_or_else(|| anyhow::anyhow!("joint_compliance: missing \"points\""))?
+                    .iter()
+                    .map(|v| {
+                        v.as_str()
+                            .and_then(MassPoint::parse)
+                            .ok_or_else(|| anyhow::anyhow!("joint_compliance: bad point {v}"))
+                    })
+                    .collect::<anyhow::Result<Vec<_>>>()?;
+                let c: Vec<f64> = arr("c_times_mass_deg_kg_per_nm")?
+                    .into_iter()
+                    .map(rad)
+                    .collect();
+                if c.len() != pts.len() {
+                    anyhow::bail!(
+                        "joint_compliance: {} points but {} coefficients",
+                        pts.len(),
+                        c.len()
+                    );
+                }
+                (
+                    Block::Compliance {
+                        joint: joint()?,
+                        points: pts,
+                    },
+                    c,
+                )
+            }
+            "backlash" => (
+                Block::Backlash { joint: joint()? },
+                vec![rad(f("half_lost_motion_deg")?)],
+            ),
+            "joint_eccentricity" => (
+                Block::Eccentricity { joint: joint()? },
+                vec![
+                    rad(f("sin1_deg")?),
+                    rad(f("cos1_deg")?),
+                    rad(f("sin2_deg")?),
+                    rad(f("cos2_deg")?),
+                ],
+            ),
+            "thermal_drift" => {
+                let d = driver()?;
+                let unit = d.unit();
+                if e.joint.is_some() {
+                    (
+                        Block::JointDrift {
+                            joint: joint()?,
+                            driver: d,
+                        },
+                        vec![rad(f(&format!("deg_per_{unit}"))?)],
+                    )
+                } else {
+                    (
+                        Block::LengthDrift { driver: d },
+                        vec![f(&format!("ppm_per_{unit}"))? * 1e-6],
+                    )
+                }
+            }
+            "tracker_scale" => (Block::TrackerScale, vec![f("scale_ppm")? * 1e-6]),
+            "base_shift" => (
+                Block::BaseShift {
+                    t_change: f("t_change_s")?,
+                },
+                vec![
+                    f("dx_mm")?,
+                    f("dy_mm")?,
+                    f("dz_mm")?,
+                    rad(f("drx_deg")?),
+                    rad(f("dry_deg")?),
+                    rad(f("drz_deg")?),
+                ],
+            ),
+            "latency" => (Block::Latency, vec![f("latency_s")?]),
+            "nonparametric" => (Block::Nonparametric(Box::new(Rbf::from_json(p)?)), vec![]),
+            other => anyhow::bail!("unknown effect kind \"{other}\""),
+        };
+        let n = coefs.len();
+        Ok(Effect {
+            block,
+            coefs,
+            std: vec![f64::NAN; n],
+        })
+    }
+}
+
+/// Predicted marker point of one pose from calibration-file effects (for `robocal predict`).
+pub fn apply_cal_effects(
+    model: &KinematicModel,
+    effects: &[CalEffect],
+    ctx: &ObsCtx,
+) -> anyhow::Result<Point3<f64>> {
+    let e = effects
+        .iter()
+        .map(Effect::from_cal)
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(apply_effects(model, &e, ctx))
+}

@@ -1,0 +1,128 @@
+//! SVG plots: partial residual of each accepted effect against its regressor.
+//!
+//! For an effect acting on joint `j` the x axis is the effect's angle correction `δθ_j`
+//! (millidegrees) and the y axis the partial residual (final residual plus the effect's own
+//! contribution) expressed as an angle of joint `j` (projection onto `∂p/∂θ_j`). For other
+//! effects x is the size of the effect's displacement (mm) and y the partial residual along
+//! it. In both cases a correct effect puts the points on the line y = x.
+use nalgebra::Vector3;
+use plotters::prelude::*;
+use std::path::Path;
+
+use super::data::Obs;
+use super::effects::{apply_effects, Effect};
+use super::fit::State;
+
+/// (x, y) pairs of the partial-residual plot of `state.effects[idx]`, and axis labels.
+pub fn partial_residual(
+    state: &State,
+    obs: &[Obs],
+    idx: usize,
+) -> (Vec<(f64, f64)>, String, String) {
+    let e = &state.effects[idx];
+    let others: Vec<Effect> = state
+        .effects
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != idx)
+        .map(|(_, e)| e.clone())
+        .collect();
+    let joint = e.block.joint();
+    let mut pts = Vec::with_capacity(obs.len());
+    for o in obs {
+        let full = apply_effects(&state.model, &state.effects, &o.ctx);
+        let without = apply_effects(&state.model, &others, &o.ctx);
+        let g: Vector3<f64> = full - without;
+        let r = o.y - full;
+        let pr = r + g;
+        match joint {
+            Some(j) => {
+                let (_, jm) = state.model.point_param_jacobian(&o.ctx.q);
+                let Some(ip) = state.model.param_index(&format!("phi{j}")) else {
+                    continue;
+                };
+                let c = jm.column(ip).into_owned();
+                let n2 = c.norm_squared();
+                if n2 < 1e-9 {
+                    continue;
+                }
+                let x = g.dot(&c) / n2;
+                let y = pr.dot(&c) / n2;
+                pts.push((x.to_degrees() * 1e3, y.to_degrees() * 1e3));
+            }
+            None => {
+                let n = g.norm();
+                if n < 1e-12 {
+                    pts.push((0.0, 0.0));
+                    continue;
+                }
+                pts.push((n, pr.dot(&(g / n))));
+            }
+        }
+    }
+    let (xl, yl) = match joint {
+        Some(j) => (
+            format!("{} correction of joint {j} (mdeg)", e.block.kind()),
+            format!("partial residual as joint-{j} angle (mdeg)"),
+        ),
+        None => (
+            format!("{} displacement (mm)", e.block.kind()),
+            "partial residual along it (mm)".to_string(),
+        ),
+    };
+    (pts, xl, yl)
+}
+
+/// Write one SVG scatter with the y = x line.
+pub fn write_svg(
+    path: &Path,
+    title: &str,
+    pts: &[(f64, f64)],
+    xl: &str,
+    yl: &str,
+) -> anyhow::Result<()> {
+    let lo = pts
+        .iter()
+        .flat_map(|(x, y)| [*x, *y])
+        .filter(|v| v.is_finite())
+        .fold(f64::INFINITY, f64::min);
+    let hi = pts
+        .iter()
+        .flat_map(|(x, y)| [*x, *y])
+        .filter(|v| v.is_finite())
+        .fold(f64::NEG_INFINITY, f64::max);
+    let (lo, hi) = if lo.is_finite() && hi > lo {
+        let m = 0.05 * (hi - lo);
+        (lo - m, hi + m)
+    } else {
+        (-1.0, 1.0)
+    };
+    let root = SVGBackend::new(path, (720, 540)).into_drawing_area();
+    root.fill(&WHITE)
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(lo..hi, lo..hi)
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc(xl)
+        .y_desc(yl)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    chart
+        .draw_series(
+            pts.iter()
+                .filter(|(x, y)| x.is_finite() && y.is_finite())
+                .map(|(x, y)| Circle::new((*x, *y), 2, BLUE.filled())),
+        )
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    chart
+        .draw_series(LineSeries::new(vec![(lo, lo), (hi, hi)], RED))
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    Ok(())
+}
