@@ -1,10 +1,180 @@
-//! `robocal plan`.
+//! `robocal plan`: generate, check and export a pose plan. Plan-only: never opens a device.
+//!
+//! ```text
+//! robocal plan --spec plans/seed001-annulus.toml --robot denso-vs060 --out PLAN.json \
+//!     [--select 60] [--csv poses.csv] [--urscript plan.script] [--pacscript plan.pcs] [--json]
+//! robocal plan --check PLAN.json
+//! ```
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+
+use crate::dataset::{ChainJoint, Dataset, FixedOrigin, RobotBlock};
+use crate::model::{KinematicModel, SerialChain};
+use crate::plan::{self, export, PlanFile, PlanOptions, PlanSpec};
 
 /// Arguments of `robocal plan`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Plan specification (strict TOML, see `plans/*.toml`).
+    #[arg(long, required_unless_present = "check")]
+    pub spec: Option<PathBuf>,
+    /// Robot preset (`denso-vs060`, `ur5e`, `ur10e`).
+    #[arg(long, group = "robot_source")]
+    pub robot: Option<String>,
+    /// Take the robot's nominal chain from a dataset header.
+    #[arg(long, group = "robot_source")]
+    pub chain: Option<PathBuf>,
+    /// Take the robot from a URDF file.
+    #[arg(long, group = "robot_source")]
+    pub urdf: Option<PathBuf>,
+    /// URDF base link (default: the root).
+    #[arg(long, requires = "urdf")]
+    pub base_link: Option<String>,
+    /// URDF tip link (default: the last link of the chain).
+    #[arg(long, requires = "urdf")]
+    pub tip_link: Option<String>,
+    /// Write the plan (`robocal-plan/1` JSON).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Keep only N poses chosen to maximise observability (greedy D-optimal).
+    #[arg(long)]
+    pub select: Option<usize>,
+    /// Write the pose list as CSV.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Write a URScript program.
+    #[arg(long)]
+    pub urscript: Option<PathBuf>,
+    /// Write a DENSO PacScript program.
+    #[arg(long)]
+    pub pacscript: Option<PathBuf>,
+    /// PacScript `Speed` (percent).
+    #[arg(long, default_value_t = 20.0)]
+    pub pac_speed: f64,
+    /// Write the text summary to a file as well.
+    #[arg(long)]
+    pub summary: Option<PathBuf>,
+    /// Print the summary as JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Validate an existing plan file and print its summary.
+    #[arg(long, conflicts_with_all = ["spec", "out"])]
+    pub check: Option<PathBuf>,
+}
+
+/// The URDF chain as dataset-header joints (mm, deg), so the plan file can rebuild it.
+fn chain_block(sc: &SerialChain, name: &str) -> RobotBlock {
+    let joint = |o: &nalgebra::Isometry3<f64>| {
+        let t = o.translation.vector;
+        let (r, p, y) = o.rotation.euler_angles();
+        (
+            [t.x, t.y, t.z],
+            [r.to_degrees(), p.to_degrees(), y.to_degrees()],
+        )
+    };
+    let chain = sc
+        .joints
+        .iter()
+        .map(|j| {
+            let (xyz, rpy) = joint(&j.origin);
+            ChainJoint {
+                name: j.name.clone(),
+                origin_xyz: xyz,
+                origin_rpy: rpy,
+                axis: [j.axis.x, j.axis.y, j.axis.z],
+                limits: j.limits.map(|(a, b)| [a.to_degrees(), b.to_degrees()]),
+                extra: Default::default(),
+            }
+        })
+        .collect();
+    let (xyz, rpy) = joint(&sc.flange);
+    RobotBlock {
+        model: name.to_string(),
+        serial: None,
+        chain: Some(chain),
+        flange: Some(FixedOrigin {
+            origin_xyz: xyz,
+            origin_rpy: rpy,
+            extra: Default::default(),
+        }),
+        extra: Default::default(),
+    }
+}
+
+fn robot_from_args(a: &Args) -> anyhow::Result<(RobotBlock, KinematicModel)> {
+    let block = if let Some(name) = &a.robot {
+        RobotBlock {
+            model: name.clone(),
+            serial: None,
+            chain: None,
+            flange: None,
+            extra: Default::default(),
+        }
+    } else if let Some(path) = &a.chain {
+        let ds = Dataset::load(path).with_context(|| format!("reading {}", path.display()))?;
+        ds.header.robot
+    } else if let Some(path) = &a.urdf {
+        let xml =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let sc = SerialChain::from_urdf_str(&xml, a.base_link.as_deref(), a.tip_link.as_deref())
+            .with_context(|| format!("URDF {}", path.display()))?;
+        let name = path
+            .file_stem()
+            .map_or("urdf".into(), |s| s.to_string_lossy().into_owned());
+        chain_block(&sc, &name)
+    } else {
+        bail!("give the robot: --robot PRESET, --chain DATASET.jsonl or --urdf FILE");
+    };
+    let model = KinematicModel::from_robot_block(&block).context("building the kinematic model")?;
+    Ok((block, model))
+}
+
+fn write(path: &PathBuf, text: &str) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
 
 /// Run `robocal plan`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::not_yet("plan")
+pub fn exec(a: Args) -> anyhow::Result<()> {
+    let plan = if let Some(path) = &a.check {
+        PlanFile::read(path).with_context(|| format!("checking {}", path.display()))?
+    } else {
+        let spec_path = a.spec.as_ref().context("--spec is required")?;
+        let spec = PlanSpec::from_file(spec_path)
+            .with_context(|| format!("reading {}", spec_path.display()))?;
+        let (block, model) = robot_from_args(&a)?;
+        let out = plan::build_plan(&spec, block, &model, &PlanOptions { select: a.select })?;
+        out.file
+    };
+    if let Some(p) = &a.out {
+        let text = serde_json::to_string_pretty(&plan)?;
+        write(p, &text)?;
+    }
+    if let Some(p) = &a.csv {
+        write(p, &export::to_csv(&plan)?)?;
+    }
+    let wait = plan
+        .spec
+        .get("timing")
+        .map(|t| {
+            t.get("settle_s").and_then(|v| v.as_f64()).unwrap_or(1.5)
+                + t.get("sample_s").and_then(|v| v.as_f64()).unwrap_or(2.0)
+        })
+        .unwrap_or(3.5);
+    if let Some(p) = &a.urscript {
+        write(p, &export::to_urscript(&plan, 1.0, 1.4, wait))?;
+    }
+    if let Some(p) = &a.pacscript {
+        write(p, &export::to_pacscript(&plan, a.pac_speed, wait))?;
+    }
+    let text = export::summary_text(&plan.summary);
+    if let Some(p) = &a.summary {
+        write(p, &text)?;
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&plan.summary)?);
+    } else {
+        print!("{text}");
+    }
+    Ok(())
 }

@@ -1,0 +1,231 @@
+//! `PLAN.json` (`robocal-plan/1`): what the acquisition engine consumes. Units mm / deg.
+//!
+//! ```json
+//! {"format": "robocal-plan/1", "name": "seed001-annulus",
+//!  "robot": {"model": "denso-vs060"},
+//!  "tool": {"p": [0, 0, 100], "quat": [1, 0, 0, 0]},
+//!  "spec": { ... the TOML spec as JSON ... },
+//!  "poses": [{"id": 0, "point": 17, "branch": 3, "label": "A018",
+//!             "branch_label": "shoulder-right/elbow-down/wrist-flip",
+//!             "q_deg": [..], "flange": {"p": [..], "quat": [w, x, y, z]},
+//!             "group": "train", "plane": "P1", "move": "translate", "block": 4}],
+//!  "summary": { ... }}
+//! ```
+//! Poses are listed in acquisition order (`id` = 0, 1, 2, …).
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+use super::observe::Observability;
+use super::PlanError;
+use crate::dataset::RobotBlock;
+use crate::model::KinematicModel;
+
+/// Plan file format tag.
+pub const PLAN_FORMAT: &str = "robocal-plan/1";
+
+/// A pose in a file: position (mm) and unit quaternion `[w, x, y, z]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanFilePose {
+    pub p: [f64; 3],
+    pub quat: [f64; 4],
+}
+
+impl PlanFilePose {
+    /// From an isometry (mm).
+    pub fn from_iso(iso: &Isometry3<f64>) -> Self {
+        let t = iso.translation.vector;
+        let q = iso.rotation.quaternion();
+        PlanFilePose {
+            p: [t.x, t.y, t.z],
+            quat: [q.w, q.i, q.j, q.k],
+        }
+    }
+    /// To an isometry; `None` when not finite or not (nearly) unit.
+    pub fn to_iso(&self) -> Option<Isometry3<f64>> {
+        if !self.p.iter().chain(&self.quat).all(|x| x.is_finite()) {
+            return None;
+        }
+        let q = Quaternion::new(self.quat[0], self.quat[1], self.quat[2], self.quat[3]);
+        if (q.norm() - 1.0).abs() > 1e-3 {
+            return None;
+        }
+        Some(Isometry3::from_parts(
+            Translation3::from(Vector3::from(self.p)),
+            UnitQuaternion::from_quaternion(q),
+        ))
+    }
+}
+
+/// One planned pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanPose {
+    /// Acquisition order, 0-based.
+    pub id: u64,
+    /// Target number (several IK branches may share it).
+    pub point: u64,
+    /// IK branch number (`4·shoulder + 2·elbow + wrist`).
+    pub branch: u8,
+    /// Human label of the target (`A017`, `P1-b03-T2`, …).
+    pub label: String,
+    /// Branch name (`shoulder-right/elbow-up/wrist-noflip`).
+    #[serde(default)]
+    pub branch_label: String,
+    /// Joint targets (deg).
+    pub q_deg: Vec<f64>,
+    /// Nominal flange pose in the robot base.
+    pub flange: PlanFilePose,
+    pub group: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane: Option<String>,
+    #[serde(rename = "move", default, skip_serializing_if = "Option::is_none")]
+    pub move_kind: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub block: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<String>,
+}
+
+/// Session-time figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimingSummary {
+    /// Generated (unordered) sequence: seconds and poses per hour.
+    pub generated_s: f64,
+    pub generated_poses_per_hour: f64,
+    /// Optimised order (the order of `poses`).
+    pub optimised_s: f64,
+    pub optimised_poses_per_hour: f64,
+}
+
+/// Result of `--select N`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SelectSummary {
+    pub requested: usize,
+    pub all: Observability,
+    pub selected: Observability,
+    /// Smallest greedy prefix whose O1 reaches the full set's O1 (if any).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses_to_reach_full_o1: Option<usize>,
+}
+
+/// Plan summary (also printed by `robocal plan --json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanSummary {
+    pub name: String,
+    /// Targets generated.
+    pub targets: usize,
+    /// Target × branch combinations examined (unreachable targets count once).
+    pub examined: usize,
+    /// Feasible poses kept.
+    pub feasible: usize,
+    /// Feasible poses per IK branch label.
+    pub per_branch: BTreeMap<String, usize>,
+    /// Rejections counted by reason key.
+    pub rejects: BTreeMap<String, usize>,
+    /// Consecutive moves of the final order that the safety path check refuses.
+    #[serde(default)]
+    pub path_violations: usize,
+    pub timing: TimingSummary,
+    pub observability: Observability,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub select: Option<SelectSummary>,
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+/// The whole plan file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanFile {
+    pub format: String,
+    pub name: String,
+    pub robot: RobotBlock,
+    /// The tool (sensor / marker) in the flange frame.
+    pub tool: PlanFilePose,
+    /// The spec the plan was generated from.
+    pub spec: serde_json::Value,
+    pub poses: Vec<PlanPose>,
+    pub summary: PlanSummary,
+}
+
+impl PlanFile {
+    /// Parse and validate a plan (see [`PlanFile::validate`]).
+    pub fn from_json_str(s: &str) -> Result<Self, PlanError> {
+        let f: PlanFile = serde_json::from_str(s).map_err(|e| PlanError::PlanFile {
+            message: e.to_string(),
+        })?;
+        f.validate()?;
+        Ok(f)
+    }
+
+    /// Read and validate a plan file.
+    pub fn read(path: &std::path::Path) -> Result<Self, PlanError> {
+        let s = std::fs::read_to_string(path).map_err(|e| PlanError::Io {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        Self::from_json_str(&s)
+    }
+
+    /// Format tag, ids 0..n in order, finite joints of the robot's dof within its limits,
+    /// unit quaternions, and a flange pose that matches the robot's nominal forward
+    /// kinematics of `q_deg` (0.01 mm / 0.001°).
+    pub fn validate(&self) -> Result<(), PlanError> {
+        let err = |m: String| Err(PlanError::PlanFile { message: m });
+        if self.format != PLAN_FORMAT {
+            return err(format!("format `{}` is not `{PLAN_FORMAT}`", self.format));
+        }
+        if self.tool.to_iso().is_none() {
+            return err("tool pose is not finite / not a unit quaternion".into());
+        }
+        let model =
+            KinematicModel::from_robot_block(&self.robot).map_err(|e| PlanError::PlanFile {
+                message: format!("robot: {e}"),
+            })?;
+        let limits = model.joint_limits();
+        for (k, p) in self.poses.iter().enumerate() {
+            if p.id != k as u64 {
+                return err(format!("pose {k}: id {} out of sequence", p.id));
+            }
+            if p.q_deg.len() != model.dof() {
+                return err(format!(
+                    "pose {k}: {} joints, robot has {}",
+                    p.q_deg.len(),
+                    model.dof()
+                ));
+            }
+            if !p.q_deg.iter().all(|x| x.is_finite()) {
+                return err(format!("pose {k}: q_deg is not finite"));
+            }
+            let q: Vec<f64> = p.q_deg.iter().map(|x| x.to_radians()).collect();
+            for (i, (&x, &(lo, hi))) in q.iter().zip(&limits).enumerate() {
+                if x < lo - 1e-9 || x > hi + 1e-9 {
+                    return err(format!(
+                        "pose {k}: joint {} = {:.3}° outside its limits",
+                        i + 1,
+                        p.q_deg[i]
+                    ));
+                }
+            }
+            let Some(fl) = p.flange.to_iso() else {
+                return err(format!(
+                    "pose {k}: flange pose is not finite / not a unit quaternion"
+                ));
+            };
+            let fk = model.flange_pose(&q);
+            let (dp, dr) = crate::model::pose_distance(&fk, &fl);
+            if dp > 0.01 || dr > 0.001f64.to_radians() {
+                return err(format!(
+                    "pose {k}: flange differs from the forward kinematics of q_deg by {dp:.3} mm / {:.4}°",
+                    dr.to_degrees()
+                ));
+            }
+        }
+        Ok(())
+    }
+}
