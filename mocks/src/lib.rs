@@ -6,6 +6,7 @@
 
 pub mod scenario;
 pub mod serve;
+pub mod ur;
 pub mod world;
 
 pub use scenario::Scenario;
