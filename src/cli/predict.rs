@@ -117,12 +117,9 @@ impl Predictor {
                         model.dof()
                     );
                 }
-                if let Some(e) = effects.first() {
-                    // Extension point of the diagnosis (effects on top of the kinematics).
-                    bail!(
-                        "the calibration's effect \"{}\" cannot be applied by predict yet",
-                        e.kind
-                    );
+                if !effects.is_empty() {
+                    // Effects on top of the kinematics (owned by the diagnosis).
+                    return crate::diagnose::effects::predict_record(model, effects, rec, ds);
                 }
                 let q_rad: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
                 Ok(model.measured_point(&q_rad))

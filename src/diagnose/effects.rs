@@ -96,6 +96,9 @@ pub enum Block {
     BaseShift { t_change: f64 },
     /// Timing latency: `y(t) = p(t − Δt)`, i.e. `δθ = −q̇ Δt` (needs recorded `qd`).
     Latency,
+    /// Transmission-ratio error of one joint: `δθ_j = ε · q_j` (kind `transmission_ratio`,
+    /// not in the contract's list: a new name).
+    Transmission { joint: usize },
     /// A data-driven correction of the joint-space residual.
     Nonparametric(Box<Rbf>),
 }
@@ -111,6 +114,7 @@ impl Block {
             Block::TrackerScale => "tracker_scale",
             Block::BaseShift { .. } => "base_shift",
             Block::Latency => "latency",
+            Block::Transmission { .. } => "transmission_ratio",
             Block::Nonparametric(_) => "nonparametric",
         }
     }
@@ -120,6 +124,7 @@ impl Block {
             Block::Compliance { joint, .. }
             | Block::Backlash { joint }
             | Block::Eccentricity { joint }
+            | Block::Transmission { joint }
             | Block::JointDrift { joint, .. } => Some(*joint),
             _ => None,
         }
@@ -184,6 +189,7 @@ impl Block {
             .map(|s| s.to_string())
             .collect(),
             Block::Latency => vec!["latency [s]".into()],
+            Block::Transmission { .. } => vec!["ratio error [1]".into()],
             Block::Nonparametric(_) => vec![],
         }
     }
@@ -215,6 +221,10 @@ impl Block {
                     (joint - 1, 2, (2.0 * q).sin()),
                     (joint - 1, 3, (2.0 * q).cos()),
                 ],
+                _ => vec![],
+            },
+            Block::Transmission { joint } => match ctx.q.get(joint.wrapping_sub(1)) {
+                Some(&q) if *joint >= 1 && *joint <= n => vec![(joint - 1, 0, q)],
                 _ => vec![],
             },
             Block::JointDrift { joint, driver } if *joint >= 1 && *joint <= n => {
@@ -556,6 +566,10 @@ impl Effect {
                         .collect::<Vec<_>>()),
                 );
             }
+            Block::Transmission { .. } => {
+                p.insert("ratio_error_ppm".into(), num(c[0] * 1e6));
+                p.insert("std".into(), num(s[0] * 1e6));
+            }
             Block::Latency => {
                 p.insert("latency_s".into(), num(c[0]));
                 p.insert("std".into(), num(s[0]));
@@ -684,6 +698,10 @@ impl Effect {
                 ],
             ),
             "latency" => (Block::Latency, vec![f("latency_s")?]),
+            "transmission_ratio" => (
+                Block::Transmission { joint: joint()? },
+                vec![f("ratio_error_ppm")? * 1e-6],
+            ),
             "nonparametric" => (Block::Nonparametric(Box::new(Rbf::from_json(p)?)), vec![]),
             other => anyhow::bail!("unknown effect kind \"{other}\""),
         };
@@ -707,4 +725,36 @@ pub fn apply_cal_effects(
         .map(Effect::from_cal)
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok(apply_effects(model, &e, ctx))
+}
+
+/// The context of one pose record within its dataset (approach direction from the
+/// records before it in time, see [`super::data::contexts`]). `None` if the record has no
+/// usable joint angles.
+pub fn record_context(
+    rec: &crate::dataset::PoseRecord,
+    ds: &crate::dataset::Dataset,
+    dof: usize,
+) -> Option<ObsCtx> {
+    let session: Vec<&crate::dataset::PoseRecord> = ds.poses().collect();
+    super::data::contexts(&session, dof)
+        .into_iter()
+        .find(|(id, c)| *id == rec.id && c.t == rec.t)
+        .map(|(_, c)| c)
+}
+
+/// Prediction of one pose record of `ds` with a calibration's effects (the hook of
+/// `robocal predict`).
+pub fn predict_record(
+    model: &KinematicModel,
+    effects: &[CalEffect],
+    rec: &crate::dataset::PoseRecord,
+    ds: &crate::dataset::Dataset,
+) -> anyhow::Result<Point3<f64>> {
+    let ctx = record_context(rec, ds, model.dof()).ok_or_else(|| {
+        anyhow::anyhow!(
+            "pose {}: no usable joint angles `q` for the effects",
+            rec.id
+        )
+    })?;
+    apply_cal_effects(model, effects, &ctx)
 }

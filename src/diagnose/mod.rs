@@ -183,6 +183,7 @@ pub fn candidates(
             out.push(vec![Block::Backlash { joint: j }]);
         }
         out.push(vec![Block::Eccentricity { joint: j }]);
+        out.push(vec![Block::Transmission { joint: j }]);
     }
     let t0 = train.iter().map(|o| o.ctx.t).fold(f64::INFINITY, f64::min);
     let t1 = train
