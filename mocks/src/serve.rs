@@ -139,8 +139,8 @@ pub async fn start_device(
     }
     let _ = bind;
     match protocol {
+        Protocol::Ur => crate::ur::start(world.clone(), device, bind).await,
         Protocol::Bcap
-        | Protocol::Ur
         | Protocol::NdiTcp
         | Protocol::NdiSerial
         | Protocol::DlRs1a
