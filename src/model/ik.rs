@@ -266,7 +266,7 @@ impl IkFamily {
                     let z = w.z - h;
                     let k = (x * x + z * z - l2 * l2 - fx * fx - fz * fz) / (2.0 * l2);
                     let c = k / rho;
-                    if !c.is_finite() || c.abs() > 1.0 + 1e-12 {
+                    if !c.is_finite() || c.abs() > 1.0 + SEED_MARGIN {
                         continue;
                     }
                     let ac = c.clamp(-1.0, 1.0).acos();
@@ -297,7 +297,7 @@ impl IkFamily {
             } => {
                 let p05 = p - r.column(2) * d6;
                 let rxy = p05.x.hypot(p05.y);
-                if rxy < d4.abs() || rxy < 1e-12 {
+                if rxy < d4.abs() * (1.0 - SEED_MARGIN) || rxy < 1e-12 {
                     return out;
                 }
                 let psi = p05.y.atan2(p05.x);
@@ -321,7 +321,7 @@ impl IkFamily {
                         let x = t14.translation.vector.x;
                         let y = t14.translation.vector.y;
                         let c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3);
-                        if !c3.is_finite() || c3.abs() > 1.0 + 1e-12 {
+                        if !c3.is_finite() || c3.abs() > 1.0 + SEED_MARGIN {
                             continue;
                         }
                         let ac = c3.clamp(-1.0, 1.0).acos();
@@ -342,6 +342,11 @@ impl IkFamily {
         out
     }
 }
+
+/// Relative margin by which a closed-form equation may miss a real root and still give a
+/// (clamped) seed: a calibrated robot can reach slightly beyond the nominal workspace; the
+/// Newton refinement on the actual model decides.
+pub const SEED_MARGIN: f64 = 0.02;
 
 /// ZYZ Euler angles of `m = Rz(a)·Ry(b)·Rz(c)`: (no-flip with b ≥ 0, flip with b ≤ 0).
 fn zyz(m: &Matrix3<f64>) -> [(u8, [f64; 3]); 2] {

@@ -8,9 +8,10 @@
 //! Joint *i* (1-based) is the transform from MDH frame *i−1* to MDH frame *i*:
 //! `A_i(q_i) = Rx(α_i) · Tx(a_i) · Ry(β_i) · Rz(q_i + φ_i) · Tz(d_i)`
 //! (Craig's `α_{i−1}, a_{i−1}` carry the index of the joint that follows them). The flange
-//! in the robot base is `base_offset · A_1 ⋯ A_n · F` where `base_offset` is a fixed
-//! transform (robot base → MDH frame 0, the identity for the presets) and `F` the fixed
-//! flange transform (parameters `flange_*`, fixed by default). What a tracker measures is
+//! in the robot base is `base_offset · A_1 ⋯ A_n · F₀ · F` where `base_offset` is a fixed
+//! transform (robot base → MDH frame 0, the identity for the presets), `F₀` the fixed
+//! residual of the conversion (last MDH frame → flange) and `F` a correction on top of it
+//! (parameters `flange_*`, zero and fixed by default). What a tracker measures is
 //! `B · flange · T` with `B` the robot base in the tracker frame (`base_*`) and `T` the
 //! tool/marker in the flange frame (`tool_*`). Rotations of `B`, `F`, `T` are URDF
 //! roll-pitch-yaw: `R = Rz(rz)·Ry(ry)·Rx(rx)`.
@@ -54,7 +55,7 @@ pub enum ParamGroup {
     Base,
     /// Marker / tip in the flange frame.
     Tool,
-    /// Fixed last-MDH-frame → flange transform.
+    /// Correction of the last-MDH-frame → flange transform (zero, fixed by default).
     Flange,
 }
 
@@ -86,6 +87,10 @@ pub struct KinematicModel {
     params: Vec<Param>,
     /// Fixed: robot base → MDH frame 0.
     base_offset: Isometry3<f64>,
+    /// Fixed: last MDH frame → flange, before the `flange_*` parameters (which are a
+    /// correction on top of it, zero after conversion). Kept as an isometry so that the
+    /// conversion stays exact (no roll-pitch-yaw round trip near gimbal lock).
+    flange_fixed: Isometry3<f64>,
     limits: Vec<(f64, f64)>,
     joint_names: Vec<String>,
     /// `hayati[i]`: joint i+1 uses β (its axis is nearly parallel to the previous one).
@@ -115,7 +120,7 @@ impl Frame {
     fn to_iso(self) -> Isometry3<f64> {
         Isometry3::from_parts(
             Translation3::from(self.p),
-            UnitQuaternion::from_matrix(&self.r),
+            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.r)),
         )
     }
     fn mul(&self, o: &Frame) -> Frame {
@@ -279,21 +284,28 @@ impl KinematicModel {
                     let tq = (e - b * d) / den;
                     (pts[i] + zi * sp, pj + zj * tq)
                 };
-                hit[i + 1] = q;
                 let v = q - o;
-                let x = if v.norm() > 1e-9 {
+                let x = if s >= sin_par {
+                    // the common normal is exactly ±(z_i × z_{i+1}): take its direction from
+                    // the cross product (precise even when the normal is short), the sign
+                    // and length from v.
+                    let c = perp(cross / s, &zi).unwrap_or(x_default);
+                    if v.dot(&c) < 0.0 {
+                        -c
+                    } else {
+                        c
+                    }
+                } else if v.norm() > 1e-9 {
                     perp(v, &zi).unwrap_or(x_default)
-                } else if s >= sin_par {
-                    perp(cross / s, &zi).unwrap_or(x_default)
                 } else {
                     x_default
                 };
+                // the point of axis i+1 on the x_i line (= q up to rounding)
+                hit[i + 1] = o + x * v.dot(&x);
                 (o, x)
             };
             let y = zi.cross(&x);
             let r = Matrix3::from_columns(&[x, y, zi]);
-            // Re-orthonormalise (tiny rounding).
-            let r = Rotation3::from_matrix_eps(&r, 1e-15, 20, Rotation3::identity()).into_inner();
             if i >= 1 {
                 let f = &frames[i - 1];
                 let (al, be) = alpha_beta(f, &zi, hayati[i]);
@@ -363,6 +375,7 @@ impl KinematicModel {
             dof: n,
             params,
             base_offset,
+            flange_fixed: Isometry3::identity(),
             limits,
             joint_names: sc.joints.iter().map(|j| j.name.clone()).collect(),
             hayati: hayati[1..].to_vec(),
@@ -372,7 +385,7 @@ impl KinematicModel {
         // everywhere, the joint axes being the same lines).
         let m0 = m.last_frame(&vec![0.0; n]).to_iso();
         let chain0 = chain_frames[n - 1] * sc.flange;
-        m.set_pose_group(ParamGroup::Flange, &(m0.inverse() * chain0));
+        m.flange_fixed = m0.inverse() * chain0;
         m.ik_family = IkFamily::detect(&m);
         Ok(m)
     }
@@ -624,7 +637,14 @@ impl KinematicModel {
 
     fn flange_frame(&self, q: &[f64]) -> Frame {
         self.last_frame(q)
+            .mul(&Frame::from_iso(&self.flange_fixed))
             .mul(&pose6(&self.group_slice(ParamGroup::Flange)))
+    }
+
+    /// Full last-MDH-frame → flange transform: the fixed conversion residual followed by
+    /// the `flange_*` correction.
+    pub fn flange_transform(&self) -> Isometry3<f64> {
+        self.flange_fixed * self.pose_group(ParamGroup::Flange)
     }
 
     /// MDH frame `k` (0 = frame 0, `dof` = last joint frame) in the robot base.
@@ -673,7 +693,10 @@ impl KinematicModel {
             axes.push((next.r.column(2).into_owned(), next.p));
             t = next;
         }
-        let pf = t.mul(&pose6(&self.group_slice(ParamGroup::Flange))).p;
+        let pf = t
+            .mul(&Frame::from_iso(&self.flange_fixed))
+            .mul(&pose6(&self.group_slice(ParamGroup::Flange)))
+            .p;
         let mut j = Matrix6xX::zeros(n);
         for (i, (z, o)) in axes.iter().enumerate() {
             let v = z.cross(&(pf - o));
@@ -699,9 +722,9 @@ impl KinematicModel {
         let ob = self.off_base();
         let eye = Matrix3::identity();
         let bax = rpy_axes(&eye, &bv);
-        for k in 0..3 {
+        for (k, ax) in bax.iter().enumerate() {
             f(ob + k, eye.column(k).into_owned(), b.p, false);
-            f(ob + 3 + k, bax[k], b.p, true);
+            f(ob + 3 + k, *ax, b.p, true);
         }
         let mut t = b.mul(&Frame::from_iso(&self.base_offset));
         for i in 0..n {
@@ -730,6 +753,7 @@ impl KinematicModel {
                 p: p1 + z * d,
             };
         }
+        t = t.mul(&Frame::from_iso(&self.flange_fixed));
         for (g, off) in [
             (ParamGroup::Flange, self.off_flange()),
             (ParamGroup::Tool, self.off_tool()),
