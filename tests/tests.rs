@@ -4,3 +4,4 @@ mod model;
 mod dataset;
 mod cli;
 mod plan;
+mod diagnose;
