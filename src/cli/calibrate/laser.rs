@@ -1,10 +1,153 @@
-//! `robocal calibrate laser`.
+//! `robocal calibrate laser`: hand-eye calibration of a laser range sensor from planes (seed 000).
+
+use anyhow::{bail, Context as _};
+use nalgebra::Point3;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use crate::dataset::{CalibrationFile, Dataset};
+use crate::solve::laser;
 
 /// Arguments of `robocal calibrate laser`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Dataset with plane-labelled calibration poses (`plane`, `move`, `range`, flange or `q`);
+    /// validation targets (`target`) in it are used for scoring.
+    #[arg(long, value_name = "D.jsonl")]
+    pub data: PathBuf,
+    /// Output directory (`calibration.json`, `laser_report.json`).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Extra dataset with the 5-direction validation targets (held out).
+    #[arg(long, value_name = "FILE")]
+    pub heldout: Option<PathBuf>,
+    /// CSV `id,x_mm,y_mm,z_mm` of true/reference points of the validation records (FRE/TRE,
+    /// spot RMS).
+    #[arg(long, value_name = "CSV")]
+    pub truth: Option<PathBuf>,
+    /// Huber threshold (mm) for the direct fit (robust loss; outliers are listed).
+    #[arg(long, value_name = "MM")]
+    pub huber: Option<f64>,
+    /// Print the comparison as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Read a truth / reference CSV `id,x_mm,y_mm,z_mm`.
+pub fn read_points_csv(path: &Path) -> anyhow::Result<HashMap<u64, Point3<f64>>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut out = HashMap::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if i == 0 || line.is_empty() {
+            if i == 0 && line != "id,x_mm,y_mm,z_mm" {
+                bail!(
+                    "{}:1: expected the header `id,x_mm,y_mm,z_mm`, found `{line}`",
+                    path.display()
+                );
+            }
+            continue;
+        }
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 4 {
+            bail!(
+                "{}:{}: expected 4 fields, found {}",
+                path.display(),
+                i + 1,
+                f.len()
+            );
+        }
+        let id: u64 = f[0]
+            .parse()
+            .with_context(|| format!("{}:{}: field `id`", path.display(), i + 1))?;
+        let mut v = [0.0; 3];
+        for (k, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
+            v[k] = f[k + 1]
+                .trim()
+                .parse()
+                .with_context(|| format!("{}:{}: field `{name}`", path.display(), i + 1))?;
+        }
+        out.insert(id, Point3::new(v[0], v[1], v[2]));
+    }
+    Ok(out)
+}
 
 /// Run `robocal calibrate laser`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::super::not_yet("calibrate laser")
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let ds = Dataset::load(&args.data)?;
+    let obs = laser::observations(&ds)
+        .with_context(|| format!("reading laser poses of {}", args.data.display()))?;
+    let mut validation: Vec<laser::LaserObs> =
+        obs.iter().filter(|o| o.target.is_some()).cloned().collect();
+    let train: Vec<laser::LaserObs> = obs.iter().filter(|o| o.plane.is_some()).cloned().collect();
+    if let Some(h) = &args.heldout {
+        let hd = Dataset::load(h)?;
+        validation.extend(
+            laser::observations(&hd)
+                .with_context(|| format!("reading laser poses of {}", h.display()))?
+                .into_iter()
+                .filter(|o| o.target.is_some()),
+        );
+    }
+    let truth = match &args.truth {
+        Some(p) => Some(read_points_csv(p)?),
+        None => None,
+    };
+    let cmp = laser::compare(&train, &validation, truth.as_ref(), args.huber)
+        .context("laser hand-eye calibration")?;
+    let beam = cmp.final_beam.context("no final beam")?;
+    let mut cal = CalibrationFile::new(
+        ds.header.robot.clone(),
+        laser::beam_params(&beam, cmp.final_std),
+    );
+    cal.set_kind("laser");
+    let final_row = cmp.rows.last().context("no rows")?;
+    let m = &mut cal.metrics;
+    m.insert("plane_rms_mm".into(), cmp.final_plane_rms_mm.into());
+    if final_row.spread_mean_mm.is_finite() {
+        m.insert("spread_mean_mm".into(), final_row.spread_mean_mm.into());
+    }
+    if let Some(x) = final_row.spot_rms_vs_truth_mm {
+        m.insert("heldout_rms_mm_after".into(), x.into());
+    }
+    if let Some(x) = final_row.tre_mm {
+        m.insert("tre_mm".into(), x.into());
+    }
+    cal.extra.insert(
+        "planes".into(),
+        serde_json::Value::Array(
+            cmp.final_planes
+                .iter()
+                .map(|(l, p)| {
+                    serde_json::json!({"label": l, "normal": [p.n.x, p.n.y, p.n.z], "offset_mm": p.c})
+                })
+                .collect(),
+        ),
+    );
+    cal.extra.insert(
+        "method".into(),
+        "direct point-to-plane ML (seed 000 methods compared in laser_report.json)".into(),
+    );
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    cal.save(args.out.join("calibration.json"))?;
+    let report = serde_json::to_string_pretty(&cmp)?;
+    std::fs::write(args.out.join("laser_report.json"), report)
+        .with_context(|| format!("writing {}", args.out.join("laser_report.json").display()))?;
+    if args.json {
+        println!("{}", serde_json::to_string(&cmp)?);
+    } else {
+        print!("{}", laser::table(&cmp));
+        println!(
+            "final: r = ({:.3}, {:.3}, {:.3}) mm, v = ({:.6}, {:.6}, {:.6}); plane RMS {:.4} mm; {}",
+            beam.r.x, beam.r.y, beam.r.z, beam.v.x, beam.v.y, beam.v.z, cmp.final_plane_rms_mm,
+            cmp.final_termination
+        );
+        if !cmp.outliers.is_empty() {
+            println!("outliers (ids): {:?}", cmp.outliers);
+        }
+        println!("wrote {}", args.out.join("calibration.json").display());
+    }
+    Ok(())
 }

@@ -12,14 +12,15 @@ use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
 
 /// 5-direction spread of one target: the RMS distance of its predicted spots from their
-/// centroid with the sample (n − 1) denominator, i.e. `sqrt(Σ|p_i − p̄|² / (n − 1))` (mm).
+/// centroid, `sqrt(Σ|p_i − p̄|² / n)` (mm) (the convention of the independent reference fit
+/// quoted with the shared laser-planes case).
 pub fn spread(points: &[Point3<f64>]) -> f64 {
     if points.len() < 2 {
         return 0.0;
     }
     let c = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / points.len() as f64;
     let ss: f64 = points.iter().map(|p| (p.coords - c).norm_squared()).sum();
-    (ss / (points.len() - 1) as f64).sqrt()
+    (ss / points.len() as f64).sqrt()
 }
 
 /// Per-target spread (sorted by target label) for `beam` over the validation observations.
