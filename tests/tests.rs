@@ -5,3 +5,4 @@ mod dataset;
 mod cli;
 mod plan;
 mod diagnose;
+mod solve;

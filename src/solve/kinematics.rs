@@ -372,7 +372,8 @@ pub struct IdentResult {
     /// Ids of poses the Huber loss down-weighted (error > threshold), with their error.
     pub outliers: Vec<(u64, f64)>,
     pub huber_mm: Option<f64>,
-    pub orientation: bool,
+    /// Rotation residual weight (mm/rad) when marker orientation was used.
+    pub orientation: Option<f64>,
 }
 
 /// 3-D errors (mm) of a model (+ effects) on observations.
@@ -671,7 +672,9 @@ pub fn identify_obs(
         heldout: heldout_scores,
         outliers,
         huber_mm: opts.huber_mm,
-        orientation: opts.orientation,
+        orientation: opts
+            .orientation
+            .then_some(opts.orientation_weight_mm_per_rad),
     })
 }
 

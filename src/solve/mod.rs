@@ -9,18 +9,18 @@
 //! Every calibration is a pure problem object ([`lm::LsqProblem`]: parameters, residuals,
 //! analytic Jacobian) whose Jacobian is tested against finite differences.
 
-// pub mod bootstrap;
+pub mod bootstrap;
 pub mod calfile;
 pub mod identifiability;
 pub mod kinematics;
 pub mod laser;
 pub mod lm;
-// pub mod metrics;
+pub mod metrics;
 pub mod nominal;
 pub mod obs;
 pub mod rigid;
 pub mod stats;
-// pub mod tool;
+pub mod tool;
 
 pub use obs::PoseObs;
 

@@ -1,10 +1,74 @@
-//! `robocal calibrate pivot`.
+//! `robocal calibrate pivot --data D.jsonl [--tool NAME] [--out DIR]`: probe tip in the
+//! marker frame and the pivot point from `pivot` records, by algebraic least squares and by
+//! a sphere fit, with their RMS (seed 001 §2.4).
+use std::path::PathBuf;
+
+use anyhow::Context as _;
+use serde_json::json;
+
+use crate::dataset::Dataset;
+use crate::solve::tool::{pivot_algebraic, pivot_frames, pivot_sphere};
 
 /// Arguments of `robocal calibrate pivot`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Dataset with `pivot` records.
+    #[arg(long, value_name = "D.jsonl")]
+    pub data: PathBuf,
+    /// Only records whose `tool` equals this name.
+    #[arg(long)]
+    pub tool: Option<String>,
+    /// Write `DIR/pivot.json`.
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
 
 /// Run `robocal calibrate pivot`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::super::not_yet("calibrate pivot")
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let ds =
+        Dataset::load(&args.data).with_context(|| format!("reading {}", args.data.display()))?;
+    let frames = pivot_frames(&ds, args.tool.as_deref());
+    anyhow::ensure!(
+        !frames.is_empty(),
+        "no usable `pivot` records (visible, with p and quat){}",
+        args.tool
+            .as_ref()
+            .map(|t| format!(" for tool `{t}`"))
+            .unwrap_or_default()
+    );
+    let alg = pivot_algebraic(&frames).context("algebraic pivot calibration")?;
+    let sph = pivot_sphere(&frames).context("sphere-fit pivot calibration")?;
+    let mut out = Vec::new();
+    for r in [&alg, &sph] {
+        println!(
+            "{:9}: tip in marker [{:.4}, {:.4}, {:.4}] mm, pivot [{:.4}, {:.4}, {:.4}] mm, RMS {:.4} mm, max {:.4} mm ({} frames)",
+            r.method,
+            r.tip_in_marker.x,
+            r.tip_in_marker.y,
+            r.tip_in_marker.z,
+            r.pivot_point.x,
+            r.pivot_point.y,
+            r.pivot_point.z,
+            r.rms_mm,
+            r.max_mm,
+            r.n
+        );
+        out.push(json!({"method": r.method,
+            "tip_in_marker_mm": [r.tip_in_marker.x, r.tip_in_marker.y, r.tip_in_marker.z],
+            "pivot_point_mm": [r.pivot_point.x, r.pivot_point.y, r.pivot_point.z],
+            "rms_mm": r.rms_mm, "max_mm": r.max_mm, "frames": r.n}));
+    }
+    println!(
+        "difference between methods: {:.4} mm",
+        (alg.tip_in_marker - sph.tip_in_marker).norm()
+    );
+    if let Some(dir) = args.out {
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join("pivot.json");
+        let v = json!({"format": "robocal-pivot/1", "tool": args.tool, "results": out});
+        std::fs::write(&path, serde_json::to_string_pretty(&v)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
 }
