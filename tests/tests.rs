@@ -4,5 +4,7 @@ mod model;
 mod dataset;
 mod cli;
 mod plan;
-mod diagnose;
+mod laser;
 mod solve;
+mod acquire;
+mod diagnose;

@@ -1,0 +1,758 @@
+//! The per-pose loop: move, settle, sample, record, with fault handling (see the module
+//! docs of [`crate::acquire`]).
+use std::collections::{BTreeMap, HashSet};
+use std::future::Future;
+
+use nalgebra::Point3;
+use robocal_drivers::{
+    DriverError, DriverResult, ErrorKind, JointState, RangeReading, SafetyState, ToolStatus,
+};
+use serde_json::{json, Map, Value};
+
+use super::sample::{average_markers, average_range, MarkerAverage, MarkerSample};
+use super::settle::{SettleSample, Settler};
+use super::summary::{RunSummary, SkippedPose, TimeBreakdown};
+use super::{AcquireOptions, Devices, PlannedPose};
+use crate::dataset::{DatasetError, EventRecord, FilePose, Journal, MarkerObs, PoseRecord, Record};
+
+/// Progress after each pose (for a progress bar or `--json` progress lines).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Progress {
+    /// Planned poses handled so far (recorded or skipped, this and earlier invocations).
+    pub done: usize,
+    /// Poses in the plan.
+    pub total: usize,
+    /// Pose records so far.
+    pub recorded: usize,
+    /// Poses skipped so far.
+    pub skipped: usize,
+    /// The pose just handled.
+    pub id: u64,
+    /// Whether it was recorded (else skipped).
+    pub ok: bool,
+    /// Time since this invocation started (s, devices' clock).
+    pub elapsed_s: f64,
+    /// Throughput of this invocation (poses per hour, devices' clock).
+    pub poses_per_hour: f64,
+    /// Estimated time to the end (s, devices' clock).
+    pub eta_s: Option<f64>,
+}
+
+/// What stops a run with an error (device faults the engine handles become events).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum AcquireError {
+    /// The journal could not be written.
+    #[error(transparent)]
+    Journal(#[from] DatasetError),
+    /// The plan does not fit the journal (dof, id order).
+    #[error("plan pose {id}: {msg}")]
+    Plan {
+        /// The planned pose.
+        id: u64,
+        /// What is wrong.
+        msg: String,
+    },
+}
+
+/// Ids of planned poses that need no more work: recorded poses and poses skipped for
+/// good (a `skip` event naming the id).
+pub fn done_pose_ids(records: &[Record]) -> HashSet<u64> {
+    records
+        .iter()
+        .filter_map(|r| match r {
+            Record::Pose(p) => Some(p.id),
+            Record::Event(e) if e.what == "skip" => e.id,
+            _ => None,
+        })
+        .collect()
+}
+
+/// Why one pose ended without a record.
+enum Outcome {
+    Recorded,
+    Skipped(String),
+    Abort(String),
+}
+
+/// Result of a device call made under link-retry.
+enum Step<T> {
+    Ok(T),
+    /// The device answered with an error that is not a link problem.
+    Failed(DriverError),
+    /// The link stayed down through every attempt.
+    LinkLost(String),
+}
+
+struct Run<'a> {
+    dev: &'a Devices,
+    opts: &'a AcquireOptions,
+    journal: &'a mut Journal,
+    t0_clock: f64,
+    t_offset: f64,
+    time: TimeBreakdown,
+    skipped: Vec<SkippedPose>,
+    events: BTreeMap<String, usize>,
+}
+
+fn deg(v: &[f64]) -> Vec<f64> {
+    v.iter().map(|x| x.to_degrees()).collect()
+}
+
+fn file_pose(iso: &nalgebra::Isometry3<f64>) -> FilePose {
+    let t = iso.translation.vector;
+    let q = iso.rotation.quaternion();
+    FilePose {
+        p: [t.x, t.y, t.z],
+        quat: [q.w, q.i, q.j, q.k],
+        extra: Map::new(),
+    }
+}
+
+impl Run<'_> {
+    fn now(&self) -> f64 {
+        self.dev.clock.now()
+    }
+
+    /// Record time: seconds since the header's `created` (continues across resumes).
+    fn t(&self) -> f64 {
+        self.t_offset + (self.now() - self.t0_clock)
+    }
+
+    fn event(
+        &mut self,
+        what: &str,
+        id: Option<u64>,
+        reason: impl Into<String>,
+    ) -> Result<(), AcquireError> {
+        let reason = reason.into();
+        tracing::info!(what, ?id, %reason, "event");
+        let rec = Record::Event(EventRecord {
+            t: self.t(),
+            what: what.to_string(),
+            id,
+            reason: Some(reason),
+            extra: Map::new(),
+        });
+        self.journal.append(&rec)?;
+        *self.events.entry(what.to_string()).or_insert(0) += 1;
+        Ok(())
+    }
+
+    /// Runs `op`; on a link problem (`Disconnected` / `Timeout`) records a `fault` event,
+    /// backs off exponentially and retries (drivers reconnect on their next call); records
+    /// `resume` once the link answers again.
+    async fn link<T, F, Fut>(
+        &mut self,
+        id: u64,
+        what: &str,
+        mut op: F,
+    ) -> Result<Step<T>, AcquireError>
+    where
+        F: FnMut() -> Fut,
+        Fut: Future<Output = DriverResult<T>>,
+    {
+        let f = self.opts.faults;
+        let mut backoff = f.backoff_initial_s;
+        let mut failures = 0u32;
+        loop {
+            match op().await {
+                Ok(v) => {
+                    if failures > 0 {
+                        self.event(
+                            "resume",
+                            Some(id),
+                            format!("link restored after {failures} failed attempt(s) ({what})"),
+                        )?;
+                    }
+                    return Ok(Step::Ok(v));
+                }
+                Err(e) if e.kind().needs_reconnect() => {
+                    failures += 1;
+                    if failures == 1 {
+                        self.event("fault", Some(id), format!("link lost during {what}: {e}"))?;
+                    }
+                    if failures >= f.link_attempts.max(1) {
+                        return Ok(Step::LinkLost(format!(
+                            "link lost during {what} after {failures} attempts: {e}"
+                        )));
+                    }
+                    self.dev.clock.sleep(backoff).await;
+                    backoff = (backoff * 2.0).min(f.backoff_max_s);
+                }
+                Err(e) => return Ok(Step::Failed(e)),
+            }
+        }
+    }
+
+    async fn joints(&mut self, id: u64) -> Result<Result<JointState, Outcome>, AcquireError> {
+        let arm = self.dev.arm.clone();
+        Ok(
+            match self
+                .link(id, "joint readout", || {
+                    let arm = arm.clone();
+                    async move { arm.joints().await }
+                })
+                .await?
+            {
+                Step::Ok(j) => Ok(j),
+                Step::Failed(e) => Err(Outcome::Abort(format!("joint readout failed: {e}"))),
+                Step::LinkLost(m) => Err(Outcome::Abort(m)),
+            },
+        )
+    }
+
+    /// Protective stop: pause, try to recover, resume. `Err(outcome)` aborts the run.
+    async fn recover_stop(
+        &mut self,
+        id: u64,
+        why: &str,
+    ) -> Result<Result<(), Outcome>, AcquireError> {
+        self.event("pause", Some(id), format!("protective stop: {why}"))?;
+        let f = self.opts.faults;
+        let arm = self.dev.arm.clone();
+        for attempt in 1..=f.stop_recoveries.max(1) {
+            self.dev.clock.sleep(f.stop_wait_s).await;
+            let a = arm.clone();
+            match self
+                .link(id, "protective-stop recovery", || {
+                    let a = a.clone();
+                    async move { a.recover().await }
+                })
+                .await?
+            {
+                Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
+                Step::Failed(e) if e.kind() == ErrorKind::Unsupported => {
+                    return Ok(Err(Outcome::Abort(format!(
+                        "protective stop needs a person: {e}"
+                    ))))
+                }
+                Step::Failed(e) => {
+                    tracing::warn!("recovery attempt {attempt} failed: {e}");
+                    continue;
+                }
+                Step::Ok(()) => {}
+            }
+            let a = arm.clone();
+            if let Step::Ok(st) = self
+                .link(id, "arm state", || {
+                    let a = a.clone();
+                    async move { a.state().await }
+                })
+                .await?
+            {
+                if matches!(st.safety, SafetyState::Normal | SafetyState::Reduced) {
+                    self.event(
+                        "resume",
+                        Some(id),
+                        format!("recovered from protective stop (attempt {attempt})"),
+                    )?;
+                    return Ok(Ok(()));
+                }
+            }
+        }
+        Ok(Err(Outcome::Abort(format!(
+            "protective stop not recovered after {} attempts",
+            f.stop_recoveries.max(1)
+        ))))
+    }
+
+    /// Moves to `target` (rad). `Err(outcome)` = skip or abort.
+    async fn move_to(
+        &mut self,
+        id: u64,
+        target: &[f64],
+    ) -> Result<Result<(), Outcome>, AcquireError> {
+        let speed = self.opts.speed.into();
+        let arm = self.dev.arm.clone();
+        let mut stops = 0u32;
+        let mut relinked = false;
+        loop {
+            // Never command a move into a stopped controller.
+            let a = arm.clone();
+            match self
+                .link(id, "arm state", || {
+                    let a = a.clone();
+                    async move { a.state().await }
+                })
+                .await?
+            {
+                Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
+                Step::Failed(e) => return Ok(Err(Outcome::Abort(format!("arm state: {e}")))),
+                Step::Ok(st) => match st.safety {
+                    SafetyState::Normal | SafetyState::Reduced => {}
+                    SafetyState::ProtectiveStop => {
+                        stops += 1;
+                        if stops > self.opts.faults.stop_recoveries.max(1) {
+                            return Ok(Err(Outcome::Abort("repeated protective stops".into())));
+                        }
+                        if let Err(o) = self.recover_stop(id, "before move").await? {
+                            return Ok(Err(o));
+                        }
+                        continue;
+                    }
+                    SafetyState::EmergencyStop | SafetyState::Fault => {
+                        self.event("fault", Some(id), format!("arm in {:?}", st.safety))?;
+                        return Ok(Err(Outcome::Abort(format!(
+                            "arm in {:?}: needs a person",
+                            st.safety
+                        ))));
+                    }
+                },
+            }
+            let start = self.now();
+            let target_v = target.to_vec();
+            let a = arm.clone();
+            let events_before = self.events.get("fault").copied().unwrap_or(0);
+            let step = self
+                .link(id, "move", || {
+                    let a = a.clone();
+                    let t = target_v.clone();
+                    async move { a.move_joints(&t, speed).await }
+                })
+                .await?;
+            relinked |= self.events.get("fault").copied().unwrap_or(0) > events_before;
+            self.time.move_s += self.now() - start;
+            match step {
+                Step::Ok(()) => break,
+                Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
+                Step::Failed(e) => match e.kind() {
+                    ErrorKind::SafetyStop => {
+                        stops += 1;
+                        if stops > self.opts.faults.stop_recoveries.max(1) {
+                            return Ok(Err(Outcome::Abort("repeated protective stops".into())));
+                        }
+                        if let Err(o) = self.recover_stop(id, &e.to_string()).await? {
+                            return Ok(Err(o));
+                        }
+                    }
+                    _ => return Ok(Err(Outcome::Skipped(format!("unreachable: {e}")))),
+                },
+            }
+        }
+        if relinked {
+            // The link dropped during the move: re-verify where the arm is.
+            let js = match self.joints(id).await? {
+                Ok(j) => j,
+                Err(o) => return Ok(Err(o)),
+            };
+            let off =
+                js.q.iter()
+                    .zip(target)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+            if off > self.opts.faults.position_tol_rad {
+                self.event(
+                    "note",
+                    Some(id),
+                    format!(
+                        "after link restore the arm is {:.4}° off target: moving again",
+                        off.to_degrees()
+                    ),
+                )?;
+                return Box::pin(self.move_to(id, target)).await;
+            }
+            self.event("note", Some(id), "position re-verified after link restore")?;
+        }
+        Ok(Ok(()))
+    }
+
+    async fn marker_position(&mut self, id: u64) -> Result<Option<Point3<f64>>, AcquireError> {
+        let Some(tr) = self.dev.tracker.clone() else {
+            return Ok(None);
+        };
+        let step = self
+            .link(id, "tracker frame", || {
+                let tr = tr.clone();
+                async move { tr.frame().await }
+            })
+            .await?;
+        Ok(match step {
+            Step::Ok(f) => match f.tool(self.opts.sample.tool.as_deref()) {
+                Some(ToolStatus::Visible { pose, .. }) => {
+                    Some(Point3::from(pose.0.translation.vector))
+                }
+                _ => None,
+            },
+            _ => None,
+        })
+    }
+
+    /// Waits until the arm and marker are still. Returns the last joint state.
+    async fn settle(&mut self, id: u64) -> Result<Result<JointState, Outcome>, AcquireError> {
+        let o = self.opts.settle;
+        let start = self.now();
+        let mut settler = Settler::new(o);
+        let last = loop {
+            let js = match self.joints(id).await? {
+                Ok(j) => j,
+                Err(o) => return Ok(Err(o)),
+            };
+            let marker = self.marker_position(id).await?;
+            let settled = settler.push(SettleSample {
+                q: js.q.clone(),
+                qd: js.qd.clone(),
+                marker,
+            });
+            if settled {
+                break js;
+            }
+            if self.now() - start > o.timeout_s {
+                self.event(
+                    "note",
+                    Some(id),
+                    format!("not settled after {:.1} s; measuring anyway", o.timeout_s),
+                )?;
+                break js;
+            }
+            self.dev.clock.sleep(o.poll_s).await;
+        };
+        self.time.settle_s += self.now() - start;
+        Ok(Ok(last))
+    }
+
+    /// Averages tracker frames; `Ok(None)` when the marker stayed invisible (after retries).
+    async fn sample_marker(
+        &mut self,
+        id: u64,
+    ) -> Result<Result<Option<MarkerAverage>, Outcome>, AcquireError> {
+        let Some(tr) = self.dev.tracker.clone() else {
+            return Ok(Ok(None));
+        };
+        let s = self.opts.sample.clone();
+        let tries = self.opts.faults.marker_retries + 1;
+        for attempt in 1..=tries {
+            let start = self.now();
+            let mut samples = Vec::with_capacity(s.frames);
+            for _ in 0..s.frames.max(1) {
+                let step = self
+                    .link(id, "tracker frame", || {
+                        let tr = tr.clone();
+                        async move { tr.frame().await }
+                    })
+                    .await?;
+                match step {
+                    Step::Ok(f) => {
+                        if let Some(ToolStatus::Visible { pose, rms_mm }) =
+                            f.tool(s.tool.as_deref())
+                        {
+                            samples.push(MarkerSample {
+                                pose: pose.0,
+                                rms_mm: *rms_mm,
+                            });
+                        }
+                    }
+                    Step::Failed(e) if e.kind() == ErrorKind::NotVisible => {}
+                    Step::Failed(e) => {
+                        tracing::warn!("tracker frame failed: {e}");
+                    }
+                    Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
+                }
+            }
+            self.time.sample_s += self.now() - start;
+            if samples.len() >= s.min_frames.max(1) {
+                return Ok(Ok(average_markers(
+                    &samples,
+                    s.outlier_k,
+                    s.outlier_floor_mm,
+                )));
+            }
+            if attempt < tries {
+                self.event(
+                    "retry",
+                    Some(id),
+                    format!(
+                        "marker visible in {}/{} frames (try {attempt} of {tries})",
+                        samples.len(),
+                        s.frames
+                    ),
+                )?;
+                self.dev
+                    .clock
+                    .sleep(self.opts.faults.marker_retry_wait_s)
+                    .await;
+            }
+        }
+        Ok(Err(Outcome::Skipped(format!(
+            "marker not visible after {tries} tries"
+        ))))
+    }
+
+    /// Averaged laser reading: `Some(Some(mm))`, `Some(None)` = out of range, `None` = no laser.
+    async fn sample_range(
+        &mut self,
+        id: u64,
+    ) -> Result<Result<Option<Option<f64>>, Outcome>, AcquireError> {
+        let Some(laser) = self.dev.range.clone() else {
+            return Ok(Ok(None));
+        };
+        let n = self.opts.sample.laser_readings.max(1);
+        let start = self.now();
+        let mut valid = Vec::with_capacity(n);
+        for _ in 0..n {
+            let step = self
+                .link(id, "laser reading", || {
+                    let l = laser.clone();
+                    async move { l.read_range().await }
+                })
+                .await?;
+            match step {
+                Step::Ok(RangeReading::Distance(d)) if d.is_finite() => valid.push(d),
+                Step::Ok(_) => {}
+                Step::Failed(e) => tracing::debug!("laser reading failed: {e}"),
+                Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
+            }
+        }
+        self.time.sample_s += self.now() - start;
+        let avg = average_range(&valid, n);
+        if avg.is_none() {
+            self.event(
+                "fault",
+                Some(id),
+                format!("laser out of range ({}/{n} readings valid)", valid.len()),
+            )?;
+        }
+        Ok(Ok(Some(avg)))
+    }
+
+    async fn pose(&mut self, p: &PlannedPose) -> Result<Outcome, AcquireError> {
+        let target: Vec<f64> = p.q_deg.iter().map(|d| d.to_radians()).collect();
+        if let Err(o) = self.move_to(p.id, &target).await? {
+            return Ok(o);
+        }
+        if let Err(o) = self.settle(p.id).await? {
+            return Ok(o);
+        }
+        let t = self.t();
+        let marker = match self.sample_marker(p.id).await? {
+            Ok(m) => m,
+            Err(o) => return Ok(o),
+        };
+        let range = match self.sample_range(p.id).await? {
+            Ok(r) => r,
+            Err(o) => return Ok(o),
+        };
+        // Joints and the controller's flange pose at measurement time.
+        let js = match self.joints(p.id).await? {
+            Ok(j) => j,
+            Err(o) => return Ok(o),
+        };
+        let arm = self.dev.arm.clone();
+        let flange = match self
+            .link(p.id, "flange pose", || {
+                let a = arm.clone();
+                async move { a.flange_pose().await }
+            })
+            .await?
+        {
+            Step::Ok(f) => Some(file_pose(&f.0)),
+            Step::Failed(e) => {
+                tracing::warn!("pose {}: no controller flange pose: {e}", p.id);
+                None
+            }
+            Step::LinkLost(m) => return Ok(Outcome::Abort(m)),
+        };
+        let mut extra = Map::new();
+        if let Some(b) = p.block {
+            extra.insert("block".into(), json!(b));
+        }
+        if let Some(l) = &p.label {
+            extra.insert("label".into(), json!(l));
+        }
+        let marker_obs = marker.map(|m| {
+            let mut me = Map::new();
+            me.insert("spread_mm".into(), json!(m.spread_mm));
+            if m.rejected > 0 {
+                me.insert("rejected".into(), json!(m.rejected));
+            }
+            let fp = file_pose(&m.pose);
+            MarkerObs {
+                p: Some(fp.p),
+                quat: Some(fp.quat),
+                rms: Some(m.rms_mm),
+                visible: true,
+                frames: Some(m.kept as u32),
+                extra: me,
+            }
+        });
+        let rec = PoseRecord {
+            id: p.id,
+            t,
+            point: p.point,
+            branch: p.branch,
+            group: p.group.clone(),
+            q_cmd: Some(p.q_deg.clone()),
+            q: Some(deg(&js.q)),
+            flange,
+            marker: marker_obs,
+            range,
+            temp_c: self.dev.thermometer.as_ref().and_then(|th| th.temp_c()),
+            plane: p.plane.clone(),
+            move_kind: p.move_kind.clone(),
+            target: p.target.clone(),
+            image: None,
+            corners: None,
+            tip: None,
+            extra,
+        };
+        // Written whole and fsync'd before the next motion starts.
+        self.journal.append(&Record::Pose(rec))?;
+        Ok(Outcome::Recorded)
+    }
+}
+
+/// Runs the plan's remaining poses and appends to `journal`.
+///
+/// `existing` are the records already in the journal (empty for a fresh run): recorded
+/// and skipped poses are not repeated. A device fault the engine cannot handle (link down
+/// through every attempt, protective stop not recoverable, emergency stop) ends the run
+/// with `summary.aborted` set; it can be resumed later.
+pub async fn acquire(
+    dev: &Devices,
+    poses: &[PlannedPose],
+    journal: &mut Journal,
+    existing: &[Record],
+    opts: &AcquireOptions,
+    progress: &mut (dyn FnMut(&Progress) + Send),
+) -> Result<RunSummary, AcquireError> {
+    let dof = journal.header().robot.dof().unwrap_or(0);
+    let mut prev = None;
+    for p in poses {
+        if p.q_deg.len() != dof {
+            return Err(AcquireError::Plan {
+                id: p.id,
+                msg: format!(
+                    "{} joint targets, the robot has {dof} joints",
+                    p.q_deg.len()
+                ),
+            });
+        }
+        if prev.is_some_and(|q| p.id <= q) {
+            return Err(AcquireError::Plan {
+                id: p.id,
+                msg: "pose ids must increase".into(),
+            });
+        }
+        prev = Some(p.id);
+    }
+    let done = done_pose_ids(existing);
+    let mut events: BTreeMap<String, usize> = BTreeMap::new();
+    let mut skipped_before = Vec::new();
+    let mut recorded_before = 0usize;
+    let mut t_offset: f64 = 0.0;
+    for r in existing {
+        match r {
+            Record::Pose(p) => {
+                recorded_before += 1;
+                t_offset = t_offset.max(p.t);
+            }
+            Record::Event(e) => {
+                *events.entry(e.what.clone()).or_insert(0) += 1;
+                t_offset = t_offset.max(e.t);
+                if e.what == "skip" {
+                    if let Some(id) = e.id {
+                        skipped_before.push(SkippedPose {
+                            id,
+                            reason: e.reason.clone().unwrap_or_default(),
+                        });
+                    }
+                }
+            }
+            Record::Pivot(p) => t_offset = t_offset.max(p.t),
+        }
+    }
+    let todo: Vec<&PlannedPose> = poses.iter().filter(|p| !done.contains(&p.id)).collect();
+    let t0 = dev.clock.now();
+    let mut run = Run {
+        dev,
+        opts,
+        journal,
+        t0_clock: t0,
+        t_offset,
+        time: TimeBreakdown::default(),
+        skipped: Vec::new(),
+        events: BTreeMap::new(),
+    };
+    if !existing.is_empty() {
+        run.event(
+            "resume",
+            None,
+            format!(
+                "resuming: {} of {} planned poses already done",
+                poses.len() - todo.len(),
+                poses.len()
+            ),
+        )?;
+    }
+    let mut recorded_now = 0usize;
+    let mut handled = 0usize;
+    let mut aborted = None;
+    let limit = opts.max_poses.unwrap_or(usize::MAX);
+    for p in &todo {
+        if handled >= limit {
+            break;
+        }
+        match run.pose(p).await? {
+            Outcome::Recorded => recorded_now += 1,
+            Outcome::Skipped(reason) => {
+                run.event("skip", Some(p.id), reason.clone())?;
+                run.skipped.push(SkippedPose { id: p.id, reason });
+            }
+            Outcome::Abort(reason) => {
+                run.event("fault", Some(p.id), format!("run aborted: {reason}"))?;
+                aborted = Some(reason);
+                break;
+            }
+        }
+        handled += 1;
+        let elapsed = run.now() - t0;
+        let pph = if elapsed > 0.0 {
+            handled as f64 * 3600.0 / elapsed
+        } else {
+            0.0
+        };
+        let left = todo.len() - handled;
+        progress(&Progress {
+            done: poses.len() - todo.len() + handled,
+            total: poses.len(),
+            recorded: recorded_before + recorded_now,
+            skipped: skipped_before.len() + run.skipped.len(),
+            id: p.id,
+            ok: run.skipped.last().is_none_or(|s| s.id != p.id),
+            elapsed_s: elapsed,
+            poses_per_hour: pph,
+            eta_s: (pph > 0.0).then(|| left as f64 * 3600.0 / pph),
+        });
+    }
+    let elapsed = run.now() - t0;
+    let mut time = run.time;
+    time.overhead_s = (elapsed - time.move_s - time.settle_s - time.sample_s).max(0.0);
+    for (k, n) in &run.events {
+        *events.entry(k.clone()).or_insert(0) += n;
+    }
+    let mut skipped = skipped_before;
+    skipped.extend(run.skipped);
+    skipped.sort_by_key(|s| s.id);
+    let remaining = todo.len() - handled;
+    Ok(RunSummary {
+        planned: poses.len(),
+        recorded: recorded_before + recorded_now,
+        recorded_now,
+        already_done: poses.len() - todo.len(),
+        skipped,
+        remaining,
+        events,
+        time,
+        poses_per_hour: if elapsed > 0.0 {
+            handled as f64 * 3600.0 / elapsed
+        } else {
+            0.0
+        },
+        aborted,
+    })
+}
+
+/// A JSON value for a progress line (`--json`).
+pub fn progress_json(p: &Progress) -> Value {
+    serde_json::to_value(p).unwrap_or(Value::Null)
+}
