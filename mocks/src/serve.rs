@@ -140,9 +140,9 @@ pub async fn start_device(
     let _ = bind;
     match protocol {
         Protocol::Ur => crate::ur::start(world.clone(), device, bind).await,
+        Protocol::NdiTcp => crate::ndi::start(world.clone(), device, bind).await,
+        Protocol::NdiSerial => crate::ndi::start_serial(world.clone(), device, bind).await,
         Protocol::Bcap
-        | Protocol::NdiTcp
-        | Protocol::NdiSerial
         | Protocol::DlRs1a
         | Protocol::Optotrak
         | Protocol::Camera => Err(ServeError::NotAvailable {

@@ -13,7 +13,7 @@
 //! reply is skipped; garbage inside a text reply fails its CRC (`Protocol`) and the next
 //! command starts clean.
 
-use super::codec::{self, Decoded, DecodeError};
+use super::codec::{self, DecodeError, Decoded};
 use super::error::Error;
 use super::frame::{PortHandleStatus, Reply, TrackingReply};
 use std::time::Duration;
@@ -67,13 +67,11 @@ impl NdiClient<tokio::net::TcpStream> {
             target: addr.to_string(),
             message,
         };
-        let stream = tokio::time::timeout(
-            config.connect_timeout,
-            tokio::net::TcpStream::connect(addr),
-        )
-        .await
-        .map_err(|_| open("connect timed out".into()))?
-        .map_err(|e| open(e.to_string()))?;
+        let stream =
+            tokio::time::timeout(config.connect_timeout, tokio::net::TcpStream::connect(addr))
+                .await
+                .map_err(|_| open("connect timed out".into()))?
+                .map_err(|e| open(e.to_string()))?;
         stream.set_nodelay(true).map_err(|e| open(e.to_string()))?;
         Ok(Self::attach_named(stream, config, format!("ndi@{addr}")))
     }
@@ -120,10 +118,12 @@ impl NdiClient<tokio_serial::SerialStream> {
         self.expect_okay(&cmd).await?;
         tokio::time::sleep(Duration::from_millis(100)).await;
         let mut link = self.link.lock().await;
-        link.io.set_baud_rate(baud).map_err(|e| Error::Disconnected {
-            command: cmd,
-            source: std::io::Error::other(e.to_string()),
-        })
+        link.io
+            .set_baud_rate(baud)
+            .map_err(|e| Error::Disconnected {
+                command: cmd,
+                source: std::io::Error::other(e.to_string()),
+            })
     }
 }
 

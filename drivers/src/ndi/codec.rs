@@ -164,9 +164,7 @@ fn decode_text(buf: &[u8]) -> Decoded {
     let Some(end) = buf.iter().position(|&b| b == b'\r') else {
         if buf.len() > MAX_TEXT_REPLY {
             return Decoded::Invalid {
-                error: DecodeError::Malformed(format!(
-                    "no CR within {MAX_TEXT_REPLY} bytes"
-                )),
+                error: DecodeError::Malformed(format!("no CR within {MAX_TEXT_REPLY} bytes")),
                 consumed: buf.len(),
             };
         }
@@ -181,7 +179,10 @@ fn decode_text(buf: &[u8]) -> Decoded {
     if line.len() < 4 {
         return invalid(format!("reply too short ({} bytes)", line.len()));
     }
-    if !line.iter().all(|&b| b == b'\n' || (0x20..0x7F).contains(&b)) {
+    if !line
+        .iter()
+        .all(|&b| b == b'\n' || (0x20..0x7F).contains(&b))
+    {
         return invalid("non-ASCII bytes in a text reply".into());
     }
     let (text, crc_hex) = line.split_at(line.len() - 4);
@@ -362,15 +363,17 @@ pub fn parse_tx(text: &str, options: u16) -> Result<TrackingReply, DecodeError> 
     check_options(options)?;
     let b = text.as_bytes();
     if b.len() < 2 {
-        return Err(DecodeError::Malformed("TX reply shorter than its count".into()));
+        return Err(DecodeError::Malformed(
+            "TX reply shorter than its count".into(),
+        ));
     }
     let count = hex_field(&b[..2], "handle count")?;
     let mut lines = b[2..].split(|&c| c == b'\n');
     let mut handles = Vec::new();
     for _ in 0..count {
-        let line = lines
-            .next()
-            .ok_or_else(|| DecodeError::Malformed("TX reply has fewer lines than handles".into()))?;
+        let line = lines.next().ok_or_else(|| {
+            DecodeError::Malformed("TX reply has fewer lines than handles".into())
+        })?;
         if line.len() < 2 {
             return Err(DecodeError::Malformed("TX handle line too short".into()));
         }
@@ -435,7 +438,9 @@ pub fn parse_tx(text: &str, options: u16) -> Result<TrackingReply, DecodeError> 
     }
     let system_status = hex_field(status_line, "system status")? as u16;
     if lines.next().is_some() {
-        return Err(DecodeError::Malformed("text after the system status".into()));
+        return Err(DecodeError::Malformed(
+            "text after the system status".into(),
+        ));
     }
     Ok(TrackingReply {
         handles,
@@ -471,7 +476,9 @@ pub fn parse_phsr(text: &str) -> Result<Vec<PortHandleStatus>, DecodeError> {
 pub fn parse_phrq(text: &str) -> Result<u8, DecodeError> {
     let b = text.as_bytes();
     if b.len() != 2 {
-        return Err(DecodeError::Malformed(format!("PHRQ reply `{text}` is not 2 hex digits")));
+        return Err(DecodeError::Malformed(format!(
+            "PHRQ reply `{text}` is not 2 hex digits"
+        )));
     }
     Ok(hex_field(b, "PHRQ handle")? as u8)
 }

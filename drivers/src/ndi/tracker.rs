@@ -44,8 +44,9 @@ impl<T> std::fmt::Debug for NdiTracker<T> {
 
 /// Convert a tracking record into a vendor-independent status.
 ///
-/// Out-of-volume transforms (port status 0x40 / 0x80, reported because of option 0x0800)
-/// become [`ToolStatus::OutOfVolume`]; a non-finite or zero quaternion is a protocol error.
+/// Out-of-volume records (port status 0x40 / 0x80: a transform reported because of option
+/// 0x0800, or MISSING with the bit set) become [`ToolStatus::OutOfVolume`]; a non-finite or
+/// non-unit quaternion is a protocol error.
 pub fn tool_status(state: &HandleState, port_status: u32) -> Result<ToolStatus, String> {
     Ok(match *state {
         HandleState::Valid { q, t, rms } => {
@@ -66,14 +67,15 @@ pub fn tool_status(state: &HandleState, port_status: u32) -> Result<ToolStatus, 
                 rms_mm: rms,
             }
         }
+        HandleState::Missing if port_status & PORT_OUT_OF_VOLUME != 0 => ToolStatus::OutOfVolume,
         HandleState::Missing => ToolStatus::Missing,
         HandleState::Disabled => ToolStatus::Disabled,
     })
 }
 
 impl<T: AsyncRead + AsyncWrite + Unpin + Send> NdiTracker<T> {
-    /// Run the scikit-surgerynditracker start-up sequence: `INIT`, free handles listed by
-    /// `PHSR:01`, per tool `PHRQ` + `PVWR`, `PINIT`, `PENA:hhD`, then `TSTART`.
+    /// Run the start-up sequence (scikit-surgerynditracker's, but freeing every handle listed
+    /// by `PHSR:00` instead of `PHSR:01`): `INIT`, `PHF` per old handle, per tool `PHRQ` + `PVWR`, `PINIT`, `PENA:hhD`, then `TSTART`.
     /// `tools` are `(name, .rom bytes)`.
     pub async fn setup(
         client: NdiClient<T>,
@@ -81,7 +83,13 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> NdiTracker<T> {
         mode: ReplyMode,
     ) -> Result<Self, Error> {
         client.init().await?;
-        for h in client.port_handles(0x01).await? {
+        // Take the tracker over: free every handle a previous session left (scikit-
+        // surgerynditracker frees only those listed as "to be freed", PHSR:01, and leaves
+        // its own loaded tools behind on close).
+        if tools.is_empty() {
+            return Err(Error::InvalidArgument("no tool definitions given".into()));
+        }
+        for h in client.port_handles(0x00).await? {
             client.free_handle(h.handle).await?;
         }
         let mut loaded = Vec::with_capacity(tools.len());
