@@ -599,3 +599,268 @@ fn ik_reports_limits_and_wraps() {
         assert_eq!(inside, s.within_limits, "branch {}", s.label);
     }
 }
+
+// ---------------------------------------------------------------- URDF
+
+fn urdf_joint(
+    name: &str,
+    kind: &str,
+    parent: &str,
+    child: &str,
+    xyz_m: [f64; 3],
+    rpy: [f64; 3],
+    axis: [f64; 3],
+) -> String {
+    format!(
+        r#"<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>
+<origin xyz="{} {} {}" rpy="{} {} {}"/><axis xyz="{} {} {}"/>
+<limit lower="-2.9" upper="2.9" effort="1" velocity="1"/></joint>
+"#,
+        xyz_m[0], xyz_m[1], xyz_m[2], rpy[0], rpy[1], rpy[2], axis[0], axis[1], axis[2]
+    )
+}
+
+/// The VS060 written as a URDF (metres) with a fixed world joint and a fixed flange joint,
+/// plus a branch (a camera link) that must be ignored.
+fn vs060_urdf() -> String {
+    let mut s = String::from(r#"<?xml version="1.0"?><robot name="vs060">"#);
+    for l in [
+        "world",
+        "base_link",
+        "l1",
+        "l2",
+        "l3",
+        "l4",
+        "l5",
+        "l6",
+        "flange",
+        "camera",
+    ] {
+        s += &format!(r#"<link name="{l}"/>"#);
+    }
+    s += &urdf_joint(
+        "world_joint",
+        "fixed",
+        "world",
+        "base_link",
+        [0.0; 3],
+        [0.0; 3],
+        [1.0, 0.0, 0.0],
+    );
+    s += &urdf_joint(
+        "joint_1",
+        "revolute",
+        "base_link",
+        "l1",
+        [0.0, 0.0, 0.1815],
+        [0.0; 3],
+        [0.0, 0.0, 1.0],
+    );
+    s += &urdf_joint(
+        "joint_2",
+        "revolute",
+        "l1",
+        "l2",
+        [0.0, 0.0, 0.1635],
+        [0.0; 3],
+        [0.0, 1.0, 0.0],
+    );
+    s += &urdf_joint(
+        "cam",
+        "fixed",
+        "l2",
+        "camera",
+        [0.1, 0.0, 0.0],
+        [0.0; 3],
+        [1.0, 0.0, 0.0],
+    );
+    s += &urdf_joint(
+        "joint_3",
+        "revolute",
+        "l2",
+        "l3",
+        [0.0, 0.0, 0.305],
+        [0.0; 3],
+        [0.0, 1.0, 0.0],
+    );
+    s += &urdf_joint(
+        "joint_4",
+        "revolute",
+        "l3",
+        "l4",
+        [-0.010, 0.0, 0.1645],
+        [0.0; 3],
+        [0.0, 0.0, 1.0],
+    );
+    s += &urdf_joint(
+        "joint_5",
+        "revolute",
+        "l4",
+        "l5",
+        [0.0, 0.0, 0.1355],
+        [0.0; 3],
+        [0.0, 1.0, 0.0],
+    );
+    s += &urdf_joint(
+        "joint_6",
+        "continuous",
+        "l5",
+        "l6",
+        [0.0, 0.0, 0.070],
+        [0.0; 3],
+        [0.0, 0.0, 1.0],
+    );
+    s += &urdf_joint(
+        "flange_joint",
+        "fixed",
+        "l6",
+        "flange",
+        [0.0; 3],
+        [0.0; 3],
+        [1.0, 0.0, 0.0],
+    );
+    s += "</robot>";
+    s
+}
+
+#[test]
+fn urdf_vs060_matches_preset() {
+    let xml = vs060_urdf();
+    let preset = KinematicModel::preset("denso-vs060").unwrap();
+    for (base, tip) in [
+        (None, Some("flange")),
+        (Some("world"), Some("l6")),
+        (Some("base_link"), None),
+    ] {
+        let m = KinematicModel::from_urdf_str(&xml, base, tip).unwrap();
+        assert_eq!(m.dof(), 6);
+        let mut s = 11u64;
+        for _ in 0..100 {
+            let q: Vec<f64> = (0..6).map(|_| (lcg(&mut s) - 0.5) * 6.0).collect();
+            let (dp, dr) = pose_distance(&m.flange_pose(&q), &preset.flange_pose(&q));
+            assert!(dp < 1e-9 && dr < 1e-12, "{base:?}->{tip:?}: {dp} mm");
+        }
+        // the family is detected, so closed-form IK works on URDF models too
+        assert!(m.ik_family().is_some());
+    }
+    // limits come from the URDF (revolute) or default (continuous)
+    let m = KinematicModel::from_urdf_str(&xml, None, Some("flange")).unwrap();
+    assert!((m.joint_limits()[0].1 - 2.9).abs() < 1e-12);
+}
+
+#[test]
+fn urdf_errors_are_typed() {
+    let xml = vs060_urdf();
+    assert!(matches!(
+        KinematicModel::from_urdf_str(&xml, None, Some("nope")),
+        Err(ModelError::UrdfLinkNotFound { .. })
+    ));
+    assert!(matches!(
+        KinematicModel::from_urdf_str(&xml, Some("l6"), Some("l1")),
+        Err(ModelError::UrdfNoPath { .. })
+    ));
+    assert!(matches!(
+        KinematicModel::from_urdf_str("<robot", None, None),
+        Err(ModelError::Urdf { .. })
+    ));
+    let pris = xml.replace(
+        r#"name="joint_3" type="revolute""#,
+        r#"name="joint_3" type="prismatic""#,
+    );
+    assert!(matches!(
+        KinematicModel::from_urdf_str(&pris, None, Some("flange")),
+        Err(ModelError::UnsupportedJoint { .. })
+    ));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 40, ..ProptestConfig::default() })]
+    /// Random chains written as URDF (metres, radians) convert exactly.
+    #[test]
+    fn urdf_random_chains_are_exact(
+        (chain, fl) in arb_chain(),
+        qs in prop::collection::vec(prop::collection::vec(-7.0f64..7.0, 8), 20),
+    ) {
+        let mut xml = String::from(r#"<robot name="r"><link name="l0"/>"#);
+        for (i, j) in chain.iter().enumerate() {
+            xml += &format!(r#"<link name="l{}"/>"#, i + 1);
+            let xyz = j.origin_xyz.map(|v| v / 1000.0);
+            let rpy = j.origin_rpy.map(f64::to_radians);
+            xml += &urdf_joint(&j.name, "continuous", &format!("l{i}"), &format!("l{}", i + 1), xyz, rpy, j.axis);
+        }
+        xml += r#"<link name="tip"/>"#;
+        xml += &urdf_joint("fl", "fixed", &format!("l{}", chain.len()), "tip",
+            fl.origin_xyz.map(|v| v / 1000.0), fl.origin_rpy.map(f64::to_radians), [1.0, 0.0, 0.0]);
+        xml += "</robot>";
+        let m = KinematicModel::from_urdf_str(&xml, None, None).unwrap();
+        let sc = SerialChain::from_chain_joints(&chain, Some(&fl)).unwrap();
+        for q in &qs {
+            let q = &q[..chain.len()];
+            let (dp, dr) = pose_distance(&sc.fk(q), &m.flange_pose(q));
+            // the decimal text of the XML round-trips f64 exactly (Rust prints shortest repr)
+            prop_assert!(dp <= 1e-9, "{} mm", dp);
+            prop_assert!(dr <= 1e-12, "{} rad", dr);
+        }
+    }
+}
+
+// ---------------------------------------------------------------- performance
+
+#[test]
+fn point_param_jacobian_is_fast() {
+    // identification evaluates 500 poses × many iterations; one pass over 500 poses must be
+    // far below the 50 ms fit budget even in the test profile
+    let m = perturbed("denso-vs060", 3);
+    let mut s = 5u64;
+    let qs: Vec<Vec<f64>> = (0..500).map(|_| random_q(&m, &mut s)).collect();
+    let mut buf = nalgebra::Matrix3xX::zeros(m.params().len());
+    let t0 = std::time::Instant::now();
+    let mut acc = 0.0;
+    for q in &qs {
+        acc += m.point_param_jacobian_into(q, &mut buf).unwrap().x;
+    }
+    let dt = t0.elapsed();
+    assert!(acc.is_finite());
+    assert!(dt.as_millis() < 20, "500 point Jacobians took {dt:?}");
+}
+
+// ---------------------------------------------------------------- identifiability
+
+#[test]
+fn point_redundancies_leave_27_identifiable_params() {
+    // seed 001: 27 parameters (18 arm + 6 base + 3 tool) for a 6R arm seen by a tracker
+    for name in ["denso-vs060", "ur5e", "ur10e"] {
+        let mut m = perturbed(name, 17);
+        m.fix_point_redundancies();
+        let free = m.free_indices();
+        assert_eq!(free.len(), 27, "{name}: free parameters {free:?}");
+        let mut s = 3u64;
+        let rows = 60;
+        let mut a = nalgebra::DMatrix::<f64>::zeros(3 * rows, free.len());
+        for r in 0..rows {
+            let q = random_q(&m, &mut s);
+            let (_, j) = m.point_param_jacobian(&q);
+            for (c, &k) in free.iter().enumerate() {
+                for i in 0..3 {
+                    a[(3 * r + i, c)] = j[(i, k)];
+                }
+            }
+        }
+        // scale columns (mm vs rad) before judging the rank
+        for c in 0..a.ncols() {
+            let n = a.column(c).norm();
+            assert!(
+                n > 0.0,
+                "{name}: column {} is zero",
+                m.params()[free[c]].name
+            );
+            a.column_mut(c).scale_mut(1.0 / n);
+        }
+        let sv = a.svd(false, false).singular_values;
+        let cond = sv.max() / sv.min();
+        assert!(cond < 1e6, "{name}: condition number {cond:e}");
+        // without fixing, the full set is rank deficient (base absorbs joint 1)
+        let all = KinematicModel::preset(name).unwrap();
+        assert!(all.free_count() > 27);
+    }
+}

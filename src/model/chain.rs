@@ -178,9 +178,11 @@ impl SerialChain {
                     return;
                 }
                 None => {
+                    // most movable joints; on a tie the longer path (trailing fixed
+                    // joints are the flange)
                     let better = match best {
                         None => true,
-                        Some(b) => movable(path) > movable(b),
+                        Some(b) => (movable(path), path.len()) > (movable(b), b.len()),
                     };
                     if better {
                         *best = Some(path.clone());

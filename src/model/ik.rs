@@ -297,7 +297,7 @@ impl IkFamily {
             } => {
                 let p05 = p - r.column(2) * d6;
                 let rxy = p05.x.hypot(p05.y);
-                if rxy < d4.abs() * (1.0 - SEED_MARGIN) || rxy < 1e-12 {
+                if rxy < d4.abs() * (1.0 - 2.0 * SEED_MARGIN) || rxy < 1e-12 {
                     return out;
                 }
                 let psi = p05.y.atan2(p05.x);
@@ -346,7 +346,7 @@ impl IkFamily {
 /// Relative margin by which a closed-form equation may miss a real root and still give a
 /// (clamped) seed: a calibrated robot can reach slightly beyond the nominal workspace; the
 /// Newton refinement on the actual model decides.
-pub const SEED_MARGIN: f64 = 0.02;
+pub const SEED_MARGIN: f64 = 0.05;
 
 /// ZYZ Euler angles of `m = Rz(a)·Ry(b)·Rz(c)`: (no-flip with b ≥ 0, flip with b ≤ 0).
 fn zyz(m: &Matrix3<f64>) -> [(u8, [f64; 3]); 2] {
@@ -427,6 +427,42 @@ pub fn refine(
     (q, dp.norm(), dr.norm())
 }
 
+/// Move a nominal closed-form seed towards the model's solution on the same branch: with
+/// `Δ = nominal(q) · model(q)⁻¹` the nominal geometry reaches `Δ · target` where the model
+/// reaches `target`, so re-solving the closed form for the shifted target keeps the branch
+/// while absorbing the calibration (a few fixed-point steps; the Newton step polishes).
+fn shift_seed(
+    model: &KinematicModel,
+    fam: &IkFamily,
+    target: &Isometry3<f64>,
+    branch: u8,
+    mut q: [f64; 6],
+) -> [f64; 6] {
+    for _ in 0..6 {
+        let delta = fam.nominal_fk(&q) * model.flange_pose(&q).inverse();
+        let shifted = delta * target;
+        let Some((_, qn)) = fam
+            .closed_form(&shifted)
+            .into_iter()
+            .find(|(b, _)| *b == branch)
+        else {
+            break;
+        };
+        // continuity with the previous iterate (wrapping may move by 2π)
+        let qn = std::array::from_fn(|i| q[i] + wrap(qn[i] - q[i]));
+        let step = qn
+            .iter()
+            .zip(q.iter())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        q = qn;
+        if step < 1e-12 {
+            break;
+        }
+    }
+    q
+}
+
 /// Wrap each joint by multiples of 2π into its limits where possible (preferring the value
 /// closest to the original). Returns whether all joints ended within limits.
 pub fn wrap_into_limits(q: &mut [f64], limits: &[(f64, f64)]) -> bool {
@@ -485,6 +521,7 @@ pub fn solve(model: &KinematicModel, target: &Isometry3<f64>) -> Result<Vec<IkSo
     let mut sols = Vec::with_capacity(seeds.len());
     let (mut best_p, mut best_r) = (f64::INFINITY, f64::INFINITY);
     for (branch, q0) in seeds {
+        let q0 = shift_seed(model, fam, target, branch, q0);
         let (mut q, ep, er) = refine(model, target, &q0, 100);
         if ep < best_p {
             best_p = ep;
