@@ -5,8 +5,10 @@
 //! so the acquisition engine can decide retry / skip / abort without knowing the vendor.
 #![warn(missing_docs)]
 
+pub mod bcap;
 pub mod error;
 pub mod fake;
+pub mod keyence;
 pub mod ndi;
 pub mod safety;
 pub mod traits;
