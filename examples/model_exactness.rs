@@ -70,7 +70,8 @@ fn random_chain(rng: &mut ChaCha8Rng) -> (Vec<ChainJoint>, FixedOrigin) {
     (chain, fl)
 }
 
-fn golden(preset: &str) -> Vec<(Vec<f64>, Isometry3<f64>)> {
+/// (q rad, flange pose, raw file quaternion as nalgebra coords x, y, z, w).
+fn golden(preset: &str) -> Vec<(Vec<f64>, Isometry3<f64>, nalgebra::Vector4<f64>)> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join(format!("tests/data/golden/fk-{preset}.csv"));
     let mut r = csv::Reader::from_path(path).expect("golden file");
@@ -84,7 +85,11 @@ fn golden(preset: &str) -> Vec<(Vec<f64>, Isometry3<f64>)> {
             let q = v[0..6].iter().map(|d| d.to_radians()).collect();
             let t = Translation3::new(v[6], v[7], v[8]);
             let rq = UnitQuaternion::from_quaternion(Quaternion::new(v[9], v[10], v[11], v[12]));
-            (q, Isometry3::from_parts(t, rq))
+            (
+                q,
+                Isometry3::from_parts(t, rq),
+                nalgebra::Vector4::new(v[10], v[11], v[12], v[9]),
+            )
         })
         .collect()
 }
@@ -132,13 +137,19 @@ fn main() {
         let m = KinematicModel::preset(name).expect("preset");
         let rows = golden(name);
         let (mut gp, mut gr) = (0.0f64, 0.0f64);
-        for (q, pose) in &rows {
-            let (dp, dr) = pose_distance(&m.flange_pose(q), pose);
+        let mut gc = 0.0f64;
+        for (q, pose, raw) in &rows {
+            let fk = m.flange_pose(q);
+            let (dp, dr) = pose_distance(&fk, pose);
             gp = gp.max(dp);
             gr = gr.max(dr);
+            let (a, b) = (fk.rotation.coords, *raw);
+            let t = (fk.translation.vector - pose.translation.vector).amax();
+            gc = gc.max((a - b).amax().min((a + b).amax())).max(t);
         }
         println!(
-            "golden {name}: {} rows, max deviation {gp:.3e} mm, {gr:.3e} rad",
+            "golden {name}: {} rows, max deviation {gp:.3e} mm, {gr:.3e} rad; \
+             max deviation of any file number (x, y, z, qw..qz; 6 decimals) {gc:.3e}",
             rows.len()
         );
     }
