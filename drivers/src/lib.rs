@@ -8,7 +8,6 @@
 pub mod bcap;
 pub mod error;
 pub mod fake;
-pub mod keyence;
 pub mod ndi;
 pub mod safety;
 pub mod traits;
