@@ -964,3 +964,33 @@ fn kin_geometric_truth_is_reproduced() {
     // truth.csv has 5 decimals
     assert!(worst < 2e-5, "max deviation from truth.csv {worst} mm");
 }
+
+#[test]
+fn ik_for_tool_and_from_seed() {
+    let mut m = perturbed("ur5e", 21);
+    m.set_base(&Isometry3::identity());
+    let q = [0.4, -1.1, 1.3, -0.6, 1.2, 0.3];
+    let tool_pose = m.tool_pose_in_base(&q);
+    let sols = m.ik_for_tool(&tool_pose).unwrap();
+    assert!(!sols.is_empty());
+    for s in &sols {
+        let (dp, dr) = pose_distance(&m.tool_pose_in_base(&s.q), &tool_pose);
+        assert!(dp < 1e-6 && dr < 1e-8, "{dp} mm {dr} rad");
+    }
+    // from a seed near q (no closed form used), e.g. for a model without a family
+    let mut nofam = m.clone();
+    nofam.set_ik_family(None);
+    assert!(matches!(
+        nofam.ik(&m.flange_pose(&q)),
+        Err(IkError::NoClosedForm { .. })
+    ));
+    let seed: Vec<f64> = q.iter().map(|x| x + 0.05).collect();
+    let qs = nofam.ik_from_seed(&m.flange_pose(&q), &seed).unwrap();
+    for (a, b) in qs.iter().zip(&q) {
+        assert!((a - b).abs() < 1e-8);
+    }
+    assert!(matches!(
+        nofam.ik_from_seed(&Isometry3::translation(4000.0, 0.0, 0.0), &seed),
+        Err(IkError::Unreachable { .. })
+    ));
+}

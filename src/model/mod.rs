@@ -887,6 +887,45 @@ impl KinematicModel {
     pub fn ik(&self, flange_in_base: &Isometry3<f64>) -> Result<Vec<IkSolution>, IkError> {
         ik::solve(self, flange_in_base)
     }
+
+    /// All IK branches that put the tool (marker / tip, `tool_*`) at `tool_in_base`.
+    pub fn ik_for_tool(&self, tool_in_base: &Isometry3<f64>) -> Result<Vec<IkSolution>, IkError> {
+        ik::solve(self, &(tool_in_base * self.tool().inverse()))
+    }
+
+    /// Damped-least-squares IK from a seed (any geometry, no closed form needed): the
+    /// solution nearest the seed's basin, within 1e-7 mm / 1e-9 rad, or a typed error.
+    pub fn ik_from_seed(
+        &self,
+        flange_in_base: &Isometry3<f64>,
+        q0: &[f64],
+    ) -> Result<Vec<f64>, IkError> {
+        let t = flange_in_base.translation.vector;
+        if !(t.iter().all(|x| x.is_finite())
+            && flange_in_base.rotation.coords.iter().all(|x| x.is_finite())
+            && q0.iter().all(|x| x.is_finite()))
+        {
+            return Err(IkError::NonFiniteTarget);
+        }
+        let mut q0 = q0.to_vec();
+        q0.resize(self.dof, 0.0);
+        let (q, ep, er) = ik::refine(self, flange_in_base, &q0, 200);
+        if ep <= ik::IK_POS_TOL_MM && er <= ik::IK_ROT_TOL_RAD {
+            Ok(q)
+        } else if ep > 1e-3 {
+            Err(IkError::Unreachable {
+                x_mm: t.x,
+                y_mm: t.y,
+                z_mm: t.z,
+                reason: format!("refinement from the seed stalls {ep:.3e} mm away"),
+            })
+        } else {
+            Err(IkError::NotConverged {
+                pos_err_mm: ep,
+                rot_err_deg: er.to_degrees(),
+            })
+        }
+    }
 }
 
 /// Position distance (mm) and rotation angle (rad) between two poses.
