@@ -8,6 +8,7 @@
 pub mod bcap;
 pub mod error;
 pub mod fake;
+pub mod keyence;
 pub mod ndi;
 pub mod safety;
 pub mod traits;

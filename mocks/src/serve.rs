@@ -142,8 +142,8 @@ pub async fn start_device(
         Protocol::Ur => crate::ur::start(world.clone(), device, bind).await,
         Protocol::NdiTcp => crate::ndi::start(world.clone(), device, bind).await,
         Protocol::NdiSerial => crate::ndi::start_serial(world.clone(), device, bind).await,
+        Protocol::DlRs1a => crate::keyence::start(world.clone(), device, bind).await,
         Protocol::Bcap
-        | Protocol::DlRs1a
         | Protocol::Optotrak
         | Protocol::Camera => Err(ServeError::NotAvailable {
             protocol: protocol.as_str().to_string(),
