@@ -43,6 +43,16 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 
 /// Run and return the short console summary.
 pub fn run(args: &Args) -> anyhow::Result<String> {
+    // Laser (range sensor) datasets have their own effect library (seed 000 geometry).
+    if let Ok(ds) = crate::dataset::Dataset::load(&args.data) {
+        if super::calibrate::laser::is_laser_dataset(&ds) {
+            return super::calibrate::laser::diagnose_laser(
+                &args.data,
+                args.heldout.as_deref(),
+                &args.out,
+            );
+        }
+    }
     let main = data::load_jsonl(&args.data)?;
     for w in &main.warnings {
         tracing::warn!("{w}");

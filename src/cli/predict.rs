@@ -53,6 +53,7 @@ enum Engine {
     /// Laser beam in the flange frame; flange poses from the record, else FK of `q`.
     Laser {
         beam: crate::solve::laser::Beam,
+        effects: Vec<CalEffect>,
         model: Option<Box<KinematicModel>>,
     },
 }
@@ -87,7 +88,11 @@ impl Predictor {
                     .ok()
                     .map(Box::new);
                 Ok(Predictor {
-                    engine: Engine::Laser { beam, model },
+                    engine: Engine::Laser {
+                        beam,
+                        effects: cal.effects.clone(),
+                        model,
+                    },
                 })
             }
             CalibrationKind::Other(k) => bail!(
@@ -124,8 +129,12 @@ impl Predictor {
                 let q_rad: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
                 Ok(model.measured_point(&q_rad))
             }
-            Engine::Laser { beam, model } => {
-                match crate::solve::laser::predict_spot(beam, rec, model.as_deref())? {
+            Engine::Laser {
+                beam,
+                effects,
+                model,
+            } => {
+                match crate::solve::laser::predict_spot(beam, effects, rec, model.as_deref())? {
                     Some(p) => Ok(p),
                     None => bail!(
                         "pose {} has no range reading (`range` absent or null): no laser spot",

@@ -151,3 +151,95 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// Whether `ds` is a laser (range sensor) dataset: pose records with ranges, calibration-plane
+/// labels, and no tracked marker.
+pub fn is_laser_dataset(ds: &Dataset) -> bool {
+    let mut any_plane = false;
+    for p in ds.poses() {
+        if p.marker.is_some() {
+            return false;
+        }
+        any_plane |= p.plane.is_some() && p.range.is_some();
+    }
+    any_plane
+}
+
+/// `robocal diagnose` on a laser dataset: fit the beam, then test the laser effects
+/// (`laser_scale`, `laser_incidence`, `laser_nonlinearity`) and add the significant ones.
+/// Writes `DIR/diagnosis.json` and `DIR/calibration.json` (with the effects); returns the
+/// console summary.
+pub fn diagnose_laser(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<String> {
+    let ds = Dataset::load(data)?;
+    let obs = laser::observations(&ds)
+        .with_context(|| format!("reading laser poses of {}", data.display()))?;
+    let train: Vec<laser::LaserObs> = obs.iter().filter(|o| o.plane.is_some()).cloned().collect();
+    let mut validation: Vec<laser::LaserObs> =
+        obs.iter().filter(|o| o.target.is_some()).cloned().collect();
+    if let Some(h) = heldout {
+        let hd = Dataset::load(h)?;
+        validation.extend(
+            laser::observations(&hd)?
+                .into_iter()
+                .filter(|o| o.target.is_some()),
+        );
+    }
+    let cmp = laser::compare(&train, &validation, None, None).context("laser base fit")?;
+    let beam = cmp.final_beam.context("no beam")?;
+    let diag = laser::effects::diagnose(&train, &validation, &beam, &cmp.final_planes)
+        .context("laser effect diagnosis")?;
+    let final_beam = diag.beam.unwrap_or(beam);
+    let mut cal = CalibrationFile::new(
+        ds.header.robot.clone(),
+        laser::beam_params(&final_beam, None),
+    );
+    cal.set_kind("laser");
+    cal.effects = diag.cal_effects();
+    cal.metrics
+        .insert("plane_rms_mm_before".into(), diag.rms_before_mm.into());
+    cal.metrics
+        .insert("plane_rms_mm_after".into(), diag.rms_after_mm.into());
+    if let (Some(b), Some(a)) = (diag.spread_before_mm, diag.spread_after_mm) {
+        cal.metrics.insert("spread_mm_before".into(), b.into());
+        cal.metrics.insert("spread_mm_after".into(), a.into());
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    cal.save(out.join("calibration.json"))?;
+    std::fs::write(
+        out.join("diagnosis.json"),
+        serde_json::to_string_pretty(&serde_json::json!({
+            "format": "robocal-diagnosis/1",
+            "kind": "laser",
+            "diagnosis": diag,
+        }))?,
+    )?;
+    let mut s = format!(
+        "laser diagnosis of {}: point-to-plane RMS {:.4} mm",
+        data.display(),
+        diag.rms_before_mm
+    );
+    for f in &diag.findings {
+        s.push_str(&format!(
+            "\n  -> {} (F = {:.1}, p = {:.2e}, dBIC = {:.1}; {:.1} {} ± {:.1}) -> RMS {:.4} mm",
+            f.kind,
+            f.f_stat,
+            f.p_value,
+            f.delta_bic,
+            f.sensor_value,
+            f.sensor_unit,
+            f.coef_std * if f.sensor_unit == "ppm" { 1e6 } else { 1.0 },
+            f.rms_after_mm
+        ));
+    }
+    if diag.findings.is_empty() {
+        s.push_str("\n  no laser effect is significant");
+    }
+    if let (Some(b), Some(a)) = (diag.spread_before_mm, diag.spread_after_mm) {
+        s.push_str(&format!("\n  5-direction spread {b:.4} -> {a:.4} mm"));
+    }
+    s.push_str(&format!(
+        "\n  wrote {}",
+        out.join("calibration.json").display()
+    ));
+    Ok(s)
+}

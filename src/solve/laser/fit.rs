@@ -333,6 +333,9 @@ struct MultiPlane<'a> {
     beta: f64,
     /// Per-point weights of the coplanarity rows (IRLS for Huber), same order as the points.
     weights: Vec<f64>,
+    /// Range-correction regressors (effects): the corrected range of point i is
+    /// `d_i + Σ_k e_k g_k[i]`, with the `e_k` appended to the parameter vector.
+    range_terms: Vec<Vec<f64>>,
 }
 
 impl MultiPlane<'_> {
@@ -343,7 +346,7 @@ impl MultiPlane<'_> {
 
 impl LsqProblem for MultiPlane<'_> {
     fn n_params(&self) -> usize {
-        6 + 4 * self.planes.len()
+        6 + 4 * self.planes.len() + self.range_terms.len()
     }
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
         self.residuals_jacobian(x).0
@@ -352,7 +355,8 @@ impl LsqProblem for MultiPlane<'_> {
         let np = self.planes.len();
         let m = self.n_points() + self.pairs.len() + 1 + np;
         let mut r = DVector::zeros(m);
-        let mut j = DMatrix::zeros(m, 6 + 4 * np);
+        let ne = 6 + 4 * np;
+        let mut j = DMatrix::zeros(m, ne + self.range_terms.len());
         let rr: Vector3<f64> = x.fixed_rows::<3>(0).into_owned();
         let v: Vector3<f64> = x.fixed_rows::<3>(3).into_owned();
         let mut row = 0;
@@ -362,15 +366,26 @@ impl LsqProblem for MultiPlane<'_> {
             for o in pts {
                 let w = self.beta * self.weights[row];
                 let rot = o.flange.rotation;
-                let xb = rot * (rr + v * o.d) + o.flange.translation.vector;
+                let d = o.d
+                    + self
+                        .range_terms
+                        .iter()
+                        .enumerate()
+                        .map(|(e, g)| x[ne + e] * g[row])
+                        .sum::<f64>();
+                let xb = rot * (rr + v * d) + o.flange.translation.vector;
                 r[row] = w * (n.dot(&xb) + c);
                 let m_f = rot.inverse() * n; // normal in the flange frame
                 for a in 0..3 {
                     j[(row, a)] = w * m_f[a];
-                    j[(row, 3 + a)] = w * o.d * m_f[a];
+                    j[(row, 3 + a)] = w * d * m_f[a];
                     j[(row, 6 + 4 * k + a)] = w * xb[a];
                 }
                 j[(row, 9 + 4 * k)] = w;
+                let nv = m_f.dot(&v);
+                for (e, g) in self.range_terms.iter().enumerate() {
+                    j[(row, ne + e)] = w * g[row] * nv;
+                }
                 row += 1;
             }
         }
@@ -420,6 +435,12 @@ pub struct MultiPlaneFit {
     pub report: LmReport,
     /// Ids whose Huber weight fell below 0.5 (outliers), sorted.
     pub outliers: Vec<u64>,
+    /// Fitted range-correction coefficients `e_k` (same order as the regressors).
+    pub range_coefs: Vec<f64>,
+    /// Their standard deviations, when computable.
+    pub range_coef_std: Vec<f64>,
+    /// Sum of squared (unweighted) point-to-plane distances (mm²).
+    pub rss: f64,
 }
 
 fn plane_lists(obs_by_plane: &[Vec<LaserObs>]) -> Vec<Vec<&LaserObs>> {
@@ -436,23 +457,37 @@ fn finish(
     for (p, o) in planes.iter_mut().zip(obs_by_plane) {
         orient_plane(p, o);
     }
+    let ne = 6 + 4 * np;
+    let range_coefs: Vec<f64> = (0..prob.range_terms.len())
+        .map(|e| report.x[ne + e])
+        .collect();
     let mut d2 = 0.0;
     let mut cnt = 0usize;
     for (p, pts) in planes.iter().zip(obs_by_plane) {
         for o in pts {
-            d2 += p.distance(&beam.spot(&o.flange, o.d)).powi(2);
+            let d = o.d
+                + range_coefs
+                    .iter()
+                    .zip(&prob.range_terms)
+                    .map(|(e, g)| e * g[cnt])
+                    .sum::<f64>();
+            d2 += p.distance(&beam.spot(&o.flange, d)).powi(2);
             cnt += 1;
         }
     }
     let rms = (d2 / cnt.max(1) as f64).sqrt();
     // Covariance σ² (JᵀJ)⁻¹, σ² from the (weighted) point rows of the final residual.
     let npts = prob.n_points();
+    let mut range_coef_std = vec![f64::NAN; range_coefs.len()];
     let std = {
         let jac = &report.jacobian;
         let jtj = jac.tr_mul(jac);
-        let dof = npts.saturating_sub(5 + 3 * np).max(1) as f64;
+        let dof = npts.saturating_sub(5 + 3 * np + range_coefs.len()).max(1) as f64;
         let sigma2 = report.residuals.rows(0, npts).norm_squared() / dof;
         jtj.try_inverse().map(|inv| {
+            for (e, s) in range_coef_std.iter_mut().enumerate() {
+                *s = (inv[(ne + e, ne + e)].max(0.0) * sigma2).sqrt();
+            }
             let mut s = [0.0; 6];
             for (k, sk) in s.iter_mut().enumerate() {
                 *sk = (inv[(k, k)].max(0.0) * sigma2).sqrt();
@@ -478,6 +513,9 @@ fn finish(
         std,
         report,
         outliers,
+        range_coefs,
+        range_coef_std,
+        rss: d2,
     }
 }
 
@@ -511,6 +549,7 @@ pub fn fit_orthogonal_planes(
         alpha: 1.0,
         beta: 2.0,
         weights: vec![1.0; npts],
+        range_terms: Vec::new(),
     };
     let report = minimize(&prob, pack(start, start_planes), &LmOptions::default());
     if !report.termination.converged() {
@@ -523,10 +562,13 @@ pub fn fit_orthogonal_planes(
 }
 
 /// Options of the direct fit.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct DirectOptions {
     /// Huber threshold (mm); `None` = plain least squares.
     pub huber_mm: Option<f64>,
+    /// Range-correction regressors `g_k` (one value per point, in plane-then-point order):
+    /// the corrected range is `d + Σ e_k g_k`; the fitted `e_k` are [`MultiPlaneFit::range_coefs`].
+    pub range_terms: Vec<Vec<f64>>,
 }
 
 /// Direct maximum-likelihood fit: joint least squares over `r`, `v` and every plane `(n_i, c_i)`
@@ -558,8 +600,10 @@ pub fn fit_direct(
         alpha: 0.0,
         beta: 1.0,
         weights: vec![1.0; npts],
+        range_terms: opts.range_terms.clone(),
     };
-    let mut x = pack(start, start_planes);
+    let x0 = pack(start, start_planes);
+    let mut x = x0.resize_vertically(6 + 4 * start_planes.len() + opts.range_terms.len(), 0.0);
     let rounds = if opts.huber_mm.is_some() { 6 } else { 1 };
     let mut report = None;
     for _ in 0..rounds {
@@ -590,7 +634,7 @@ pub fn fit_direct(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     use rand::{Rng, SeedableRng};
@@ -676,7 +720,7 @@ mod tests {
         out
     }
 
-    fn truth() -> (Beam, Vec<Plane>) {
+    pub(crate) fn truth() -> (Beam, Vec<Plane>) {
         let beam = Beam {
             r: Vector3::new(37.2, -14.6, 86.3),
             v: Unit::new_normalize(Vector3::new(0.0081, -0.0043, 1.0)),
@@ -734,8 +778,11 @@ mod tests {
             alpha: 1.0,
             beta: 2.0,
             weights: vec![1.0; n],
+            range_terms: vec![(0..n).map(|i| 400.0 + i as f64).collect()],
         };
-        let mut x = pack(&beam, &planes);
+        let x = pack(&beam, &planes);
+        let len = x.len();
+        let mut x = x.resize_vertically(len + 1, 1e-3);
         x[0] += 0.3;
         x[4] += 0.01;
         x[7] += 0.02;
@@ -777,6 +824,7 @@ mod tests {
             &planes,
             DirectOptions {
                 huber_mm: Some(0.1),
+                ..Default::default()
             },
         )
         .unwrap();

@@ -21,6 +21,7 @@
 //!
 //! Units: mm and radians inside; the calibration file stores `r` in mm and `v` as a unit vector.
 
+pub mod effects;
 pub mod fit;
 pub mod validate;
 
@@ -273,9 +274,12 @@ pub fn beam_from_calibration(cal: &CalibrationFile) -> Result<Beam, LaserError> 
     })
 }
 
-/// The laser spot (robot base frame, mm) of one record under a laser calibration.
+/// The laser spot (robot base frame, mm) of one record under a laser calibration and its
+/// range effects (`laser_scale`, `laser_nonlinearity`; `laser_incidence` needs the surface
+/// normal, which a record does not carry, so it is not applied here).
 pub fn predict_spot(
     beam: &Beam,
+    effects: &[crate::dataset::CalEffect],
     rec: &PoseRecord,
     model: Option<&KinematicModel>,
 ) -> Result<Option<Point3<f64>>, LaserError> {
@@ -283,6 +287,7 @@ pub fn predict_spot(
         return Ok(None);
     };
     let flange = record_flange(rec, model)?;
+    let d = effects::corrected_range(d, effects, None);
     Ok(Some(beam.spot(&flange, d)))
 }
 

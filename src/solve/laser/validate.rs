@@ -335,7 +335,10 @@ pub fn compare(
         &data,
         &ortho.beam,
         &ortho.planes,
-        DirectOptions { huber_mm },
+        DirectOptions {
+            huber_mm,
+            ..Default::default()
+        },
     )?;
     rows.push(row(
         "direct ML",
