@@ -8,6 +8,7 @@ pub mod keyence;
 pub mod ndi;
 pub mod scenario;
 pub mod serve;
+pub mod synth;
 pub mod ur;
 pub mod world;
 
