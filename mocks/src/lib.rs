@@ -4,6 +4,7 @@
 //! never the root crate's model) and its hidden physical effects.
 #![warn(missing_docs)]
 
+pub mod bcap;
 pub mod keyence;
 pub mod ndi;
 pub mod scenario;

@@ -143,8 +143,8 @@ pub async fn start_device(
         Protocol::NdiTcp => crate::ndi::start(world.clone(), device, bind).await,
         Protocol::NdiSerial => crate::ndi::start_serial(world.clone(), device, bind).await,
         Protocol::DlRs1a => crate::keyence::start(world.clone(), device, bind).await,
-        Protocol::Bcap
-        | Protocol::Optotrak
+        Protocol::Bcap => crate::bcap::start(world.clone(), device, bind).await,
+        Protocol::Optotrak
         | Protocol::Camera => Err(ServeError::NotAvailable {
             protocol: protocol.as_str().to_string(),
             device: device.to_string(),
