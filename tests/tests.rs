@@ -8,3 +8,4 @@ mod laser;
 mod solve;
 mod acquire;
 mod diagnose;
+mod world_vs_model;
