@@ -30,6 +30,9 @@ pub const GRAVITY_DIR: [f64; 3] = [0.0, 0.0, -1.0];
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MassPoint {
     Frame(usize),
+    /// The flange origin (a payload on the flange axis is a combination of the wrist
+    /// centre and the flange origin).
+    Flange,
     Marker,
 }
 
@@ -37,12 +40,16 @@ impl MassPoint {
     fn label(&self) -> String {
         match self {
             MassPoint::Frame(k) => format!("frame{k}"),
+            MassPoint::Flange => "flange".into(),
             MassPoint::Marker => "marker".into(),
         }
     }
     fn parse(s: &str) -> Option<Self> {
         if s == "marker" {
             return Some(MassPoint::Marker);
+        }
+        if s == "flange" {
+            return Some(MassPoint::Flange);
         }
         s.strip_prefix("frame")?.parse().ok().map(MassPoint::Frame)
     }
@@ -146,7 +153,7 @@ impl Block {
                 Driver::Time { .. } => ", time".to_string(),
                 Driver::Temp { .. } => ", temperature".to_string(),
             },
-            Block::BaseShift { t_change } => format!(", t≥{t_change:.1}s"),
+            Block::BaseShift { t_change } => format!("t≥{t_change:.1}s"),
             _ => String::new(),
         };
         let lengths = if matches!(self, Block::LengthDrift { .. }) {
@@ -261,6 +268,7 @@ pub fn gravity_torques(
         .map(|p| {
             let c = match p {
                 MassPoint::Frame(k) => model.joint_frame(q, (*k).min(n)).translation.vector,
+                MassPoint::Flange => model.flange_pose(q).translation.vector,
                 MassPoint::Marker => model.tool_pose_in_base(q).translation.vector,
             };
             // mm → m
@@ -284,9 +292,16 @@ pub fn mass_points(model: &KinematicModel, joint: usize) -> Vec<MassPoint> {
             last = p;
         }
     }
-    let m = model.tool_pose_in_base(&q0).translation.vector;
-    if pts.iter().all(|(_, p)| (p - m).norm() > 30.0) && (m - origin).norm() > 30.0 {
-        pts.push((MassPoint::Marker, m));
+    for (mp, p) in [
+        (MassPoint::Flange, model.flange_pose(&q0).translation.vector),
+        (
+            MassPoint::Marker,
+            model.tool_pose_in_base(&q0).translation.vector,
+        ),
+    ] {
+        if pts.iter().all(|(_, x)| (x - p).norm() > 30.0) && (p - origin).norm() > 30.0 {
+            pts.push((mp, p));
+        }
     }
     pts.into_iter().map(|(p, _)| p).collect()
 }
@@ -380,7 +395,7 @@ pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -
     let mut y = p.coords * (1.0 + tracker_scale(effects));
     for e in effects {
         if let Block::Nonparametric(r) = &e.block {
-            y += r.predict(&ctx.q);
+            y += r.correction(model, &ctx.q);
         }
     }
     Point3::from(y)
@@ -417,7 +432,7 @@ pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Po
             je.set_column(off, &p.coords);
         }
         if let Block::Nonparametric(r) = &e.block {
-            pred += r.predict(&ctx.q);
+            pred += r.correction(model, &ctx.q);
         }
         off += e.block.n_coefs();
     }

@@ -52,6 +52,13 @@ pub struct Options {
     pub nonparam_min_gain: f64,
     /// Whether a nonparametric correction may be added.
     pub allow_nonparametric: bool,
+    /// When a kernel regression on joint space explains more than `np_benchmark_gain` of
+    /// the residual variance (cross-validated), a physical candidate must explain at least
+    /// this fraction of what the kernel regression explains (effects.md §5.5: a physics
+    /// block that does not reach the black box's held-out error has not explained the data).
+    pub min_np_ratio: f64,
+    /// See `min_np_ratio`.
+    pub np_benchmark_gain: f64,
 }
 
 impl Default for Options {
@@ -65,6 +72,8 @@ impl Default for Options {
             n_folds: 5,
             nonparam_min_gain: 0.10,
             allow_nonparametric: true,
+            min_np_ratio: 0.5,
+            np_benchmark_gain: 0.2,
         }
     }
 }
@@ -83,6 +92,10 @@ pub struct Score {
     pub independence: f64,
     /// Number of tests this candidate stands for (change-point grids count every point).
     pub tests: usize,
+    /// Cross-validated variance explained by the candidate divided by that explained by a
+    /// kernel regression of the residual on joint space (NaN when the kernel regression
+    /// explains too little to be a benchmark).
+    pub np_ratio: f64,
 }
 
 /// One accepted step of the chain.
@@ -271,37 +284,35 @@ pub fn score_round(
         })
         .collect();
     let mut out = Vec::new();
-    for group in cands {
-        let mut best: Option<(Score, DMatrix<f64>)> = None;
-        for b in group {
-            let pk = b.n_coefs();
-            let mut g = DMatrix::zeros(nrow, pk);
-            for (k, o) in train.iter().enumerate() {
-                let cols =
-                    block_columns(b, &state.model, &evals[k].jac_model, &raw_pred[k], &o.ctx);
-                for (c, v) in cols.iter().enumerate() {
-                    for a in 0..3 {
-                        g[(3 * k + a, c)] = v[a];
-                    }
+    let eval_block = |b: &Block, tests: usize| -> Option<(Score, DMatrix<f64>)> {
+        let pk = b.n_coefs();
+        let mut g = DMatrix::zeros(nrow, pk);
+        for (k, o) in train.iter().enumerate() {
+            let cols = block_columns(b, &state.model, &evals[k].jac_model, &raw_pred[k], &o.ctx);
+            for (c, v) in cols.iter().enumerate() {
+                for a in 0..3 {
+                    g[(3 * k + a, c)] = v[a];
                 }
             }
-            if g.iter().all(|v| v.abs() < 1e-15) {
-                continue;
-            }
-            let gp = project_out(&q, &g);
-            let indep = independence(&g, &gp);
-            let qg = orth_basis(&gp);
-            let df = qg.ncols();
-            if df == 0 {
-                continue;
-            }
-            let ess = (qg.transpose() * &r).norm_squared().min(rss0);
-            let rss1 = (rss0 - ess).max(1e-300);
-            let df2 = nrow.saturating_sub(rank_j + df).max(1) as f64;
-            let f = (ess / df as f64) / (rss1 / df2);
-            let p = f_sf(f, df as f64, df2);
-            let dbic = nrow as f64 * (rss0 / rss1).ln() - df as f64 * (nrow as f64).ln();
-            let s = Score {
+        }
+        if g.iter().all(|v| v.abs() < 1e-15) {
+            return None;
+        }
+        let gp = project_out(&q, &g);
+        let indep = independence(&g, &gp);
+        let qg = orth_basis(&gp);
+        let df = qg.ncols();
+        if df == 0 {
+            return None;
+        }
+        let ess = (qg.transpose() * &r).norm_squared().min(rss0);
+        let rss1 = (rss0 - ess).max(1e-300);
+        let df2 = nrow.saturating_sub(rank_j + df).max(1) as f64;
+        let f = (ess / df as f64) / (rss1 / df2);
+        let p = f_sf(f, df as f64, df2);
+        let dbic = nrow as f64 * (rss0 / rss1).ln() - df as f64 * (nrow as f64).ln();
+        Some((
+            Score {
                 label: b.label(),
                 block: b.clone(),
                 df,
@@ -310,13 +321,75 @@ pub fn score_round(
                 delta_bic: dbic,
                 cv_gain: f64::NAN,
                 independence: indep,
-                tests: group.len(),
-            };
-            if best
-                .as_ref()
-                .is_none_or(|(bs, _)| s.delta_bic > bs.delta_bic)
-            {
-                best = Some((s, g));
+                tests,
+                np_ratio: f64::NAN,
+            },
+            g,
+        ))
+    };
+    let mut times: Vec<f64> = train.iter().map(|o| o.ctx.t).collect();
+    times.sort_by(|a, b| a.total_cmp(b));
+    for group in cands {
+        let mut best: Option<(Score, DMatrix<f64>)> = None;
+        let consider = |cand: Option<(Score, DMatrix<f64>)>,
+                        best: &mut Option<(Score, DMatrix<f64>)>| {
+            if let Some(c) = cand {
+                if best
+                    .as_ref()
+                    .is_none_or(|(bs, _)| c.0.delta_bic > bs.delta_bic)
+                {
+                    *best = Some(c);
+                }
+            }
+        };
+        for b in group {
+            consider(eval_block(b, group.len()), &mut best);
+        }
+        // Refine a change point between its coarse neighbours: every mid-point between two
+        // consecutive poses (each one counts as a test).
+        if let Some((
+            Score {
+                block: Block::BaseShift { t_change },
+                ..
+            },
+            _,
+        )) = &best
+        {
+            let tc = *t_change;
+            let grid: Vec<f64> = group
+                .iter()
+                .filter_map(|b| match b {
+                    Block::BaseShift { t_change } => Some(*t_change),
+                    _ => None,
+                })
+                .collect();
+            let lo = grid
+                .iter()
+                .copied()
+                .filter(|t| *t < tc)
+                .fold(f64::NEG_INFINITY, f64::max);
+            let hi = grid
+                .iter()
+                .copied()
+                .filter(|t| *t > tc)
+                .fold(f64::INFINITY, f64::min);
+            let nt = times.len();
+            let lo = lo.max(times[nt / 20]);
+            let hi = hi.min(times[(19 * nt / 20).min(nt - 1)]);
+            let fine: Vec<f64> = times
+                .windows(2)
+                .map(|w| 0.5 * (w[0] + w[1]))
+                .filter(|t| *t > lo && *t < hi && (*t - tc).abs() > 1e-9)
+                .collect();
+            let tests = group.len() + fine.len();
+            for t in fine {
+                consider(
+                    eval_block(&Block::BaseShift { t_change: t }, tests),
+                    &mut best,
+                );
+            }
+            if let Some((s, _)) = &mut best {
+                s.tests = tests;
             }
         }
         if let Some((mut s, g)) = best {
@@ -334,6 +407,27 @@ fn accepted(s: &Score, m_tests: usize, opt: &Options) -> bool {
         && s.delta_bic > opt.min_delta_bic
         && s.cv_gain > opt.min_cv_gain
         && s.independence >= opt.min_independence
+        && (s.np_ratio.is_nan() || s.np_ratio >= opt.min_np_ratio)
+}
+
+/// Inputs and residual targets of the kernel regression (arm-frame representation).
+fn np_data(state: &State, train: &[Obs]) -> (Vec<Vec<f64>>, Vec<Vector3<f64>>) {
+    let rv = residual_vectors(state, train);
+    let qs: Vec<Vec<f64>> = train.iter().map(|o| o.ctx.q.clone()).collect();
+    nonparam::arm_frame_data(&state.model, &qs, &rv)
+}
+
+/// Cross-validated variance fraction of the residual that a kernel regression on joint
+/// space explains, with fixed hyper-parameters; NaN if it cannot be computed.
+fn np_gain(state: &State, train: &[Obs], hp: Option<(f64, f64)>, opt: &Options) -> f64 {
+    let Some((ell, lam)) = hp else {
+        return f64::NAN;
+    };
+    let (qs, rv) = np_data(state, train);
+    match nonparam::cv_fixed(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds, ell, lam) {
+        Some((b, a)) if b > 0.0 => 1.0 - (a / b).powi(2),
+        _ => f64::NAN,
+    }
 }
 
 fn heldout_rms(state: &State, heldout: &[Obs]) -> Option<f64> {
@@ -377,15 +471,48 @@ pub fn diagnose(
     let mut steps = Vec::new();
     let mut rounds = Vec::new();
     let mut not_identifiable: Vec<Score> = Vec::new();
+    // Hyper-parameters of the kernel benchmark, chosen once on the geometric residual.
+    let np_hp = if train.len() >= 40 {
+        let (qs, rv) = np_data(&state, train);
+        nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
+            .map(|c| (c.length_scale, c.lambda))
+    } else {
+        None
+    };
     for _ in 0..opt.max_effects {
         let t_round = std::time::Instant::now();
-        let scores = score_round(&state, train, &remaining, opt);
+        let mut scores = score_round(&state, train, &remaining, opt);
+        let npg = np_gain(&state, train, np_hp, opt);
+        if npg > opt.np_benchmark_gain {
+            for s in &mut scores {
+                s.np_ratio = (1.0 - (1.0 - s.cv_gain).powi(2)) / npg;
+            }
+        }
+        tracing::debug!(
+            "kernel benchmark explains {:.1} % of the residual variance",
+            100.0 * npg
+        );
         tracing::debug!(
             "scored {} candidates in {:?}",
             scores.len(),
             t_round.elapsed()
         );
-        let m_tests: usize = remaining.iter().map(|g| g.len()).sum::<usize>().max(1);
+        // Bonferroni: every test of the round (change-point refinements included).
+        let m_tests: usize = remaining
+            .iter()
+            .map(|g| {
+                scores
+                    .iter()
+                    .find(|s| {
+                        g.iter().any(|b| b.label() == s.label)
+                            || (matches!(s.block, Block::BaseShift { .. })
+                                && matches!(g[0], Block::BaseShift { .. }))
+                    })
+                    .map(|s| s.tests)
+                    .unwrap_or(g.len())
+            })
+            .sum::<usize>()
+            .max(1);
         for s in &scores {
             let signif = s.p_value < opt.alpha / m_tests as f64 && s.delta_bic > opt.min_delta_bic;
             if signif
@@ -433,14 +560,12 @@ pub fn diagnose(
     let mut nonparametric = None;
     if opt.allow_nonparametric && train.len() >= 40 {
         let r = residuals(&state, train);
-        let qs: Vec<Vec<f64>> = train.iter().map(|o| o.ctx.q.clone()).collect();
-        let rv: Vec<Vector3<f64>> = (0..train.len())
-            .map(|k| Vector3::new(r[3 * k], r[3 * k + 1], r[3 * k + 2]))
-            .collect();
+        let (qs, rv) = np_data(&state, train);
         let fo = folds(train, opt.n_folds);
         if let Some(cv) = nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds) {
             if cv.cv_rms_after < (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
-                if let Some(rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) {
+                if let Some(mut rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) {
+                    rbf.arm_frame = true;
                     let before_train = rms3(&r);
                     let before_held = heldout_rms(&state, heldout);
                     let e = Effect {
@@ -459,6 +584,7 @@ pub fn diagnose(
                         cv_gain: 1.0 - cv.cv_rms_after / cv.cv_rms_before,
                         independence: f64::NAN,
                         tests: 9,
+                        np_ratio: f64::NAN,
                     };
                     steps.push(Step {
                         effect: e,
@@ -510,6 +636,7 @@ fn score_json(s: &Score) -> Value {
         "candidate": s.label, "kind": s.block.kind(), "joint": s.block.joint(),
         "df": s.df, "F": fnum(s.f), "p_value": fnum(s.p_value), "delta_bic": fnum(s.delta_bic),
         "cv_gain": fnum(s.cv_gain), "independence": fnum(s.independence), "tests": s.tests,
+        "np_ratio": fnum(s.np_ratio),
     })
 }
 
@@ -635,6 +762,13 @@ impl Diagnosis {
         let _ = writeln!(s);
         if !self.found_physical() && self.nonparametric.is_some() {
             let _ = writeln!(s, "**No physical effect was identified.** The residual is structured (a kernel regression on joint space predicts held-out folds {:.1} % better than zero), but no effect of the library explains it; a `nonparametric` correction was used instead. Inspect the data for an effect the library does not contain.\n", 100.0 * (1.0 - self.nonparametric.map(|(a, b)| b / a).unwrap_or(1.0)));
+            if let Some(x) = self
+                .rounds
+                .last()
+                .and_then(|r| r.iter().find(|x| x.np_ratio.is_finite()))
+            {
+                let _ = writeln!(s, "The best library candidate, {}, explains only {:.0} % of what the kernel regression explains (ΔBIC {:.1}): it correlates with the residual but does not account for it.\n", x.label, 100.0 * x.np_ratio, x.delta_bic);
+            }
         } else if self.nonparametric.is_some() {
             let _ = writeln!(s, "Structured residual remained after the physical effects; no further library effect explained it, so a `nonparametric` correction was added.\n");
         }
@@ -645,6 +779,28 @@ impl Diagnosis {
             }
             let _ = writeln!(s);
         }
+        if let Some(r0) = self.rounds.first() {
+            let absorbed: Vec<&Score> = r0.iter().filter(|x| x.independence < 0.1).collect();
+            if !absorbed.is_empty() {
+                let _ = writeln!(
+                    s,
+                    "## Absorbed by the geometric parameters (cannot be detected from this data)\n"
+                );
+                for x in absorbed {
+                    let hint = if matches!(x.block, Block::TrackerScale) {
+                        " A tracker scale error is collinear with scaling every link length: the calibration reproduces the scaled readings and is wrong by the scale in absolute terms. Only an independent length standard (calibrated bar, CMM artefact) in the data can reveal it."
+                    } else {
+                        ""
+                    };
+                    let _ = writeln!(
+                        s,
+                        "- {}: independence {:.3}.{hint}",
+                        x.label, x.independence
+                    );
+                }
+                let _ = writeln!(s);
+            }
+        }
         if !self.untestable.is_empty() {
             let _ = writeln!(s, "## Not testable on this data\n");
             for (a, b) in &self.untestable {
@@ -652,25 +808,38 @@ impl Diagnosis {
             }
             let _ = writeln!(s);
         }
-        if let Some(r0) = self.rounds.first() {
+        for (k, round) in self.rounds.iter().enumerate() {
             let _ = writeln!(
                 s,
-                "## Candidates after the geometric fit (top 10 by ΔBIC)\n"
+                "## Round {} candidates (top 8 by ΔBIC){}\n",
+                k + 1,
+                if k == 0 {
+                    ", after the geometric fit"
+                } else {
+                    ""
+                }
             );
-            let _ = writeln!(s, "| candidate | df | F | p | ΔBIC | CV gain | independence |\n|---|---|---|---|---|---|---|");
-            for x in r0.iter().take(10) {
+            let _ = writeln!(s, "| candidate | df | F | p | tests | ΔBIC | CV gain | independence | vs kernel benchmark |\n|---|---|---|---|---|---|---|---|---|");
+            for x in round.iter().take(8) {
                 let _ = writeln!(
                     s,
-                    "| {} | {} | {:.2} | {:.2e} | {:.1} | {:.2} % | {:.3} |",
+                    "| {} | {} | {:.2} | {:.2e} | {} | {:.1} | {:.2} % | {:.3} | {} |",
                     x.label,
                     x.df,
                     x.f,
                     x.p_value,
+                    x.tests,
                     x.delta_bic,
                     100.0 * x.cv_gain,
-                    x.independence
+                    x.independence,
+                    if x.np_ratio.is_finite() {
+                        format!("{:.2}", x.np_ratio)
+                    } else {
+                        "—".into()
+                    }
                 );
             }
+            let _ = writeln!(s);
         }
         s
     }

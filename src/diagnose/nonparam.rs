@@ -2,12 +2,17 @@
 //! regression (a GP posterior mean) of the 3-D residual on joint space, with the length
 //! scale and ridge chosen by time-blocked cross-validation. Used only after the physical
 //! effects are exhausted, and labelled `nonparametric`.
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
+
+use crate::model::KinematicModel;
 use serde_json::{json, Map, Value};
 
 /// A fitted kernel correction: `Σ_k w_k exp(−|q − c_k|² / (2ℓ²))` (mm), `q` in rad.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rbf {
+    /// When true the inputs are `q2..qn` and the correction is expressed in MDH frame 1
+    /// (which turns with joint 1): gravity-driven effects do not depend on `q1` there.
+    pub arm_frame: bool,
     pub length_scale: f64,
     pub centers: Vec<Vec<f64>>,
     pub weights: Vec<[f64; 3]>,
@@ -18,8 +23,42 @@ fn kern(a: &[f64], b: &[f64], ell: f64) -> f64 {
     (-d2 / (2.0 * ell * ell)).exp()
 }
 
+/// Inputs (`q2..qn`) and the rotation tracker ← MDH frame 1 of the arm-frame representation.
+pub fn arm_frame(model: &KinematicModel, q: &[f64]) -> (Vec<f64>, Matrix3<f64>) {
+    let r = model.base().rotation * model.joint_frame(q, 1).rotation;
+    (
+        q.iter().skip(1).copied().collect(),
+        *r.to_rotation_matrix().matrix(),
+    )
+}
+
+/// Inputs and residuals in the arm-frame representation.
+pub fn arm_frame_data(
+    model: &KinematicModel,
+    q: &[Vec<f64>],
+    r: &[Vector3<f64>],
+) -> (Vec<Vec<f64>>, Vec<Vector3<f64>>) {
+    q.iter()
+        .zip(r)
+        .map(|(qk, rk)| {
+            let (x, rot) = arm_frame(model, qk);
+            (x, rot.transpose() * rk)
+        })
+        .unzip()
+}
+
 impl Rbf {
-    /// Correction (mm) at joint angles `q` (rad).
+    /// Correction (mm, tracker frame) at joint angles `q` (rad) for `model`.
+    pub fn correction(&self, model: &KinematicModel, q: &[f64]) -> Vector3<f64> {
+        if self.arm_frame {
+            let (x, rot) = arm_frame(model, q);
+            rot * self.predict(&x)
+        } else {
+            self.predict(q)
+        }
+    }
+
+    /// Correction (mm) at the raw inputs.
     pub fn predict(&self, q: &[f64]) -> Vector3<f64> {
         let mut v = Vector3::zeros();
         for (c, w) in self.centers.iter().zip(&self.weights) {
@@ -39,6 +78,7 @@ impl Rbf {
         let rhs = DMatrix::from_fn(n, 3, |i, j| r[i][j]);
         let w = chol.solve(&rhs);
         Some(Rbf {
+            arm_frame: false,
             length_scale: ell,
             centers: q.to_vec(),
             weights: (0..n).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect(),
@@ -49,6 +89,10 @@ impl Rbf {
     pub fn to_json(&self) -> Map<String, Value> {
         let mut m = Map::new();
         m.insert("model".into(), json!("rbf_kernel_ridge"));
+        m.insert(
+            "frame".into(),
+            json!(if self.arm_frame { "joint1" } else { "tracker" }),
+        );
         m.insert(
             "length_scale_deg".into(),
             json!(self.length_scale.to_degrees()),
@@ -99,6 +143,7 @@ impl Rbf {
             anyhow::bail!("nonparametric: weights must be one [x, y, z] per centre");
         }
         Ok(Rbf {
+            arm_frame: p.get("frame").and_then(|v| v.as_str()) == Some("joint1"),
             length_scale: ell.to_radians(),
             centers,
             weights: w.into_iter().map(|r| [r[0], r[1], r[2]]).collect(),
@@ -165,6 +210,42 @@ pub fn cross_validate(
         }
     }
     best
+}
+
+/// Cross-validated (per-axis) RMS of the residual without / with a correction of fixed
+/// length scale and ridge, over the given folds.
+pub fn cv_fixed(
+    q: &[Vec<f64>],
+    r: &[Vector3<f64>],
+    fold: &[usize],
+    n_folds: usize,
+    ell: f64,
+    lambda: f64,
+) -> Option<(f64, f64)> {
+    let mut sse0 = 0.0;
+    let mut sse1 = 0.0;
+    let mut cnt = 0usize;
+    for f in 0..n_folds {
+        let tr: Vec<usize> = (0..q.len()).filter(|&i| fold[i] != f).collect();
+        let te: Vec<usize> = (0..q.len()).filter(|&i| fold[i] == f).collect();
+        if tr.len() < 10 || te.is_empty() {
+            continue;
+        }
+        let qt: Vec<Vec<f64>> = tr.iter().map(|&i| q[i].clone()).collect();
+        let rt: Vec<Vector3<f64>> = tr.iter().map(|&i| r[i]).collect();
+        let m = Rbf::fit(&qt, &rt, ell, lambda)?;
+        for &i in &te {
+            sse0 += r[i].norm_squared();
+            sse1 += (r[i] - m.predict(&q[i])).norm_squared();
+            cnt += 1;
+        }
+    }
+    (cnt > 0).then(|| {
+        (
+            (sse0 / cnt as f64 / 3.0).sqrt(),
+            (sse1 / cnt as f64 / 3.0).sqrt(),
+        )
+    })
 }
 
 #[cfg(test)]
