@@ -121,9 +121,12 @@ pub struct Iso9283 {
     pub rp_max_mm: f64,
 }
 
+/// (measured, predicted) points of repeated visits of one target.
+type Visits = Vec<(Point3<f64>, Point3<f64>)>;
+
 /// See the module docs. `None` when no target was visited twice.
 pub fn iso9283(obs: &[PoseObs], pred: &[Point3<f64>]) -> Option<Iso9283> {
-    let mut groups: BTreeMap<(u64, u64), Vec<(Point3<f64>, Point3<f64>)>> = BTreeMap::new();
+    let mut groups: BTreeMap<(u64, u64), Visits> = BTreeMap::new();
     for (o, p) in obs.iter().zip(pred) {
         if let (Some(pt), Some(br)) = (o.point, o.branch) {
             groups.entry((pt, br)).or_default().push((o.p, *p));
