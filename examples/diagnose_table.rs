@@ -336,8 +336,8 @@ pub fn false_positives(seeds: std::ops::Range<u64>, size: Size) -> (usize, usize
     (fp, n)
 }
 
-fn fmt_found(o: &Outcome) -> String {
-    if o.found.is_empty() && o.absorbed.iter().any(|a| a == "tracker_scale") {
+fn fmt_found(o: &Outcome, absorbed_world: bool) -> String {
+    if absorbed_world && o.found.is_empty() && o.absorbed.iter().any(|a| a == "tracker_scale") {
         return "none (tracker_scale absorbed by link lengths: reported)".into();
     }
     if o.found.is_empty() {
@@ -392,7 +392,7 @@ fn main() {
         println!(
             "| {} | {}{} | {} | {:.4} | {:.4} | {:.4} | {:.2} |",
             w.name,
-            fmt_found(&o),
+            fmt_found(&o, w.absorbed),
             if o.nonparametric && o.physical {
                 " (+ nonparametric)"
             } else {

@@ -174,3 +174,129 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
     let svg = std::fs::read_to_string(dir.path().join("effect_1_joint_compliance.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("circle"));
 }
+
+// ------------------------------------------------------------------ simulated worlds
+// The world engineer's `robocal_mocks` (independent physics with hidden effects) and its
+// offline synthesiser; the scenarios live in `examples/diagnose_table.rs`, which prints the
+// full table (`cargo run --release --example diagnose_table`).
+
+#[allow(dead_code)]
+#[path = "../examples/diagnose_table.rs"]
+mod table;
+
+fn check_world(name: &str) {
+    let w = table::worlds()
+        .into_iter()
+        .find(|w| w.name.starts_with(name))
+        .unwrap();
+    let floor = table::run(&table::control(), 1, table::SMALL);
+    let o = table::run(&w, 1, table::SMALL);
+    eprintln!(
+        "{}: found {:?}, held-out vs truth {:.4} → {:.4} mm (floor {:.4})",
+        w.name, o.found, o.geometric_rms, o.final_rms, floor.final_rms
+    );
+    if w.outside_library {
+        assert!(
+            !o.physical,
+            "{}: claimed a physical effect {:?}",
+            w.name, o.found
+        );
+        assert!(o.nonparametric, "{}: residual not flagged", w.name);
+        assert!(o.report.contains("No physical effect was identified"));
+        assert!(o.final_rms < 0.8 * o.geometric_rms);
+    } else {
+        assert!(
+            table::names_expected(&w, &o),
+            "{}: found {:?}",
+            w.name,
+            o.found
+        );
+        assert!(
+            o.found.len() == w.expect.len() || w.name.starts_with("thermal"),
+            "{}: extra effects {:?}",
+            w.name,
+            o.found
+        );
+        assert!(!o.nonparametric, "{}: nonparametric used", w.name);
+        assert!(
+            o.final_rms <= 1.5 * floor.final_rms,
+            "{}: {:.4} vs floor {:.4}",
+            w.name,
+            o.final_rms,
+            floor.final_rms
+        );
+        assert!(
+            o.geometric_rms > 2.0 * floor.final_rms,
+            "the effect must matter"
+        );
+    }
+}
+
+#[test]
+fn world_compliance_j3_found() {
+    check_world("compliance j3");
+}
+
+#[test]
+fn world_backlash_j4_found() {
+    check_world("backlash j4");
+}
+
+#[test]
+fn world_base_shift_found() {
+    check_world("base shift");
+}
+
+#[test]
+fn world_compliance_and_backlash_pair_found() {
+    check_world("compliance j2 + backlash j4");
+}
+
+#[test]
+fn world_effect_outside_library_is_flagged_nonparametric() {
+    check_world("link deflection");
+}
+
+#[test]
+fn world_tracker_scale_is_reported_as_absorbed() {
+    let w = table::worlds()
+        .into_iter()
+        .find(|w| w.name.starts_with("tracker scale"))
+        .unwrap();
+    let o = table::run(&w, 1, table::SMALL);
+    assert!(!o.physical);
+    assert!(
+        o.absorbed.iter().any(|a| a == "tracker_scale"),
+        "{:?}",
+        o.absorbed
+    );
+    assert!(o.report.contains("independent length standard"));
+}
+
+/// Every library effect alone, the pair, the outside-library effect (slow: run with
+/// `--ignored`, or see the example's table).
+#[test]
+#[ignore]
+fn world_sweep_every_effect() {
+    for w in table::worlds() {
+        if w.absorbed {
+            continue;
+        }
+        check_world(w.name);
+    }
+}
+
+/// False-positive rate of the control world over 20 seeds (slow: `--ignored`).
+#[test]
+#[ignore]
+fn control_false_positive_rate_over_20_seeds() {
+    let (fp, n) = table::false_positives(1..21, table::SMALL);
+    eprintln!("control: {fp} false positives over {n} seeds");
+    assert!(fp as f64 <= 0.05 * n as f64, "{fp}/{n}");
+}
+
+#[test]
+fn control_world_two_seeds_no_effect() {
+    let (fp, n) = table::false_positives(101..103, table::SMALL);
+    assert_eq!((fp, n), (0, 2));
+}
