@@ -328,6 +328,11 @@ fn five_direction_validation_matches_seed000() {
         *per_point.entry(p.point).or_insert(0) += 1;
     }
     assert!(!per_point.is_empty());
+    // The five-direction poses all fit the VS060 (the laser roll is free where needed).
+    assert_eq!(
+        out.file.poses.iter().filter(|p| p.target.is_some()).count(),
+        50
+    );
     assert!(per_point.values().all(|&k| k >= 2), "{per_point:?}");
 }
 
@@ -494,6 +499,7 @@ fn unreachable_and_too_few_branches_are_counted() {
         target: None,
         hit_plane: None,
         branches: BranchPolicy::All,
+        free_roll: true,
     };
     let mut greedy = far.clone();
     greedy.point = 1;

@@ -88,6 +88,21 @@ pub struct PlanPose {
     pub target: Option<String>,
 }
 
+/// A rejected target or IK branch, and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RejectedPose {
+    pub point: u64,
+    pub label: String,
+    /// Absent when the whole target was rejected (unreachable, tracker, laser, …).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub branch: Option<u8>,
+    /// Reason key (as counted in the summary).
+    pub reason: String,
+    /// Human-readable detail.
+    pub detail: String,
+}
+
 /// Session-time figures.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -150,6 +165,9 @@ pub struct PlanFile {
     /// The spec the plan was generated from.
     pub spec: serde_json::Value,
     pub poses: Vec<PlanPose>,
+    /// Every rejection, in generation order.
+    #[serde(default)]
+    pub rejected: Vec<RejectedPose>,
     pub summary: PlanSummary,
 }
 

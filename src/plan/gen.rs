@@ -40,6 +40,9 @@ pub struct Candidate {
     /// For laser plans: the plane the beam must hit.
     pub hit_plane: Option<HitPlane>,
     pub branches: BranchPolicy,
+    /// The roll about the tool z axis is free (a laser beam does not care): the planner
+    /// tries other rolls when this one is infeasible.
+    pub free_roll: bool,
 }
 
 impl Candidate {
@@ -55,6 +58,7 @@ impl Candidate {
             target: None,
             hit_plane: None,
             branches: BranchPolicy::All,
+            free_roll: false,
         }
     }
 }
@@ -306,6 +310,7 @@ fn planes(p: &PlanesSpec, group: &str, rng: &mut ChaCha8Rng, out: &mut Vec<Candi
                         normal: ez,
                     });
                     c.branches = BranchPolicy::Best;
+                    c.free_roll = kind == "rotate";
                     out.push(c);
                     point += 1;
                 }
@@ -340,7 +345,11 @@ fn five_direction(f: &FiveDirectionSpec, group: &str, out: &mut Vec<Candidate>) 
                 let beam = if d == 0 {
                     -ez
                 } else {
-                    tilted_beam(&frame, tilt, (90.0 * (d - 1) as f64).to_radians())
+                    tilted_beam(
+                        &frame,
+                        tilt,
+                        (f.azimuth0_deg + 90.0 * (d - 1) as f64).to_radians(),
+                    )
                 };
                 let iso = laser_pose(&hit, &beam, &ex, f.standoff_mm);
                 let mut c = Candidate::new(point, iso, group, format!("{name}-d{d}"));
@@ -350,6 +359,7 @@ fn five_direction(f: &FiveDirectionSpec, group: &str, out: &mut Vec<Candidate>) 
                     normal: ez,
                 });
                 c.branches = BranchPolicy::Best;
+                c.free_roll = true;
                 out.push(c);
                 point += 1;
             }

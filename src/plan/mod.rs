@@ -136,6 +136,62 @@ pub fn pose_checks(spec: &PlanSpec, c: &Candidate) -> Option<RejectReason> {
     None
 }
 
+/// One try of a candidate at tool pose `tp`: feasible branches, rejections, examined count.
+fn attempt(
+    model: &KinematicModel,
+    spec: &PlanSpec,
+    tool: &Isometry3<f64>,
+    tool_inv: &Isometry3<f64>,
+    ci: usize,
+    c: &Candidate,
+    tp: &Isometry3<f64>,
+) -> (Vec<PlannedPose>, Vec<Rejection>, usize) {
+    let reject_target = |reason| Rejection {
+        candidate: ci,
+        point: c.point,
+        branch: None,
+        reason,
+    };
+    let mut cc = c.clone();
+    cc.tool_in_base = *tp;
+    if let Some(r) = pose_checks(spec, &cc) {
+        return (Vec::new(), vec![reject_target(r)], 1);
+    }
+    let flange = tp * tool_inv;
+    let sols = match model.ik(&flange) {
+        Ok(s) => s,
+        Err(_) => {
+            return (
+                Vec::new(),
+                vec![reject_target(RejectReason::Unreachable)],
+                1,
+            )
+        }
+    };
+    let mut ok = Vec::new();
+    let mut rej = Vec::new();
+    let n = sols.len();
+    for s in sols {
+        match constraints::arm_check(&spec.constraints, model, &s.q, tool) {
+            Some(reason) => rej.push(Rejection {
+                candidate: ci,
+                point: c.point,
+                branch: Some(s.branch),
+                reason,
+            }),
+            None => ok.push(PlannedPose {
+                candidate: ci,
+                point: c.point,
+                branch: s.branch,
+                branch_label: s.label.to_string(),
+                flange: model.flange_pose(&s.q),
+                q: s.q,
+            }),
+        }
+    }
+    (ok, rej, n)
+}
+
 /// IK every candidate on every branch and apply the constraints.
 pub fn feasibility(
     model: &KinematicModel,
@@ -149,46 +205,35 @@ pub fn feasibility(
     let mut rejections = Vec::new();
     let mut examined = 0;
     for (ci, c) in candidates.iter().enumerate() {
+        let first = attempt(model, spec, &tool, &tool_inv, ci, c, &c.tool_in_base);
+        let (ok, rej, ex) = if first.0.is_empty() && c.free_roll {
+            (1..12)
+                .map(|k| {
+                    let roll =
+                        UnitQuaternion::from_euler_angles(0.0, 0.0, (30.0 * k as f64).to_radians());
+                    attempt(
+                        model,
+                        spec,
+                        &tool,
+                        &tool_inv,
+                        ci,
+                        c,
+                        &(c.tool_in_base * roll),
+                    )
+                })
+                .find(|a| !a.0.is_empty())
+                .unwrap_or(first)
+        } else {
+            first
+        };
+        examined += ex;
+        rejections.extend(rej);
         let reject_target = |reason| Rejection {
             candidate: ci,
             point: c.point,
             branch: None,
             reason,
         };
-        if let Some(r) = pose_checks(spec, c) {
-            examined += 1;
-            rejections.push(reject_target(r));
-            continue;
-        }
-        let flange = c.tool_in_base * tool_inv;
-        let sols = match model.ik(&flange) {
-            Ok(s) => s,
-            Err(_) => {
-                examined += 1;
-                rejections.push(reject_target(RejectReason::Unreachable));
-                continue;
-            }
-        };
-        let mut ok = Vec::new();
-        for s in sols {
-            examined += 1;
-            match constraints::arm_check(&spec.constraints, model, &s.q, &tool) {
-                Some(reason) => rejections.push(Rejection {
-                    candidate: ci,
-                    point: c.point,
-                    branch: Some(s.branch),
-                    reason,
-                }),
-                None => ok.push(PlannedPose {
-                    candidate: ci,
-                    point: c.point,
-                    branch: s.branch,
-                    branch_label: s.label.to_string(),
-                    flange: model.flange_pose(&s.q),
-                    q: s.q,
-                }),
-            }
-        }
         match c.branches {
             BranchPolicy::All => poses.extend(ok),
             BranchPolicy::AllAtLeast(k) => {
@@ -427,6 +472,17 @@ pub fn build_plan(
             message: e.to_string(),
         })?,
         poses,
+        rejected: feas
+            .rejections
+            .iter()
+            .map(|r| file::RejectedPose {
+                point: r.point as u64,
+                label: feas.candidates[r.candidate].label.clone(),
+                branch: r.branch,
+                reason: r.reason.key().to_string(),
+                detail: r.reason.to_string(),
+            })
+            .collect(),
         summary,
     };
     Ok(PlanOutcome {

@@ -181,6 +181,10 @@ pub struct FiveDirectionSpec {
     pub standoff_mm: f64,
     /// Tilt of the four oblique directions from the normal (deg, seed: ≈45).
     pub tilt_deg: f64,
+    /// Azimuth of the first oblique direction about the normal, from the plane's u axis
+    /// (deg); the others follow at +90°, +180°, +270°.
+    #[serde(default)]
+    pub azimuth0_deg: f64,
 }
 
 /// Tracker model used by the visibility check.
@@ -450,7 +454,7 @@ impl PlanSpec {
             || t.speed_deg_s
                 .iter()
                 .chain(&t.accel_deg_s2)
-                .any(|v| !(*v > 0.0))
+                .any(|v| v.is_nan() || *v <= 0.0)
             || !(t.settle_s >= 0.0 && t.sample_s >= 0.0)
         {
             return bad("timing: speeds and accelerations must be > 0, times ≥ 0".into());
@@ -459,10 +463,13 @@ impl PlanSpec {
     }
 }
 
+/// Checks that a `[lo, hi]` range is finite and ordered.
+type RangeCheck = dyn Fn(&str, [f64; 2]) -> Result<(), PlanError>;
+
 impl AnnulusSpec {
     fn validate(
         &self,
-        range: &dyn Fn(&str, [f64; 2]) -> Result<(), PlanError>,
+        range: &RangeCheck,
     ) -> Result<(), PlanError> {
         range("angle_deg", self.angle_deg)?;
         range("radius_mm", self.radius_mm)?;
