@@ -467,10 +467,7 @@ impl PlanSpec {
 type RangeCheck = dyn Fn(&str, [f64; 2]) -> Result<(), PlanError>;
 
 impl AnnulusSpec {
-    fn validate(
-        &self,
-        range: &RangeCheck,
-    ) -> Result<(), PlanError> {
+    fn validate(&self, range: &RangeCheck) -> Result<(), PlanError> {
         range("angle_deg", self.angle_deg)?;
         range("radius_mm", self.radius_mm)?;
         range("height_mm", self.height_mm)?;
