@@ -383,7 +383,7 @@ pub fn split_packet(buf: &mut BytesMut) -> Result<Option<BytesMut>, CodecError> 
         return Err(CodecError::BadLength(len));
     }
     if buf.len() < len as usize {
-        buf.reserve(len as usize - buf.len());
+        // No `reserve(len)`: a lying length field must not make us allocate ahead of data.
         return Ok(None);
     }
     Ok(Some(buf.split_to(len as usize)))

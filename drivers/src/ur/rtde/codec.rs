@@ -64,7 +64,7 @@ pub fn split_package(buf: &mut BytesMut) -> Result<Option<(u8, BytesMut)>, Codec
         return Err(CodecError::BadSize { size });
     }
     if buf.len() < size as usize {
-        buf.reserve(size as usize - buf.len());
+        // No `reserve(size)`: a lying size field must not make us allocate ahead of data.
         return Ok(None);
     }
     let mut pkg = buf.split_to(size as usize);
