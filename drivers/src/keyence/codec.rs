@@ -121,7 +121,7 @@ pub fn decode_line(line: &[u8]) -> Result<Reply, DecodeError> {
             ))
         }
         "MS" => {
-            if fields.len() < 3 || fields.len() % 2 == 0 {
+            if fields.len() < 3 || fields.len().is_multiple_of(2) {
                 return err(format!("MS reply with {} fields", fields.len()));
             }
             fields[1..]

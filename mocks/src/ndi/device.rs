@@ -334,7 +334,7 @@ impl NdiDevice {
                 }
                 let h = self.handle_param(p)?;
                 let addr = usize::from_str_radix(&p[2..6], 16).map_err(|_| 0x07u8)?;
-                if addr % 64 != 0 || addr >= 64 * 1024 {
+                if !addr.is_multiple_of(64) || addr >= 64 * 1024 {
                     return Err(0x23);
                 }
                 let mut data = Vec::with_capacity(64);
