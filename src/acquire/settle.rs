@@ -67,7 +67,8 @@ impl Settler {
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
                     (l.min(x), h.max(x))
                 });
-            if !(hi - lo <= o.q_tol_rad) {
+            let band = hi - lo;
+            if band.is_nan() || band > o.q_tol_rad {
                 return false;
             }
         }
@@ -77,7 +78,8 @@ impl Settler {
         if markers.len() == self.window.len() {
             for a in &markers {
                 for b in &markers {
-                    if !((a - b).norm() <= o.pos_tol_mm) {
+                    let d = (a - b).norm();
+                    if d.is_nan() || d > o.pos_tol_mm {
                         return false;
                     }
                 }

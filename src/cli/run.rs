@@ -1,10 +1,501 @@
-//! `robocal run`.
+//! `robocal run`: acquire a dataset by driving the cell through a plan.
+//!
+//! ```text
+//! robocal run --plan PLAN.json --sim SCENARIO.toml --out RUN_DIR [--virtual-clock]   # dry run
+//! robocal run --plan PLAN.json --devices DEVICES.toml --live [--yes] --out RUN_DIR     # hardware
+//! robocal run --resume RUN_DIR                                                         # continue
+//! ```
+//! `RUN_DIR` receives `dataset.jsonl` (the journal, `robocal-dataset/1`), `plan.json` and
+//! the scenario / device file (copies), `run.json` (how to resume) and `summary.json`.
+//!
+//! This is the only place where the simulators are wired in: `--sim` builds the
+//! `robocal_mocks` world in-process and adapts it to the device traits; the engine
+//! (`crate::acquire`) only sees the traits.
+use std::io::IsTerminal as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{bail, Context as _};
+use async_trait::async_trait;
+use robocal_drivers::safety::{guard, SafetyLimits};
+use robocal_drivers::{
+    Arm, ArmState, ArmStatus, Clock, DriverError, DriverResult, ErrorKind, FlangePose,
+    FlangeToBase, JointReadout, JointState, MarkerTracker, MoveJoints, MoveSpeed, RangeReading,
+    RangeSensor, TrackerFrame,
+};
+use robocal_mocks::world::WorldError;
+use robocal_mocks::{Scenario, WorldHandle};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+
+use crate::acquire::{
+    self, AcquireOptions, Devices, FaultOptions, MoveSpeedOpt, PlannedPose, Progress, RunSummary,
+    SampleOptions, SettleOptions,
+};
+use crate::dataset::{Header, Journal, DATASET_FORMAT};
+use crate::model::KinematicModel;
+use crate::plan::PlanFile;
 
 /// Arguments of `robocal run`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// The plan (`robocal-plan/1`, written by `robocal plan --out`).
+    #[arg(long, value_name = "PLAN.json", required_unless_present = "resume")]
+    pub plan: Option<PathBuf>,
+    /// Dry run against the simulated cell of this scenario (in process).
+    #[arg(long, value_name = "SCENARIO.toml", conflicts_with_all = ["devices", "live"])]
+    pub sim: Option<PathBuf>,
+    /// Real hardware described by this device file (needs --live).
+    #[arg(long, value_name = "DEVICES.toml")]
+    pub devices: Option<PathBuf>,
+    /// Allow real motion. Nothing moves on hardware without it.
+    #[arg(long, requires = "devices")]
+    pub live: bool,
+    /// Do not ask for confirmation before moving real hardware.
+    #[arg(long)]
+    pub yes: bool,
+    /// The run directory to create.
+    #[arg(long, value_name = "RUN_DIR", required_unless_present = "resume")]
+    pub out: Option<PathBuf>,
+    /// Continue the run in this directory where it stopped.
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["plan", "sim", "devices", "out"])]
+    pub resume: Option<PathBuf>,
+    /// Simulated time jumps instead of passing on the wall clock (dry runs only).
+    #[arg(long)]
+    pub virtual_clock: bool,
+    /// Joint speed cap (deg/s).
+    #[arg(long, default_value_t = 60.0)]
+    pub speed_deg_s: f64,
+    /// Joint acceleration cap (deg/s²).
+    #[arg(long, default_value_t = 120.0)]
+    pub accel_deg_s2: f64,
+    /// Tracker frames averaged per pose.
+    #[arg(long, default_value_t = 30)]
+    pub frames: usize,
+    /// Stop after this many poses (resume later with --resume).
+    #[arg(long)]
+    pub max_poses: Option<usize>,
+    /// Progress as JSON lines on stdout instead of a progress bar.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `RUN_DIR/run.json`: everything `--resume` needs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Always `robocal-run/1`.
+    pub format: String,
+    /// `sim` or `live`.
+    pub mode: String,
+    /// The plan copy, relative to the run directory.
+    pub plan: String,
+    /// The scenario / device file copy, relative to the run directory.
+    pub config: String,
+    /// Virtual clock (sim only).
+    pub virtual_clock: bool,
+    /// Speed caps.
+    pub speed: MoveSpeedOpt,
+    /// Settling detection.
+    pub settle: SettleOptions,
+    /// Sampling.
+    pub sample: SampleOptions,
+    /// Fault handling.
+    pub faults: FaultOptions,
+}
+
+const RUN_FORMAT: &str = "robocal-run/1";
+const DATASET: &str = "dataset.jsonl";
+
+// ----------------------------------------------------------------- simulator adapters
+
+fn world_err(device: &str, e: WorldError) -> DriverError {
+    let kind = match &e {
+        WorldError::ProtectiveStop => ErrorKind::SafetyStop,
+        WorldError::OutOfLimits { .. } | WorldError::InvalidTarget(_) => ErrorKind::InvalidArgument,
+        _ => ErrorKind::Other,
+    };
+    DriverError::new(kind, device, e.to_string())
+}
+
+/// The simulated arm `index` of a world, as the device traits see it.
+struct SimArmAdapter {
+    world: WorldHandle,
+    index: usize,
+}
+
+#[async_trait]
+impl JointReadout for SimArmAdapter {
+    async fn joints(&self) -> DriverResult<JointState> {
+        Ok(self.world.arm_joint_state(self.index))
+    }
+}
+
+#[async_trait]
+impl FlangePose for SimArmAdapter {
+    async fn flange_pose(&self) -> DriverResult<FlangeToBase> {
+        Ok(FlangeToBase(self.world.arm_controller_flange(self.index)))
+    }
+}
+
+#[async_trait]
+impl MoveJoints for SimArmAdapter {
+    fn dof(&self) -> usize {
+        self.world.arm_dof(self.index)
+    }
+    async fn move_joints(&self, target: &[f64], speed: MoveSpeed) -> DriverResult<()> {
+        self.world
+            .arm_start_move(self.index, target, speed)
+            .map_err(|e| world_err("sim-arm", e))?;
+        self.world.arm_wait_arrival(self.index).await;
+        Ok(())
+    }
+    async fn stop(&self) -> DriverResult<()> {
+        self.world.arm_stop(self.index);
+        Ok(())
+    }
+}
+
+#[async_trait]
+impl ArmStatus for SimArmAdapter {
+    async fn state(&self) -> DriverResult<ArmState> {
+        Ok(self.world.arm_state(self.index))
+    }
+    async fn recover(&self) -> DriverResult<()> {
+        self.world
+            .arm_recover(self.index)
+            .map_err(|e| world_err("sim-arm", e))
+    }
+}
+
+struct SimTrackerAdapter {
+    world: WorldHandle,
+    index: usize,
+}
+
+#[async_trait]
+impl MarkerTracker for SimTrackerAdapter {
+    async fn frame(&self) -> DriverResult<TrackerFrame> {
+        Ok(self.world.tracker_frame_of(self.index))
+    }
+}
+
+struct SimLaserAdapter {
+    world: WorldHandle,
+    index: usize,
+}
+
+#[async_trait]
+impl RangeSensor for SimLaserAdapter {
+    async fn read_range(&self) -> DriverResult<RangeReading> {
+        Ok(self.world.laser_reading_of(self.index))
+    }
+}
+
+/// What a cell gives the header besides the plan.
+struct CellInfo {
+    serial: Option<String>,
+    tracker_kind: Option<String>,
+    range_kind: Option<String>,
+}
+
+fn sim_devices(
+    scenario_path: &Path,
+    virtual_clock: bool,
+) -> anyhow::Result<(Arc<dyn Arm>, Devices, CellInfo)> {
+    let mut scenario = Scenario::load(scenario_path)?;
+    scenario.clock = if virtual_clock {
+        robocal_mocks::scenario::ClockMode::Virtual
+    } else {
+        robocal_mocks::scenario::ClockMode::Real
+    };
+    let world = WorldHandle::from_scenario(&scenario)
+        .with_context(|| format!("building the world of {}", scenario_path.display()))?;
+    if world.arm_count() == 0 {
+        bail!("{}: the scenario has no arm", scenario_path.display());
+    }
+    let arm: Arc<dyn Arm> = Arc::new(SimArmAdapter {
+        world: world.clone(),
+        index: 0,
+    });
+    let tracker: Option<Arc<dyn MarkerTracker>> = (world.tracker_count() > 0).then(|| {
+        Arc::new(SimTrackerAdapter {
+            world: world.clone(),
+            index: 0,
+        }) as Arc<dyn MarkerTracker>
+    });
+    let range: Option<Arc<dyn RangeSensor>> = (world.laser_count() > 0).then(|| {
+        Arc::new(SimLaserAdapter {
+            world: world.clone(),
+            index: 0,
+        }) as Arc<dyn RangeSensor>
+    });
+    let info = CellInfo {
+        serial: world.arm_identity(0).map(|(_, s)| s),
+        tracker_kind: scenario
+            .trackers
+            .first()
+            .map(|t| t.kind.as_str().to_string()),
+        range_kind: scenario.lasers.first().map(|l| l.kind.clone()),
+    };
+    let clock: Arc<dyn Clock> = world.clock();
+    Ok((
+        arm.clone(),
+        Devices {
+            arm,
+            tracker,
+            range,
+            clock,
+            thermometer: None,
+        },
+        info,
+    ))
+}
+
+// ----------------------------------------------------------------- run directory
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::File::open(&tmp)
+        .and_then(|f| f.sync_all())
+        .with_context(|| format!("syncing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+fn header_for(plan: &PlanFile, info: &CellInfo) -> Header {
+    let mut robot = plan.robot.clone();
+    if robot.serial.is_none() {
+        robot.serial = info.serial.clone();
+    }
+    Header {
+        format: DATASET_FORMAT.to_string(),
+        created: Some(acquire::utc_now_iso()),
+        robot,
+        tool: Some(json!({"p": plan.tool.p, "quat": plan.tool.quat})),
+        tracker: info.tracker_kind.as_ref().map(|k| json!({ "kind": k })),
+        range_sensor: info.range_kind.as_ref().map(|k| json!({ "kind": k })),
+        plan: Some(json!({ "name": plan.name })),
+        notes: None,
+        extra: serde_json::Map::new(),
+    }
+}
+
+fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
+    AcquireOptions {
+        speed: cfg.speed,
+        settle: cfg.settle,
+        sample: cfg.sample.clone(),
+        faults: cfg.faults,
+        max_poses,
+    }
+}
+
+/// Safety limits of the plan's robot: its joint limits and the run's speed caps.
+fn safety_limits(plan: &PlanFile, speed: MoveSpeedOpt) -> anyhow::Result<SafetyLimits> {
+    let model = KinematicModel::from_robot_block(&plan.robot).context("the plan's robot")?;
+    let (lower, upper) = model.joint_limits().into_iter().unzip();
+    Ok(SafetyLimits {
+        joint_lower: lower,
+        joint_upper: upper,
+        max_vel: speed.max_vel,
+        max_acc: speed.max_acc,
+        envelope: None,
+        table: None,
+        path_step: 1f64.to_radians(),
+    })
+}
+
+struct Reporter {
+    json: bool,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Reporter {
+    fn new(json: bool, total: usize, done: usize) -> Reporter {
+        let bar = (!json && std::io::stderr().is_terminal()).then(|| {
+            let b = indicatif::ProgressBar::new(total as u64);
+            b.set_style(
+                indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} poses, ETA {msg}")
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            b.set_position(done as u64);
+            b
+        });
+        Reporter { json, bar }
+    }
+
+    fn report(&self, p: &Progress) {
+        if self.json {
+            println!("{}", json!({ "progress": p }));
+        } else if let Some(b) = &self.bar {
+            b.set_position(p.done as u64);
+            let eta = p.eta_s.map_or("?".into(), |s| format!("{:.0} s", s));
+            b.set_message(format!("{eta}, {:.0} poses/h", p.poses_per_hour));
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish();
+        }
+    }
+}
+
+/// Runs (or resumes) the acquisition in `dir` with the run configuration `cfg`.
+fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSummary> {
+    let plan_path = dir.join(&cfg.plan);
+    let plan = PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
+    let config_path = dir.join(&cfg.config);
+    let (_raw, mut devices, info) = match cfg.mode.as_str() {
+        "sim" => sim_devices(&config_path, cfg.virtual_clock)?,
+        "live" => bail!(
+            "live hardware runs are not wired yet: use --sim for a dry run ({})",
+            config_path.display()
+        ),
+        other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
+    };
+    devices.arm = guard(devices.arm.clone(), safety_limits(&plan, cfg.speed)?, None);
+    let header = header_for(&plan, &info);
+    let journal_path = dir.join(DATASET);
+    let (mut journal, existing, warnings) = Journal::open_or_create(&journal_path, &header)?;
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    let poses: Vec<PlannedPose> = plan.poses.iter().map(PlannedPose::from).collect();
+    let done = acquire::done_pose_ids(&existing).len();
+    let reporter = Reporter::new(args.json, poses.len(), done);
+    let opts = options(cfg, args.max_poses);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let summary = rt.block_on(acquire::acquire(
+        &devices,
+        &poses,
+        &mut journal,
+        &existing,
+        &opts,
+        &mut |p| reporter.report(p),
+    ))?;
+    reporter.finish();
+    write_atomic(
+        &dir.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
+    Ok(summary)
+}
+
+fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
+    let (Some(plan_path), Some(dir)) = (&args.plan, &args.out) else {
+        bail!("--plan and --out are required (or --resume RUN_DIR)");
+    };
+    let (mode, config_src) = match (&args.sim, &args.devices) {
+        (Some(s), None) => ("sim", s),
+        (None, Some(d)) => {
+            if !args.live {
+                bail!("nothing moves without --live: add --live to drive {}, or use --sim SCENARIO.toml for a dry run", d.display());
+            }
+            ("live", d)
+        }
+        _ => bail!("give --sim SCENARIO.toml (dry run) or --devices DEVICES.toml --live"),
+    };
+    if args.virtual_clock && mode != "sim" {
+        bail!("--virtual-clock is for --sim dry runs only");
+    }
+    // Check the plan before creating anything.
+    let plan = PlanFile::read(plan_path).with_context(|| format!("{}", plan_path.display()))?;
+    if dir.join(DATASET).exists() {
+        bail!(
+            "{} already holds a dataset: continue it with `robocal run --resume {}`",
+            dir.display(),
+            dir.display()
+        );
+    }
+    if mode == "live" {
+        println!(
+            "will move the arm through {} poses of plan {:?} at ≤ {} °/s",
+            plan.poses.len(),
+            plan.name,
+            args.speed_deg_s
+        );
+        if !args.yes {
+            bail!("confirmation needed: re-run with --yes to move the hardware");
+        }
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let config_name = if mode == "sim" {
+        "scenario.toml"
+    } else {
+        "devices.toml"
+    };
+    let copy = |src: &Path, name: &str| -> anyhow::Result<()> {
+        let bytes = std::fs::read(src).with_context(|| format!("reading {}", src.display()))?;
+        write_atomic(&dir.join(name), &bytes)
+    };
+    copy(plan_path, "plan.json")?;
+    copy(config_src, config_name)?;
+    let sample = SampleOptions {
+        frames: args.frames.max(1),
+        min_frames: (args.frames / 3).max(1),
+        ..SampleOptions::default()
+    };
+    let cfg = RunConfig {
+        format: RUN_FORMAT.into(),
+        mode: mode.into(),
+        plan: "plan.json".into(),
+        config: config_name.into(),
+        virtual_clock: args.virtual_clock,
+        speed: MoveSpeedOpt {
+            max_vel: args.speed_deg_s.to_radians(),
+            max_acc: args.accel_deg_s2.to_radians(),
+        },
+        settle: SettleOptions::default(),
+        sample,
+        faults: FaultOptions::default(),
+    };
+    // run.json last: a directory with run.json is complete enough to resume.
+    write_atomic(
+        &dir.join("run.json"),
+        serde_json::to_string_pretty(&cfg)?.as_bytes(),
+    )?;
+    Ok((dir.clone(), cfg))
+}
+
+fn load_run(dir: &Path) -> anyhow::Result<RunConfig> {
+    let p = dir.join("run.json");
+    let text = std::fs::read_to_string(&p)
+        .with_context(|| format!("{} is not a run directory (no run.json)", dir.display()))?;
+    let cfg: RunConfig = serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
+    if cfg.format != RUN_FORMAT {
+        bail!(
+            "{}: format {:?} is not {RUN_FORMAT}",
+            p.display(),
+            cfg.format
+        );
+    }
+    Ok(cfg)
+}
 
 /// Run `robocal run`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::not_yet("run")
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let (dir, cfg) = match &args.resume {
+        Some(dir) => (dir.clone(), load_run(dir)?),
+        None => new_run(&args)?,
+    };
+    let summary = acquire_in(&dir, &cfg, &args)?;
+    if args.json {
+        println!("{}", json!({ "summary": summary }));
+    } else {
+        print!("{summary}");
+        println!("dataset: {}", dir.join(DATASET).display());
+    }
+    if let Some(reason) = &summary.aborted {
+        bail!(
+            "run aborted: {reason} (continue with `robocal run --resume {}`)",
+            dir.display()
+        );
+    }
+    Ok(())
 }
