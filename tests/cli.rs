@@ -354,3 +354,45 @@ fn predict_dispatches_laser_calibrations() {
         c => panic!("exit {c:?}: {}", stderr(&o)),
     }
 }
+
+fn read_csv(path: &Path) -> Vec<(u64, Point3<f64>)> {
+    csv_rows(&std::fs::read_to_string(path).unwrap())
+}
+
+/// Issue 2 acceptance: `calibrate nominal` on train, `predict` on held-out reproduces the
+/// independent solver's `nominal.csv` and its 0.864 mm RMS against `truth.csv`.
+#[test]
+fn predict_after_nominal_fit_reproduces_the_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = robocal(&[
+        "calibrate",
+        "nominal",
+        "--data",
+        p(&data("kin-geometric/train.jsonl")),
+        "--out",
+        p(dir.path()),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let cal = dir.path().join("calibration.json");
+    let out = dir.path().join("pred.csv");
+    let o = robocal(&[
+        "predict",
+        "--calibration",
+        p(&cal),
+        "--data",
+        p(&data("kin-geometric/heldout.jsonl")),
+        "--out",
+        p(&out),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let pred = read_csv(&out);
+    assert_eq!(pred.len(), 150);
+    let vs_nominal = rms(&pred, &read_csv(&data("kin-geometric/nominal.csv")));
+    let vs_truth = rms(&pred, &read_csv(&data("kin-geometric/truth.csv")));
+    eprintln!("predict after nominal fit: {vs_nominal:.5} mm RMS vs nominal.csv, {vs_truth:.4} mm RMS vs truth.csv");
+    assert!(vs_nominal <= 0.01, "{vs_nominal} mm vs nominal.csv");
+    assert!(
+        (vs_truth - 0.864).abs() < 0.01,
+        "{vs_truth} mm vs truth.csv"
+    );
+}
