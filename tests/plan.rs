@@ -708,3 +708,51 @@ fn cli_plan_writes_a_valid_plan_without_devices() {
         robocal::cli::run(["robocal", "plan", "--spec", "plans/seed004-shell.toml"]);
     assert_eq!(missing_robot, 1);
 }
+
+#[test]
+fn numeric_ik_fallback_for_geometries_without_closed_form() {
+    let ds = robocal::dataset::Dataset::load(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/kin-geometric/train.jsonl"),
+    )
+    .unwrap();
+    let mut chain = ds.header.robot.chain.clone().unwrap();
+    // Tilt joint 4 by 7°: no longer a spherical-wrist VS060, so no closed form.
+    chain[3].origin_rpy = [7.0, 0.0, 0.0];
+    let model = KinematicModel::from_chain(&chain, ds.header.robot.flange.as_ref()).unwrap();
+    assert!(model.ik_family().is_none());
+    let q = [0.2, 0.4, 1.3, 0.1, 0.7, -0.3];
+    let target = model.flange_pose(&q);
+    let sols = plan::solve_ik(&model, &target).expect("numeric IK finds the pose");
+    assert!(!sols.is_empty());
+    for s in &sols {
+        let (dp, dr) = robocal::model::pose_distance(&model.flange_pose(&s.q), &target);
+        assert!(dp < 1e-5 && dr < 1e-7, "{dp} {dr}");
+        assert!(s.label.starts_with("numeric-"));
+    }
+    assert!(plan::solve_ik(&model, &Isometry3::translation(5000.0, 0.0, 0.0)).is_none());
+}
+
+#[test]
+fn cli_plan_takes_the_robot_from_a_dataset_chain() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("PLAN.json");
+    let code = robocal::cli::run([
+        "robocal".into(),
+        "plan".into(),
+        "--spec".into(),
+        plans_dir().join("seed000-planes.toml").into_os_string(),
+        "--chain".into(),
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/kin-geometric/train.jsonl")
+            .into_os_string(),
+        "--out".into(),
+        out.clone().into_os_string(),
+        "--urscript".into(),
+        dir.path().join("plan.script").into_os_string(),
+    ]);
+    assert_eq!(code, 0);
+    let f = PlanFile::read(&out).unwrap();
+    assert!(f.robot.chain.is_some());
+    assert!(!f.poses.is_empty());
+    assert!(dir.path().join("plan.script").exists());
+}

@@ -136,6 +136,72 @@ pub fn pose_checks(spec: &PlanSpec, c: &Candidate) -> Option<RejectReason> {
     None
 }
 
+/// One IK solution as the planner uses it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IkBranch {
+    /// Joints (rad), wrapped into the limits where possible.
+    pub q: Vec<f64>,
+    pub branch: u8,
+    pub label: String,
+}
+
+/// Seeds of the numeric fallback: joint 2/3/5 sign patterns around a bent-elbow posture.
+fn numeric_seeds(dof: usize) -> Vec<Vec<f64>> {
+    (0..8u8)
+        .map(|b| {
+            let sg = |bit: u8| if b & bit == 0 { 1.0 } else { -1.0 };
+            (0..dof)
+                .map(|i| match i {
+                    0 => 0.0,
+                    1 => 0.5 * sg(4),
+                    2 => 1.2 * sg(2),
+                    4 => 0.8 * sg(1),
+                    _ => 0.0,
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Every IK branch of a flange pose: the model's closed form, or — for geometries without
+/// one (e.g. an arbitrary URDF) — damped least squares from eight seeds, distinct solutions
+/// kept (`numeric-k` labels). `None` when unreachable.
+pub fn solve_ik(model: &KinematicModel, flange: &Isometry3<f64>) -> Option<Vec<IkBranch>> {
+    match model.ik(flange) {
+        Ok(sols) => Some(
+            sols.into_iter()
+                .map(|s| IkBranch {
+                    q: s.q,
+                    branch: s.branch,
+                    label: s.label.to_string(),
+                })
+                .collect(),
+        ),
+        Err(crate::model::IkError::NoClosedForm { .. }) => {
+            let limits = model.joint_limits();
+            let mut out: Vec<IkBranch> = Vec::new();
+            for (k, seed) in numeric_seeds(model.dof()).iter().enumerate() {
+                let Ok(mut q) = model.ik_from_seed(flange, seed) else {
+                    continue;
+                };
+                crate::model::ik::wrap_into_limits(&mut q, &limits);
+                let dup = out
+                    .iter()
+                    .any(|o| o.q.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-3));
+                if !dup {
+                    out.push(IkBranch {
+                        q,
+                        branch: k as u8,
+                        label: format!("numeric-{k}"),
+                    });
+                }
+            }
+            (!out.is_empty()).then_some(out)
+        }
+        Err(_) => None,
+    }
+}
+
 /// One try of a candidate at tool pose `tp`: feasible branches, rejections, examined count.
 fn attempt(
     model: &KinematicModel,
@@ -158,15 +224,12 @@ fn attempt(
         return (Vec::new(), vec![reject_target(r)], 1);
     }
     let flange = tp * tool_inv;
-    let sols = match model.ik(&flange) {
-        Ok(s) => s,
-        Err(_) => {
-            return (
-                Vec::new(),
-                vec![reject_target(RejectReason::Unreachable)],
-                1,
-            )
-        }
+    let Some(sols) = solve_ik(model, &flange) else {
+        return (
+            Vec::new(),
+            vec![reject_target(RejectReason::Unreachable)],
+            1,
+        );
     };
     let mut ok = Vec::new();
     let mut rej = Vec::new();
@@ -183,7 +246,7 @@ fn attempt(
                 candidate: ci,
                 point: c.point,
                 branch: s.branch,
-                branch_label: s.label.to_string(),
+                branch_label: s.label,
                 flange: model.flange_pose(&s.q),
                 q: s.q,
             }),
