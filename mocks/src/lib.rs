@@ -9,6 +9,7 @@ pub mod keyence;
 pub mod ndi;
 pub mod scenario;
 pub mod serve;
+pub mod sim;
 pub mod synth;
 pub mod ur;
 pub mod world;

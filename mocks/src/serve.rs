@@ -137,15 +137,13 @@ pub async fn start_device(
     if world.device(device).is_none() {
         return Err(ServeError::NoSuchDevice(device.to_string()));
     }
-    let _ = bind;
     match protocol {
         Protocol::Ur => crate::ur::start(world.clone(), device, bind).await,
         Protocol::NdiTcp => crate::ndi::start(world.clone(), device, bind).await,
         Protocol::NdiSerial => crate::ndi::start_serial(world.clone(), device, bind).await,
         Protocol::DlRs1a => crate::keyence::start(world.clone(), device, bind).await,
         Protocol::Bcap => crate::bcap::start(world.clone(), device, bind).await,
-        Protocol::Optotrak
-        | Protocol::Camera => Err(ServeError::NotAvailable {
+        Protocol::Optotrak | Protocol::Camera => Err(ServeError::NotAvailable {
             protocol: protocol.as_str().to_string(),
             device: device.to_string(),
         }),
