@@ -73,7 +73,7 @@ impl<'a> Rd<'a> {
     }
     fn bstr(&mut self) -> Result<String, CodecError> {
         let len = self.u32()? as usize;
-        if len % 2 != 0 {
+        if !len.is_multiple_of(2) {
             return Err(CodecError::BadString);
         }
         let raw = self.take(len)?;

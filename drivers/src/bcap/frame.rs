@@ -83,11 +83,11 @@ pub mod hresult {
     /// A request arrived while another was executing.
     pub const E_BUSY_PROC: i32 = 0x8091_00AA_u32 as i32;
     /// Motor off / servo not ready (**simulator code**: the exact RC8 value is UNVERIFIED).
-    pub const E_SIM_MOTOR_OFF: i32 = 0x83_20_0041_u32 as i32;
+    pub const E_SIM_MOTOR_OFF: i32 = 0x8320_0041_u32 as i32;
     /// Motion stopped by a protective stop / collision detection (**simulator code**, UNVERIFIED).
-    pub const E_SIM_PROTECTIVE_STOP: i32 = 0x83_50_0121_u32 as i32;
+    pub const E_SIM_PROTECTIVE_STOP: i32 = 0x8350_0121_u32 as i32;
     /// Target outside the joint range (**simulator code**, UNVERIFIED).
-    pub const E_SIM_OUT_OF_RANGE: i32 = 0x84_20_1482_u32 as i32;
+    pub const E_SIM_OUT_OF_RANGE: i32 = 0x8420_1482_u32 as i32;
 
     /// A short name for a known code.
     pub fn name(code: i32) -> &'static str {
