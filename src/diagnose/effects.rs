@@ -460,12 +460,10 @@ pub fn block_columns(
         }
     }
     match block {
-        Block::BaseShift { t_change } => {
-            if ctx.t >= *t_change {
-                for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
-                    if let Some(ip) = model.param_index(&format!("base_{sfx}")) {
-                        cols[k] = jm.column(ip).into_owned();
-                    }
+        Block::BaseShift { t_change } if ctx.t >= *t_change => {
+            for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
+                if let Some(ip) = model.param_index(&format!("base_{sfx}")) {
+                    cols[k] = jm.column(ip).into_owned();
                 }
             }
         }
