@@ -41,7 +41,7 @@ impl Sim {
     fn config(&self) -> DensoConfig {
         let mut c = DensoConfig::new(self.addr());
         c.name = "vs060-sim".into();
-        c.timeout = Duration::from_millis(400);
+        c.timeout = Duration::from_millis(700);
         c.backoff = Backoff {
             attempts: 4,
             initial: Duration::from_millis(20),
@@ -53,7 +53,7 @@ impl Sim {
         DensoArm::connect(self.config()).await.unwrap()
     }
     async fn client(&self) -> BcapClient {
-        BcapClient::connect(&self.addr(), Duration::from_millis(400))
+        BcapClient::connect(&self.addr(), Duration::from_millis(700))
             .await
             .unwrap()
     }
@@ -418,8 +418,8 @@ async fn wire_faults_map_to_kinds_and_the_arm_recovers() {
     let cases: Vec<(Fault, ErrorKind)> = vec![
         (Fault::DropLink, ErrorKind::Disconnected),
         (Fault::Truncated, ErrorKind::Disconnected),
-        (Fault::Delay { secs: 0.8 }, ErrorKind::Timeout),
-        (Fault::Silence { secs: 0.8 }, ErrorKind::Timeout),
+        (Fault::Delay { secs: 1.4 }, ErrorKind::Timeout),
+        (Fault::Silence { secs: 1.4 }, ErrorKind::Timeout),
         (
             Fault::Garbage {
                 bytes: vec![0x55; 20],

@@ -44,9 +44,9 @@ impl Sim {
         c.rtde_port = self.addr("rtde").port();
         c.dashboard_port = self.addr("dashboard").port();
         c.script_port = self.addr("script").port();
-        c.rtde.stream_timeout = Duration::from_millis(300);
-        c.request_timeout = Duration::from_millis(500);
-        c.start_timeout = Duration::from_millis(500);
+        c.rtde.stream_timeout = Duration::from_millis(500);
+        c.request_timeout = Duration::from_millis(800);
+        c.start_timeout = Duration::from_millis(1000);
         c.backoff = Backoff {
             attempts: 4,
             initial: Duration::from_millis(20),
@@ -59,8 +59,8 @@ impl Sim {
     }
     fn rtde_cfg() -> RtdeConfig {
         RtdeConfig {
-            stream_timeout: Duration::from_millis(300),
-            request_timeout: Duration::from_millis(500),
+            stream_timeout: Duration::from_millis(500),
+            request_timeout: Duration::from_millis(800),
             ..RtdeConfig::default()
         }
     }
@@ -320,7 +320,7 @@ async fn rtde_silence_is_timeout_and_arm_recovers() {
         .unwrap();
     sim.world
         .control()
-        .inject("arm", Fault::Silence { secs: 1.0 });
+        .inject("arm", Fault::Silence { secs: 1.5 });
     let e = loop {
         if let Err(e) = raw.next_sample().await {
             break e;
@@ -331,7 +331,7 @@ async fn rtde_silence_is_timeout_and_arm_recovers() {
     arm.joints().await.unwrap();
     sim.world
         .control()
-        .inject("arm", Fault::Delay { secs: 1.0 });
+        .inject("arm", Fault::Delay { secs: 1.5 });
     // A silent stream makes the arm reconnect; the call still succeeds on the new session.
     for _ in 0..5 {
         arm.sample(true).await.unwrap();
@@ -368,10 +368,10 @@ async fn rtde_refused_handshake_is_device_rejected() {
 async fn dashboard_faults_map_to_kinds_and_recover() {
     let sim = Sim::new(false).await;
     let addr = sim.addr("dashboard").to_string();
-    let t = Duration::from_millis(300);
+    let t = Duration::from_millis(500);
     let d = DashboardClient::connect(&addr, t).await.unwrap();
     let q = "arm/dashboard";
-    sim.world.control().inject(q, Fault::Delay { secs: 0.6 });
+    sim.world.control().inject(q, Fault::Delay { secs: 1.2 });
     assert_eq!(d.robot_mode().await.unwrap_err().kind(), ErrorKind::Timeout);
 
     let d = DashboardClient::connect(&addr, t).await.unwrap();
@@ -398,6 +398,17 @@ async fn dashboard_faults_map_to_kinds_and_recover() {
     assert_eq!(
         d.robot_mode().await.unwrap_err().kind(),
         ErrorKind::Protocol
+    );
+
+    let d = DashboardClient::connect(&addr, t).await.unwrap();
+    sim.world.control().inject(q, Fault::BadCrc); // a mangled (lower-cased) reply line
+    assert_eq!(
+        d.robot_mode().await.unwrap_err().kind(),
+        ErrorKind::Protocol
+    );
+    assert_eq!(
+        d.robot_mode().await.unwrap(),
+        robocal_drivers::ur::rtde::RobotMode::Running
     );
 
     let d = DashboardClient::connect(&addr, t).await.unwrap();
