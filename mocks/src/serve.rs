@@ -150,16 +150,48 @@ pub async fn start_device(
     }
 }
 
-/// Start every device of the world's scenario; stops at the first failure.
-pub async fn serve_all(world: &WorldHandle, bind: &Bind) -> Result<Vec<Endpoint>, ServeError> {
-    let mut out = Vec::new();
+/// What [`serve_all`] started.
+#[derive(Debug, Default)]
+pub struct Served {
+    /// Running endpoints.
+    pub endpoints: Vec<Endpoint>,
+    /// Devices whose protocol simulator is not available (device, protocol, message).
+    pub unavailable: Vec<(String, String, String)>,
+}
+
+impl Served {
+    /// The JSON lines `robocal sim serve` prints before `{"ready": true}`: one per endpoint,
+    /// then one `{"device", "protocol", "error"}` per unavailable device.
+    pub fn json_lines(&self) -> Vec<serde_json::Value> {
+        let mut v: Vec<serde_json::Value> = self.endpoints.iter().map(Endpoint::to_json).collect();
+        v.extend(
+            self.unavailable
+                .iter()
+                .map(|(d, p, e)| serde_json::json!({"device": d, "protocol": p, "error": e})),
+        );
+        v
+    }
+    /// Stop every server.
+    pub fn abort(&self) {
+        for ep in &self.endpoints {
+            ep.abort();
+        }
+    }
+}
+
+/// Start every device of the world's scenario. Devices whose protocol is not available are
+/// listed in [`Served::unavailable`]; any other failure stops everything and is returned.
+pub async fn serve_all(world: &WorldHandle, bind: &Bind) -> Result<Served, ServeError> {
+    let mut out = Served::default();
     for (name, protocol) in world.scenario().devices() {
         match start_device(world, &name, protocol, bind).await {
-            Ok(eps) => out.extend(eps),
+            Ok(eps) => out.endpoints.extend(eps),
+            Err(e @ ServeError::NotAvailable { .. }) => {
+                out.unavailable
+                    .push((name, protocol.as_str().to_string(), e.to_string()));
+            }
             Err(e) => {
-                for ep in &out {
-                    ep.abort();
-                }
+                out.abort();
                 return Err(e);
             }
         }
