@@ -10,6 +10,7 @@ pub mod error;
 pub mod fake;
 pub mod keyence;
 pub mod ndi;
+pub mod optotrak;
 pub mod safety;
 pub mod traits;
 pub mod ur;
