@@ -756,3 +756,32 @@ fn cli_plan_takes_the_robot_from_a_dataset_chain() {
     assert!(!f.poses.is_empty());
     assert!(dir.path().join("plan.script").exists());
 }
+
+#[test]
+fn safety_path_check_counts_moves_past_the_table() {
+    let model = vs060();
+    let mut s = spec("seed001-annulus.toml");
+    let tool = plan::frame_iso(&s.tool);
+    let hi = vec![0.0, 0.0, 1.2, 0.0, 0.5, 0.0];
+    let lo = vec![0.0, 1.2, 1.5, 0.0, 0.9, 0.0];
+    let z = |q: &[f64]| {
+        (model.flange_pose(q) * tool)
+            .translation
+            .z
+            .min(model.flange_pose(q).translation.z)
+    };
+    assert!(z(&lo) + 100.0 < z(&hi), "{} {}", z(&lo), z(&hi));
+    s.constraints.envelope = None;
+    s.constraints.table_z_mm = Some((z(&lo) + z(&hi)) / 2.0);
+    s.constraints.table_clearance_mm = 0.0;
+    let tm = TimeModel::from_spec(&s.timing, 6);
+    assert_eq!(
+        plan::path_check(&model, &s, &tm, &[hi.clone(), hi.clone()]),
+        0
+    );
+    assert_eq!(
+        plan::path_check(&model, &s, &tm, &[hi.clone(), lo.clone()]),
+        1
+    );
+    assert_eq!(plan::path_check(&model, &s, &tm, &[hi.clone(), lo, hi]), 2);
+}
