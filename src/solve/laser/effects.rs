@@ -266,14 +266,31 @@ pub fn diagnose(
 ) -> Result<LaserDiagnosis, LaserError> {
     let planes_map = by_plane(train);
     let labels: Vec<String> = start_planes.iter().map(|x| x.0.clone()).collect();
-    let data: Vec<Vec<LaserObs>> = labels
+    let mut data: Vec<Vec<LaserObs>> = labels
         .iter()
         .map(|l| planes_map.get(l).cloned().unwrap_or_default())
         .collect();
+    let mut base_planes: Vec<Plane> = start_planes.iter().map(|x| x.1).collect();
+    // The validation targets lie on one plate: its spots are one more plane, and the only
+    // data at large incidence (45°), which is what makes the incidence bias observable.
+    if validation.len() >= 10 {
+        let spots: Vec<Point3<f64>> = validation
+            .iter()
+            .map(|o| start.spot(&o.flange, o.d))
+            .collect();
+        if let Some(pl) = pca_plane(&spots) {
+            let rms = (spots.iter().map(|p| pl.distance(p).powi(2)).sum::<f64>()
+                / spots.len() as f64)
+                .sqrt();
+            if rms < 5.0 {
+                data.push(validation.to_vec());
+                base_planes.push(pl);
+            }
+        }
+    }
     let all: Vec<LaserObs> = data.iter().flatten().cloned().collect();
     let rr = RangeRef::of(&all);
     let n = all.len() as f64;
-    let base_planes: Vec<Plane> = start_planes.iter().map(|x| x.1).collect();
     let base = fit_direct(&data, start, &base_planes, DirectOptions::default())?;
     let rms_before = (base.rss / n).sqrt();
     let spread_before = spread_with(&base.beam, &[], &[], &rr, validation);
@@ -296,10 +313,10 @@ pub fn diagnose(
         for &cand in &candidates {
             let mut ks = kinds.clone();
             ks.push(cand);
-            // Two passes: the incidence regressor depends on the fitted normals and beam.
+            // Three passes: the incidence regressor depends on the fitted normals and beam.
             let mut fit = None;
             let (mut b, mut pl) = (current.beam, current.planes.clone());
-            for _ in 0..2 {
+            for _ in 0..3 {
                 let cols = columns(&ks, &data, &b, &pl, &rr);
                 let f = fit_direct(
                     &data,
@@ -314,7 +331,7 @@ pub fn diagnose(
                 pl = f.planes.clone();
                 fit = Some(f);
             }
-            let fit = fit.expect("two passes");
+            let fit = fit.expect("three passes");
             let rss0 = current.rss;
             let rss1 = fit.rss.max(1e-300);
             let dof = (n - p0 - 1.0).max(1.0);

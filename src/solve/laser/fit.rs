@@ -4,9 +4,10 @@ use super::{Beam, LaserError, LaserObs, MoveKind, Plane};
 use crate::solve::lm::{minimize, LmOptions, LmReport, LsqProblem};
 use nalgebra::{DMatrix, DVector, Matrix3, Point3, Unit, Vector3};
 
-/// Translation groups of one plane: each group is (initial pose, the other translate poses).
-/// Groups are the `block` labels when present; otherwise consecutive translate poses whose
-/// orientation differs by less than 0.05°.
+/// Translation groups of one plane: translate poses sharing one orientation (within 0.05°),
+/// each group as (initial pose = lowest id, then the others). This covers both layouts of
+/// seed 000: one group per block (each block its own orientation) and the seed's three
+/// translation groups whose orientation is fixed across the blocks.
 fn translation_groups(obs: &[LaserObs]) -> Vec<Vec<&LaserObs>> {
     let mut groups: Vec<Vec<&LaserObs>> = Vec::new();
     let mut sorted: Vec<&LaserObs> = obs
@@ -14,18 +15,14 @@ fn translation_groups(obs: &[LaserObs]) -> Vec<Vec<&LaserObs>> {
         .filter(|o| o.move_kind == Some(MoveKind::Translate))
         .collect();
     sorted.sort_by_key(|o| o.id);
+    let tol = 0.05f64.to_radians();
     for o in sorted {
-        let joins = groups.last().is_some_and(|g| {
-            let first = g[0];
-            match (first.block, o.block) {
-                (Some(a), Some(b)) => a == b,
-                _ => first.flange.rotation.angle_to(&o.flange.rotation) < 0.05f64.to_radians(),
-            }
-        });
-        if joins {
-            groups.last_mut().expect("non-empty").push(o);
-        } else {
-            groups.push(vec![o]);
+        match groups
+            .iter_mut()
+            .find(|g| g[0].flange.rotation.angle_to(&o.flange.rotation) < tol)
+        {
+            Some(g) => g.push(o),
+            None => groups.push(vec![o]),
         }
     }
     groups.retain(|g| g.len() >= 2);
@@ -70,8 +67,72 @@ fn smallest_right_singular_vector(a: &DMatrix<f64>) -> Option<(DVector<f64>, f64
 /// `(R_jᵀ n_b)·r + c = −d_j (R_jᵀ n_b)·v − n_b·t_j` in `(r, c)`.
 pub fn closed_form_single_plane(obs: &[LaserObs]) -> Result<(Beam, Plane), LaserError> {
     let groups = translation_groups(obs);
+    let (n, v) = match per_group_normals(&groups) {
+        Some(nv) => nv,
+        None => pooled_normal_and_direction(&groups)?,
+    };
+    let (r, c) = solve_r_and_offset(obs, &n, &v)?;
+    let mut plane = Plane { n, c };
+    orient_plane(&mut plane, obs);
+    Ok((Beam { r, v }, plane))
+}
+
+/// The seed's own route (eq. 14 then eq. 13): each translation group with at least three
+/// independent translations gives, in its initial flange frame, `w = [Σ t tᵀ]⁻¹ Σ t Δd` with the
+/// plane normal `m = w / |w|` and the constraint `w·v = −1`; three or more groups in different
+/// orientations give `v` by least squares. `None` when fewer than three groups qualify.
+fn per_group_normals(
+    groups: &[Vec<&LaserObs>],
+) -> Option<(Unit<Vector3<f64>>, Unit<Vector3<f64>>)> {
+    let mut rows: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new(); // (w in flange frame, n_b)
+    for g in groups {
+        if g.len() < 4 {
+            continue;
+        }
+        let o0 = g[0];
+        let r0 = o0.flange.rotation;
+        let mut tt = Matrix3::zeros();
+        let mut tb = Vector3::zeros();
+        for oj in &g[1..] {
+            let t = r0.inverse() * (oj.flange.translation.vector - o0.flange.translation.vector);
+            tt += t * t.transpose();
+            tb += t * (oj.d - o0.d);
+        }
+        let eig = tt.symmetric_eigen();
+        let (lo, hi) = (eig.eigenvalues.min(), eig.eigenvalues.max());
+        if !(hi > 0.0 && lo / hi > 1e-4) {
+            continue;
+        }
+        let w = tt.try_inverse()? * tb;
+        if !(w.norm() > 1e-12) {
+            continue;
+        }
+        rows.push((w, r0 * (w / w.norm())));
+    }
+    if rows.len() < 3 {
+        return None;
+    }
+    let a = DMatrix::from_fn(rows.len(), 3, |i, j| rows[i].0[j]);
+    let b = DVector::from_element(rows.len(), -1.0);
+    let svd = a.svd(true, true);
+    if svd.singular_values.min() <= svd.singular_values.max() * 1e-6 {
+        return None;
+    }
+    let v = svd.solve(&b, 0.0).ok()?;
+    let v = Vector3::new(v[0], v[1], v[2]);
+    let n = rows.iter().fold(Vector3::zeros(), |acc, (_, nb)| {
+        acc + if nb.dot(&rows[0].1) < 0.0 { -nb } else { *nb }
+    });
+    Some((Unit::try_new(n, 1e-12)?, Unit::try_new(v, 1e-12)?))
+}
+
+/// Pooled route for groups with only two translations each (e.g. one group per block):
+/// `n_bᵀ(Δt + Δd R₀ v) = 0` is linear in `(n_b, N = n_b vᵀ)`; the null vector gives both.
+fn pooled_normal_and_direction(
+    groups: &[Vec<&LaserObs>],
+) -> Result<(Unit<Vector3<f64>>, Unit<Vector3<f64>>), LaserError> {
     let mut rows: Vec<[f64; 12]> = Vec::new();
-    for g in &groups {
+    for g in groups {
         let o0 = g[0];
         let r0 = o0.flange.rotation.to_rotation_matrix();
         let r0 = r0.matrix();
@@ -123,12 +184,7 @@ pub fn closed_form_single_plane(obs: &[LaserObs]) -> Result<(Beam, Plane), Laser
     if v.norm() < 1e-12 {
         return Err(LaserError::Degenerate("zero beam direction".into()));
     }
-    let n = Unit::new_normalize(n);
-    let v = Unit::new_normalize(v);
-    let (r, c) = solve_r_and_offset(obs, &n, &v)?;
-    let mut plane = Plane { n, c };
-    orient_plane(&mut plane, obs);
-    Ok((Beam { r, v }, plane))
+    Ok((Unit::new_normalize(n), Unit::new_normalize(v)))
 }
 
 /// Eq. 15 generalised: least squares for `(r, c)` given the plane normal and the beam direction.
