@@ -8,4 +8,5 @@ mod laser;
 mod solve;
 mod acquire;
 mod diagnose;
+mod laser_world;
 mod world_vs_model;
