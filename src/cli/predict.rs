@@ -133,15 +133,13 @@ impl Predictor {
                 beam,
                 effects,
                 model,
-            } => {
-                match crate::solve::laser::predict_spot(beam, effects, rec, model.as_deref())? {
-                    Some(p) => Ok(p),
-                    None => bail!(
-                        "pose {} has no range reading (`range` absent or null): no laser spot",
-                        rec.id
-                    ),
-                }
-            }
+            } => match crate::solve::laser::predict_spot(beam, effects, rec, model.as_deref())? {
+                Some(p) => Ok(p),
+                None => bail!(
+                    "pose {} has no range reading (`range` absent or null): no laser spot",
+                    rec.id
+                ),
+            },
         }
     }
 
