@@ -597,3 +597,43 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     ]);
     assert_eq!(code, 1);
 }
+
+#[test]
+fn kfold_scores_without_heldout_and_orientation_fit() {
+    // No validation records and no held-out file: 5-fold cross-validation on train.
+    let c = case("kin-geometric");
+    let mut small = c.train.clone();
+    let mut kept = 0;
+    small.records.retain(|r| match r {
+        robocal::dataset::Record::Pose(_) => {
+            kept += 1;
+            kept <= 150
+        }
+        _ => true,
+    });
+    let res = identify(&small, &IdentOptions::default()).unwrap();
+    let h = res.heldout.unwrap();
+    assert_eq!(
+        h.source,
+        robocal::solve::kinematics::HeldoutSource::KFold(5)
+    );
+    assert_eq!(h.n, 150);
+    assert!(h.rms_before > 0.7 && h.rms_after < 0.1, "{h:?}");
+    // With marker orientation: tool gets 6 parameters; accuracy is kept.
+    let opts = IdentOptions {
+        heldout: Some(c.held.clone()),
+        orientation: true,
+        ..Default::default()
+    };
+    let res = identify(&c.train, &opts).unwrap();
+    assert!(
+        res.x_names.iter().any(|n| n == "tool_rz"),
+        "{:?}",
+        res.x_names
+    );
+    let after = rms_against(&c.truth, &predict(&res.model, &c.held_obs));
+    assert!(after <= 0.02, "orientation fit: {after} mm");
+    // The marker sits rotated 30° about the flange z axis (case.json).
+    let rz = res.model.tool().rotation.euler_angles().2.to_degrees();
+    assert!((rz - 30.0).abs() < 1.0, "tool rz {rz}");
+}
