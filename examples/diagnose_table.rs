@@ -363,7 +363,10 @@ fn main() {
         .nth(1)
         .and_then(|a| a.parse().ok())
         .unwrap_or(20);
-    let seed = 1;
+    let seed: u64 = std::env::var("DIAG_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1);
     println!(
         "{} train / {} held-out poses per world, seed {seed}; RMS = held-out 3-D error vs noise-free truth (mm)",
         SMALL.n_train, SMALL.n_heldout
