@@ -826,3 +826,194 @@ marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }
         eprintln!("kill -9 test: {kills} kills, {spawns} spawns, {torn_seen} torn tails, {resumes} resumes");
     }
 }
+
+// ------------------------------------------ the engine against `robocal_mocks` Sim devices
+
+mod sim_devices {
+    use rand::{Rng, SeedableRng};
+    use robocal::acquire::{acquire, AcquireOptions, PlannedPose, RunSummary};
+    use robocal::dataset::{Dataset, Journal, Record};
+    use robocal_drivers::safety::{guard, SafetyLimits};
+    use robocal_mocks::scenario::ClockMode;
+    use robocal_mocks::world::Fault;
+    use robocal_mocks::{Scenario, WorldHandle};
+
+    fn world() -> WorldHandle {
+        let mut s = Scenario::single_arm("denso-vs060", 5);
+        s.clock = ClockMode::Virtual;
+        WorldHandle::from_scenario(&s).unwrap()
+    }
+
+    fn plan(n: usize) -> Vec<PlannedPose> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let ranges = [
+            (-50.0, 50.0),
+            (-20.0, 50.0),
+            (70.0, 120.0),
+            (-60.0, 60.0),
+            (-100.0, -30.0),
+            (-60.0, 60.0),
+        ];
+        (0..n)
+            .map(|i| {
+                let q = ranges
+                    .iter()
+                    .map(|(a, b)| rng.random_range(*a..*b))
+                    .collect();
+                PlannedPose::new(i as u64, q)
+            })
+            .collect()
+    }
+
+    fn run(
+        world: &WorldHandle,
+        plan: &[PlannedPose],
+        path: &std::path::Path,
+        opts: &AcquireOptions,
+    ) -> RunSummary {
+        let (mut devices, _) = robocal::cli::run::sim_cell(world).unwrap();
+        let limits = SafetyLimits {
+            joint_lower: vec![-170f64.to_radians(); 6],
+            joint_upper: vec![170f64.to_radians(); 6],
+            max_vel: 60f64.to_radians(),
+            max_acc: 120f64.to_radians(),
+            envelope: None,
+            table: None,
+            path_step: 1f64.to_radians(),
+        };
+        devices.arm = guard(devices.arm.clone(), limits, None);
+        let (mut journal, existing, _) = Journal::open_or_create(path, &super::header()).unwrap();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(acquire(
+            &devices,
+            plan,
+            &mut journal,
+            &existing,
+            opts,
+            &mut |_| {},
+        ))
+        .unwrap()
+    }
+
+    fn reasons(ds: &Dataset, what: &str) -> Vec<String> {
+        ds.records
+            .iter()
+            .filter_map(|r| match r {
+                Record::Event(e) if e.what == what => e.reason.clone(),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn clean_run_measures_the_true_marker() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("dataset.jsonl");
+        let w = world();
+        let plan = plan(10);
+        let s = run(&w, &plan, &path, &AcquireOptions::default());
+        let ds = Dataset::load(&path).unwrap();
+        assert_eq!(s.recorded + s.skipped.len(), 10);
+        assert!(s.recorded >= 8, "{s:?}");
+        // The last pose is where the arm still stands: the averaged marker equals the
+        // world's (noise-free) truth.
+        let last = ds.poses().last().unwrap();
+        if last.id == 9 {
+            let truth = w.marker_truth(0).unwrap().translation.vector;
+            let got = nalgebra::Vector3::from(last.marker.as_ref().unwrap().p.unwrap());
+            assert!((got - truth).norm() < 1e-6, "{got} vs {truth}");
+        }
+        // Settling is detected, not slept: far below the 5 s timeout per pose.
+        assert!(s.time.settle_s < 10.0 * 0.5, "{:?}", s.time);
+        // Overhead over the zero-overhead floor (the moves themselves + 30 frames at 60 Hz
+        // per measured pose) stays within 20 %.
+        let floor = s.time.move_s + s.recorded as f64 * 30.0 / 60.0;
+        eprintln!(
+            "{:?} floor {floor:.1} s, {:.0} poses/h",
+            s.time, s.poses_per_hour
+        );
+        assert!(
+            s.time.total_s() <= 1.2 * floor,
+            "{:?} vs floor {floor}",
+            s.time
+        );
+        assert!(
+            reasons(&ds, "note").is_empty(),
+            "{:?}",
+            reasons(&ds, "note")
+        );
+    }
+
+    #[test]
+    fn injected_link_drops_are_survived() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("dataset.jsonl");
+        let w = world();
+        let ctl = w.control();
+        ctl.inject("arm", Fault::DropLink);
+        ctl.inject("arm", Fault::Silence { secs: 0.5 });
+        ctl.inject("tracker", Fault::DropLink);
+        let plan = plan(4);
+        let s = run(&w, &plan, &path, &AcquireOptions::default());
+        assert!(s.aborted.is_none(), "{s:?}");
+        let ds = Dataset::load(&path).unwrap();
+        let faults = reasons(&ds, "fault");
+        assert!(faults.iter().any(|r| r.contains("link lost")), "{faults:?}");
+        let resumes = reasons(&ds, "resume");
+        assert!(
+            resumes.iter().any(|r| r.contains("link restored")),
+            "{resumes:?}"
+        );
+        assert_eq!(ctl.pending_faults("arm"), 0);
+        assert_eq!(s.recorded + s.skipped.len(), 4);
+    }
+
+    #[test]
+    fn protective_stop_is_recovered() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("dataset.jsonl");
+        let w = world();
+        w.control().protective_stop(0);
+        let plan = plan(3);
+        let s = run(&w, &plan, &path, &AcquireOptions::default());
+        assert!(s.aborted.is_none(), "{s:?}");
+        let ds = Dataset::load(&path).unwrap();
+        assert_eq!(reasons(&ds, "pause").len(), 1);
+        assert!(reasons(&ds, "resume")[0].contains("recovered from protective stop"));
+        assert_eq!(s.recorded + s.skipped.len(), 3);
+    }
+
+    #[test]
+    fn occluded_marker_is_skipped_then_resume_continues() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("dataset.jsonl");
+        let w = world();
+        w.control().set_occluded(0, true);
+        let plan = plan(5);
+        let opts = AcquireOptions {
+            max_poses: Some(2),
+            ..AcquireOptions::default()
+        };
+        let s = run(&w, &plan, &path, &opts);
+        assert_eq!(s.recorded, 0);
+        assert_eq!(s.skipped.len(), 2);
+        assert!(s
+            .skipped
+            .iter()
+            .all(|k| k.reason == "marker not visible after 4 tries"));
+        w.control().set_occluded(0, false);
+        let s = run(&w, &plan, &path, &AcquireOptions::default());
+        assert_eq!(s.already_done, 2);
+        assert_eq!(s.skipped.len() + s.recorded, 5);
+        let ds = Dataset::load(&path).unwrap();
+        let ids: Vec<u64> = ds.poses().map(|p| p.id).collect();
+        assert!(
+            ids.iter().all(|&i| i >= 2),
+            "skipped poses are not retried: {ids:?}"
+        );
+        assert_eq!(reasons(&ds, "retry").len(), 6);
+    }
+}

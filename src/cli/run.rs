@@ -16,14 +16,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use async_trait::async_trait;
 use robocal_drivers::safety::{guard, SafetyLimits};
-use robocal_drivers::{
-    Arm, ArmState, ArmStatus, Clock, DriverError, DriverResult, ErrorKind, FlangePose,
-    FlangeToBase, JointReadout, JointState, MarkerTracker, MoveJoints, MoveSpeed, RangeReading,
-    RangeSensor, TrackerFrame,
-};
-use robocal_mocks::world::WorldError;
+use robocal_drivers::{Arm, MarkerTracker, RangeSensor};
+use robocal_mocks::scenario::ClockMode;
+use robocal_mocks::sim::SimDevices;
 use robocal_mocks::{Scenario, WorldHandle};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -107,129 +103,37 @@ pub struct RunConfig {
 const RUN_FORMAT: &str = "robocal-run/1";
 const DATASET: &str = "dataset.jsonl";
 
-// ----------------------------------------------------------------- simulator adapters
+// ----------------------------------------------------------------- simulator wiring
 
-fn world_err(device: &str, e: WorldError) -> DriverError {
-    let kind = match &e {
-        WorldError::ProtectiveStop => ErrorKind::SafetyStop,
-        WorldError::OutOfLimits { .. } | WorldError::InvalidTarget(_) => ErrorKind::InvalidArgument,
-        _ => ErrorKind::Other,
+/// What a cell tells the dataset header besides the plan.
+#[derive(Debug, Clone, Default)]
+pub struct CellInfo {
+    /// Arm serial number.
+    pub serial: Option<String>,
+    /// Tracker kind (`ndi-optotrak-certus`, ...).
+    pub tracker_kind: Option<String>,
+    /// Range sensor kind (`keyence-il600`).
+    pub range_kind: Option<String>,
+}
+
+/// The in-process simulated devices of a world (`robocal_mocks::sim`): its first arm,
+/// tracker and laser, and its clock. The arm is NOT yet wrapped in the safety decorators.
+pub fn sim_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo)> {
+    let scenario = world.scenario();
+    let sim = SimDevices::of(world);
+    let Some((_, arm)) = sim.arms.into_iter().next() else {
+        bail!("scenario {:?} has no arm", scenario.name);
     };
-    DriverError::new(kind, device, e.to_string())
-}
-
-/// The simulated arm `index` of a world, as the device traits see it.
-struct SimArmAdapter {
-    world: WorldHandle,
-    index: usize,
-}
-
-#[async_trait]
-impl JointReadout for SimArmAdapter {
-    async fn joints(&self) -> DriverResult<JointState> {
-        Ok(self.world.arm_joint_state(self.index))
-    }
-}
-
-#[async_trait]
-impl FlangePose for SimArmAdapter {
-    async fn flange_pose(&self) -> DriverResult<FlangeToBase> {
-        Ok(FlangeToBase(self.world.arm_controller_flange(self.index)))
-    }
-}
-
-#[async_trait]
-impl MoveJoints for SimArmAdapter {
-    fn dof(&self) -> usize {
-        self.world.arm_dof(self.index)
-    }
-    async fn move_joints(&self, target: &[f64], speed: MoveSpeed) -> DriverResult<()> {
-        self.world
-            .arm_start_move(self.index, target, speed)
-            .map_err(|e| world_err("sim-arm", e))?;
-        self.world.arm_wait_arrival(self.index).await;
-        Ok(())
-    }
-    async fn stop(&self) -> DriverResult<()> {
-        self.world.arm_stop(self.index);
-        Ok(())
-    }
-}
-
-#[async_trait]
-impl ArmStatus for SimArmAdapter {
-    async fn state(&self) -> DriverResult<ArmState> {
-        Ok(self.world.arm_state(self.index))
-    }
-    async fn recover(&self) -> DriverResult<()> {
-        self.world
-            .arm_recover(self.index)
-            .map_err(|e| world_err("sim-arm", e))
-    }
-}
-
-struct SimTrackerAdapter {
-    world: WorldHandle,
-    index: usize,
-}
-
-#[async_trait]
-impl MarkerTracker for SimTrackerAdapter {
-    async fn frame(&self) -> DriverResult<TrackerFrame> {
-        Ok(self.world.tracker_frame_of(self.index))
-    }
-}
-
-struct SimLaserAdapter {
-    world: WorldHandle,
-    index: usize,
-}
-
-#[async_trait]
-impl RangeSensor for SimLaserAdapter {
-    async fn read_range(&self) -> DriverResult<RangeReading> {
-        Ok(self.world.laser_reading_of(self.index))
-    }
-}
-
-/// What a cell gives the header besides the plan.
-struct CellInfo {
-    serial: Option<String>,
-    tracker_kind: Option<String>,
-    range_kind: Option<String>,
-}
-
-fn sim_devices(
-    scenario_path: &Path,
-    virtual_clock: bool,
-) -> anyhow::Result<(Arc<dyn Arm>, Devices, CellInfo)> {
-    let mut scenario = Scenario::load(scenario_path)?;
-    scenario.clock = if virtual_clock {
-        robocal_mocks::scenario::ClockMode::Virtual
-    } else {
-        robocal_mocks::scenario::ClockMode::Real
-    };
-    let world = WorldHandle::from_scenario(&scenario)
-        .with_context(|| format!("building the world of {}", scenario_path.display()))?;
-    if world.arm_count() == 0 {
-        bail!("{}: the scenario has no arm", scenario_path.display());
-    }
-    let arm: Arc<dyn Arm> = Arc::new(SimArmAdapter {
-        world: world.clone(),
-        index: 0,
-    });
-    let tracker: Option<Arc<dyn MarkerTracker>> = (world.tracker_count() > 0).then(|| {
-        Arc::new(SimTrackerAdapter {
-            world: world.clone(),
-            index: 0,
-        }) as Arc<dyn MarkerTracker>
-    });
-    let range: Option<Arc<dyn RangeSensor>> = (world.laser_count() > 0).then(|| {
-        Arc::new(SimLaserAdapter {
-            world: world.clone(),
-            index: 0,
-        }) as Arc<dyn RangeSensor>
-    });
+    let tracker = sim
+        .trackers
+        .into_iter()
+        .next()
+        .map(|(_, t)| Arc::new(t) as Arc<dyn MarkerTracker>);
+    let range = sim
+        .lasers
+        .into_iter()
+        .next()
+        .map(|(_, l)| Arc::new(l) as Arc<dyn RangeSensor>);
     let info = CellInfo {
         serial: world.arm_identity(0).map(|(_, s)| s),
         tracker_kind: scenario
@@ -238,18 +142,29 @@ fn sim_devices(
             .map(|t| t.kind.as_str().to_string()),
         range_kind: scenario.lasers.first().map(|l| l.kind.clone()),
     };
-    let clock: Arc<dyn Clock> = world.clock();
+    let arm: Arc<dyn Arm> = Arc::new(arm);
     Ok((
-        arm.clone(),
         Devices {
             arm,
             tracker,
             range,
-            clock,
+            clock: world.clock(),
             thermometer: None,
         },
         info,
     ))
+}
+
+fn sim_devices(scenario_path: &Path, virtual_clock: bool) -> anyhow::Result<(Devices, CellInfo)> {
+    let mut scenario = Scenario::load(scenario_path)?;
+    scenario.clock = if virtual_clock {
+        ClockMode::Virtual
+    } else {
+        ClockMode::Real
+    };
+    let world = WorldHandle::from_scenario(&scenario)
+        .with_context(|| format!("building the world of {}", scenario_path.display()))?;
+    sim_cell(&world).with_context(|| format!("{}", scenario_path.display()))
 }
 
 // ----------------------------------------------------------------- run directory
@@ -348,7 +263,7 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
     let plan_path = dir.join(&cfg.plan);
     let plan = PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
     let config_path = dir.join(&cfg.config);
-    let (_raw, mut devices, info) = match cfg.mode.as_str() {
+    let (mut devices, info) = match cfg.mode.as_str() {
         "sim" => sim_devices(&config_path, cfg.virtual_clock)?,
         "live" => bail!(
             "live hardware runs are not wired yet: use --sim for a dry run ({})",
