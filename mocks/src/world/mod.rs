@@ -326,7 +326,7 @@ impl WorldHandle {
         let mut lasers = Vec::new();
         for (i, l) in s.lasers.iter().enumerate() {
             let d = Vector3::from(l.beam_dir);
-            if !(d.norm() > 0.0) {
+            if d.norm().is_nan() || d.norm() <= 0.0 {
                 return Err(ScenarioError::Invalid(format!("{}: zero beam_dir", l.name)));
             }
             let mut cfg = l.clone();
