@@ -6,6 +6,7 @@
 #![warn(missing_docs)]
 
 pub mod bcap;
+pub mod camera;
 pub mod error;
 pub mod fake;
 pub mod keyence;
