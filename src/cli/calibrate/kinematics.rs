@@ -254,6 +254,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         );
         println!("wrote {}", path.display());
     }
+    let path = args.out.join("calibration.json");
+    file.save(&path)
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!("wrote {}", path.display());
     println!("parameters (value ± std, nominal):");
     for p in res.params.iter().filter(|p| p.free) {
         let (v, u) = show(p.value, p.unit);
@@ -264,9 +268,5 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             p.name, v, s, n
         );
     }
-    let path = args.out.join("calibration.json");
-    file.save(&path)
-        .with_context(|| format!("writing {}", path.display()))?;
-    println!("wrote {}", path.display());
     Ok(())
 }
