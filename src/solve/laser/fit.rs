@@ -4,6 +4,9 @@ use super::{Beam, LaserError, LaserObs, MoveKind, Plane};
 use crate::solve::lm::{minimize, LmOptions, LmReport, LsqProblem};
 use nalgebra::{DMatrix, DVector, Matrix3, Point3, Unit, Vector3};
 
+/// A unit 3-vector (plane normal, beam direction).
+type UnitVec = Unit<Vector3<f64>>;
+
 /// Translation groups of one plane: translate poses sharing one orientation (within 0.05°),
 /// each group as (initial pose = lowest id, then the others). This covers both layouts of
 /// seed 000: one group per block (each block its own orientation) and the seed's three
@@ -81,9 +84,7 @@ pub fn closed_form_single_plane(obs: &[LaserObs]) -> Result<(Beam, Plane), Laser
 /// independent translations gives, in its initial flange frame, `w = [Σ t tᵀ]⁻¹ Σ t Δd` with the
 /// plane normal `m = w / |w|` and the constraint `w·v = −1`; three or more groups in different
 /// orientations give `v` by least squares. `None` when fewer than three groups qualify.
-fn per_group_normals(
-    groups: &[Vec<&LaserObs>],
-) -> Option<(Unit<Vector3<f64>>, Unit<Vector3<f64>>)> {
+fn per_group_normals(groups: &[Vec<&LaserObs>]) -> Option<(UnitVec, UnitVec)> {
     let mut rows: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new(); // (w in flange frame, n_b)
     for g in groups {
         if g.len() < 4 {
@@ -104,7 +105,7 @@ fn per_group_normals(
             continue;
         }
         let w = tt.try_inverse()? * tb;
-        if !(w.norm() > 1e-12) {
+        if w.norm().is_nan() || w.norm() <= 1e-12 {
             continue;
         }
         rows.push((w, r0 * (w / w.norm())));
@@ -130,7 +131,7 @@ fn per_group_normals(
 /// `n_bᵀ(Δt + Δd R₀ v) = 0` is linear in `(n_b, N = n_b vᵀ)`; the null vector gives both.
 fn pooled_normal_and_direction(
     groups: &[Vec<&LaserObs>],
-) -> Result<(Unit<Vector3<f64>>, Unit<Vector3<f64>>), LaserError> {
+) -> Result<(UnitVec, UnitVec), LaserError> {
     let mut rows: Vec<[f64; 12]> = Vec::new();
     for g in groups {
         let o0 = g[0];

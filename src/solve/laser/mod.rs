@@ -131,7 +131,7 @@ pub enum LaserError {
 pub fn file_pose(p: &[f64; 3], quat: &[f64; 4]) -> Option<Isometry3<f64>> {
     let q = Quaternion::new(quat[0], quat[1], quat[2], quat[3]);
     let norm = q.norm();
-    if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3) || !p.iter().all(|x| x.is_finite()) {
+    if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3 && p.iter().all(|x| x.is_finite())) {
         return None;
     }
     Some(Isometry3::from_parts(
