@@ -63,11 +63,29 @@ async fn run_peer(
     frames: usize,
     roms: &[PathBuf],
 ) -> Vec<serde_json::Value> {
+    run_peer_args(
+        py,
+        vec![
+            "vega".into(),
+            addr.ip().to_string(),
+            addr.port().to_string(),
+        ],
+        frames,
+        roms,
+    )
+    .await
+}
+
+async fn run_peer_args(
+    py: &PathBuf,
+    target: Vec<String>,
+    frames: usize,
+    roms: &[PathBuf],
+) -> Vec<serde_json::Value> {
     let script = workspace().join("scripts/peers/ndi_sksurgery.py");
     let mut cmd = tokio::process::Command::new(py);
     cmd.arg(script)
-        .arg(addr.ip().to_string())
-        .arg(addr.port().to_string())
+        .args(target)
         .arg(frames.to_string())
         .args(roms);
     let out = tokio::time::timeout(std::time::Duration::from_secs(60), cmd.output())
@@ -204,4 +222,36 @@ async fn sksurgerynditracker_sees_missing_as_nan_for_one_of_two_tools() {
         close(&row_pose(&f["tracking"][1]), &pose, 1e-3, 1e-6),
         "{f}"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sksurgerynditracker_polaris_over_the_pty_serial_simulator() {
+    let Some(py) = peer_python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let roms = rom_files(dir.path(), 1);
+    let w = world();
+    let source: Arc<dyn TrackerSource> = Arc::new(WorldTracker {
+        world: w.clone(),
+        index: 0,
+        name: "tracker".into(),
+    });
+    let sim = ndi::serve_pty(source, SimNdiConfig::default()).unwrap();
+    let path = sim.path().unwrap().to_string();
+    let frames = run_peer_args(&py, vec!["polaris".into(), path], 2, &roms).await;
+    assert_eq!(frames.len(), 2);
+    let truth = w.marker_truth(0).unwrap();
+    for f in &frames {
+        assert_eq!(f["capture"], "BX:0801");
+        let pose = row_pose(&f["tracking"][0]);
+        assert!(
+            close(&pose, &truth, 1e-3, 1e-6),
+            "peer {pose:?} vs truth {truth:?}"
+        );
+    }
+    let log = sim.log();
+    for word in [
+        "INIT", "GETINFO", "COMM", "PHRQ", "PVWR", "PINIT", "PENA", "TSTART", "BX", "TSTOP",
+    ] {
+        assert!(log.iter().any(|w| w == word), "{word} missing from {log:?}");
+    }
 }

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Peer check: scikit-surgerynditracker (with ndicapi) configured for a Polaris Vega.
 
-Usage: ndi_sksurgery.py HOST PORT FRAMES ROMFILE [ROMFILE ...]
+Usage: ndi_sksurgery.py vega HOST PORT FRAMES ROMFILE [ROMFILE ...]
+       ndi_sksurgery.py polaris SERIAL_PATH FRAMES ROMFILE [ROMFILE ...]
 
 Connects exactly as a user would (`NDITracker({"tracker type": "vega", ...})`), starts
 tracking, reads FRAMES frames with `get_frame()`, stops, closes, and prints one JSON object
@@ -35,15 +36,17 @@ if shutil.which("ping") is None:
 
 
 def main():
-    host, port, frames = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    roms = sys.argv[4:]
-    tracker = nditracker.NDITracker({
-        "tracker type": "vega",
-        "ip address": host,
-        "port": port,
-        "romfiles": roms,
-        "use quaternions": True,
-    })
+    if sys.argv[1] == "vega":
+        host, port, frames = sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+        roms = sys.argv[5:]
+        config = {"tracker type": "vega", "ip address": host, "port": port}
+    else:
+        # Serial Polaris: ndiProbe (INIT at 9600, GETINFO), ndiOpen, INIT, COMM:50000.
+        path, frames = sys.argv[2], int(sys.argv[3])
+        roms = sys.argv[4:]
+        config = {"tracker type": "polaris", "serial port": path}
+    config.update({"romfiles": roms, "use quaternions": True})
+    tracker = nditracker.NDITracker(config)
     tracker.start_tracking()
     for _ in range(frames):
         handles, _times, frame_numbers, tracking, quality = tracker.get_frame()
