@@ -1,10 +1,80 @@
-//! `robocal report`.
+//! `robocal report --dir DIR [--out report.html|report.md] [--json]`: one report of what a
+//! session wrote into DIR and its subdirectories (see [`crate::report`]).
+//!
+//! Markdown is always written: to `DIR/report.md` by default (or `DIR/session-report.md` when
+//! DIR itself is a `robocal diagnose` output, whose own `report.md` is kept), to `--out` when
+//! it ends in `.md`, and beside the HTML as `report.md` when `--out` ends in `.html`.
+//! The headline is printed last (or the whole report as JSON with `--json`).
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _};
+
+use crate::report::gather;
 
 /// Arguments of `robocal report`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// The session directory (searched recursively).
+    #[arg(long, value_name = "DIR")]
+    pub dir: PathBuf,
+    /// Also write HTML with the plots inlined (`x.html`), or choose the Markdown path (`x.md`).
+    #[arg(long, value_name = "report.html")]
+    pub out: Option<PathBuf>,
+    /// Print the gathered report as JSON on stdout instead of the headline.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn write(path: &Path, text: &str) -> anyhow::Result<()> {
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("creating {}", parent.display()))?;
+    }
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
 
 /// Run `robocal report`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::not_yet("report")
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    if !args.dir.is_dir() {
+        bail!("{}: not a directory", args.dir.display());
+    }
+    let session = gather(&args.dir)?;
+    let ext = args
+        .out
+        .as_ref()
+        .and_then(|p| p.extension())
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let (md_path, html_path) = match (&args.out, ext.as_deref()) {
+        (None, _) => {
+            let name = if args.dir.join("diagnosis.json").is_file() {
+                "session-report.md"
+            } else {
+                "report.md"
+            };
+            (args.dir.join(name), None)
+        }
+        (Some(p), Some("md")) => (p.clone(), None),
+        (Some(p), Some("html" | "htm")) => {
+            let parent = p.parent().unwrap_or(Path::new(""));
+            (parent.join("report.md"), Some(p.clone()))
+        }
+        (Some(p), _) => bail!("--out {}: give a .html or .md path", p.display()),
+    };
+    write(&md_path, &session.markdown())?;
+    if let Some(h) = &html_path {
+        write(h, &session.html())?;
+    }
+    for w in &session.warnings {
+        eprintln!("warning: {w}");
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&session.to_json())?);
+    } else {
+        println!("wrote {}", md_path.display());
+        if let Some(h) = &html_path {
+            println!("wrote {}", h.display());
+        }
+        println!("{}", session.headline_text());
+    }
+    Ok(())
 }
