@@ -205,3 +205,33 @@ fn compliance_physics_matches_the_independent_simulator() {
     println!("kin-compliance-j2: worst |world - truth.csv| = {worst:.6} mm (geometric only {geometric_only:.3} mm)");
     assert!(worst < 0.01, "{worst} vs {geometric_only}");
 }
+
+#[test]
+fn synth_from_a_scenario_file_records_its_effects() {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("scenarios/lab-vs060-optotrak-il600.toml");
+    let s = Scenario::load(&path).unwrap();
+    let cfg = SynthConfig {
+        n_train: 20,
+        n_heldout: 5,
+        ..SynthConfig::default()
+    };
+    let out = synthesize(&WorldHandle::from_scenario(&s).unwrap(), &cfg).unwrap();
+    let case: Value = serde_json::from_str(&out.case_json).unwrap();
+    let kinds: Vec<&str> = case["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["kind"].as_str().unwrap())
+        .collect();
+    assert!(kinds.contains(&"joint_compliance"), "{kinds:?}");
+    assert_eq!(
+        case["masses"].as_array().unwrap().len(),
+        3,
+        "two links + payload"
+    );
+    assert_eq!(out.truth_csv.lines().count(), 6);
+    let rec: Value = serde_json::from_str(out.train_jsonl.lines().nth(1).unwrap()).unwrap();
+    assert_eq!(rec["approach"].as_array().unwrap().len(), 6);
+    assert_eq!(rec["marker"]["frames"], 30);
+}
