@@ -10,8 +10,9 @@ use serde_json::{json, Map, Value};
 /// A fitted kernel correction: `Σ_k w_k exp(−|q − c_k|² / (2ℓ²))` (mm), `q` in rad.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rbf {
-    /// When true the inputs are `q2..qn` and the correction is expressed in MDH frame 1
-    /// (which turns with joint 1): gravity-driven effects do not depend on `q1` there.
+    /// When true the inputs are the wrist centre and marker positions in MDH frame 1 (which
+    /// turns with joint 1; units of 100 mm) and the correction is expressed in that frame:
+    /// gravity-driven effects do not depend on `q1` there.
     pub arm_frame: bool,
     pub length_scale: f64,
     pub centers: Vec<Vec<f64>>,
@@ -23,11 +24,22 @@ fn kern(a: &[f64], b: &[f64], ell: f64) -> f64 {
     (-d2 / (2.0 * ell * ell)).exp()
 }
 
-/// Inputs (`q2..qn`) and the rotation tracker ← MDH frame 1 of the arm-frame representation.
+/// Inputs (wrist centre and marker in MDH frame 1, 100 mm units) and the rotation tracker ← frame 1.
 pub fn arm_frame(model: &KinematicModel, q: &[f64]) -> (Vec<f64>, Matrix3<f64>) {
-    let r = model.base().rotation * model.joint_frame(q, 1).rotation;
+    let f1 = model.joint_frame(q, 1);
+    let r = model.base().rotation * f1.rotation;
+    // Features: the wrist centre and the marker in frame 1 (units of 100 mm). Gravity-driven
+    // effects are smooth functions of where the masses are, not of q1.
+    let n = model.dof();
+    let to1 =
+        |p: nalgebra::Vector3<f64>| f1.rotation.inverse() * (p - f1.translation.vector) / 100.0;
+    let w = to1(model
+        .joint_frame(q, n.saturating_sub(2).max(1))
+        .translation
+        .vector);
+    let m = to1(model.tool_pose_in_base(q).translation.vector);
     (
-        q.iter().skip(1).copied().collect(),
+        vec![w.x, w.y, w.z, m.x, m.y, m.z],
         *r.to_rotation_matrix().matrix(),
     )
 }
@@ -175,7 +187,7 @@ pub fn cross_validate(
     let var: f64 = r.iter().map(|v| v.norm_squared()).sum::<f64>() / r.len() as f64;
     let before = (var / 3.0).sqrt();
     let mut best: Option<RbfCv> = None;
-    for &ell in &[0.35, 0.7, 1.4] {
+    for &ell in &[0.5, 1.0, 2.0, 4.0] {
         for &lam in &[0.03, 0.3, 3.0] {
             let mut sse = 0.0;
             let mut cnt = 0usize;
