@@ -140,6 +140,9 @@ fn annulus_plan_on_vs060_keeps_every_feasible_branch() {
     assert!(sum.feasible > points.len(), "branches per point > 1");
     assert!(sum.observability.o1 > 0.0);
     PlanFile::from_json_str(&serde_json::to_string(&out.file).unwrap()).unwrap();
+    // The embedded spec reads back as the same strict spec (the CLI takes script speeds from it).
+    let back: PlanSpec = serde_json::from_value(out.file.spec.clone()).unwrap();
+    assert_eq!(back, s);
 }
 
 #[test]

@@ -153,16 +153,15 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     if let Some(p) = &a.csv {
         write(p, &export::to_csv(&plan)?)?;
     }
-    let wait = plan
-        .spec
-        .get("timing")
-        .map(|t| {
-            t.get("settle_s").and_then(|v| v.as_f64()).unwrap_or(1.5)
-                + t.get("sample_s").and_then(|v| v.as_f64()).unwrap_or(2.0)
-        })
-        .unwrap_or(3.5);
+    // Script speeds and waits follow the spec's time model (slowest joint caps).
+    let timing = serde_json::from_value::<PlanSpec>(plan.spec.clone())
+        .map(|s| s.timing)
+        .unwrap_or_default();
+    let min_of = |v: &[f64]| v.iter().cloned().fold(f64::INFINITY, f64::min).to_radians();
+    let (speed, accel) = (min_of(&timing.speed_deg_s), min_of(&timing.accel_deg_s2));
+    let wait = timing.settle_s + timing.sample_s;
     if let Some(p) = &a.urscript {
-        write(p, &export::to_urscript(&plan, 1.0, 1.4, wait))?;
+        write(p, &export::to_urscript(&plan, speed, accel, wait))?;
     }
     if let Some(p) = &a.pacscript {
         write(p, &export::to_pacscript(&plan, a.pac_speed, wait))?;
