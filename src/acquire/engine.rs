@@ -93,6 +93,8 @@ struct Run<'a> {
     time: TimeBreakdown,
     skipped: Vec<SkippedPose>,
     events: BTreeMap<String, usize>,
+    /// Tracker scatter (`spread_mm`) of the last poses, for the settling detector.
+    spreads: Vec<f64>,
 }
 
 fn deg(v: &[f64]) -> Vec<f64> {
@@ -110,6 +112,16 @@ fn file_pose(iso: &nalgebra::Isometry3<f64>) -> FilePose {
 }
 
 impl Run<'_> {
+    /// Median tracker scatter of the last (up to 5) poses.
+    fn noise_3d_mm(&self) -> Option<f64> {
+        let mut v: Vec<f64> = self.spreads.iter().rev().take(5).copied().collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        Some(v[v.len() / 2])
+    }
+
     fn now(&self) -> f64 {
         self.dev.clock.now()
     }
@@ -382,7 +394,7 @@ impl Run<'_> {
     async fn settle(&mut self, id: u64) -> Result<Result<JointState, Outcome>, AcquireError> {
         let o = self.opts.settle;
         let start = self.now();
-        let mut settler = Settler::new(o);
+        let mut settler = Settler::new(o, self.noise_3d_mm());
         let last = loop {
             let js = match self.joints(id).await? {
                 Ok(j) => j,
@@ -451,11 +463,11 @@ impl Run<'_> {
             }
             self.time.sample_s += self.now() - start;
             if samples.len() >= s.min_frames.max(1) {
-                return Ok(Ok(average_markers(
-                    &samples,
-                    s.outlier_k,
-                    s.outlier_floor_mm,
-                )));
+                let avg = average_markers(&samples, s.outlier_k, s.outlier_floor_mm);
+                if let Some(a) = &avg {
+                    self.spreads.push(a.spread_mm);
+                }
+                return Ok(Ok(avg));
             }
             if attempt < tries {
                 self.event(
@@ -672,6 +684,7 @@ pub async fn acquire(
         time: TimeBreakdown::default(),
         skipped: Vec::new(),
         events: BTreeMap::new(),
+        spreads: Vec::new(),
     };
     if !existing.is_empty() {
         run.event(

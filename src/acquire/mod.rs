@@ -148,8 +148,8 @@ pub struct SettleOptions {
 impl Default for SettleOptions {
     fn default() -> Self {
         SettleOptions {
-            poll_s: 0.05,
-            window: 4,
+            poll_s: 0.02,
+            window: 6,
             q_tol_rad: 2e-5,
             qd_tol_rad_s: 1e-3,
             pos_tol_mm: 0.05,
