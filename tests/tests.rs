@@ -10,3 +10,5 @@ mod acquire;
 mod diagnose;
 mod laser_world;
 mod world_vs_model;
+mod report;
+mod e2e;
