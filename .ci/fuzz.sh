@@ -4,6 +4,7 @@
 # Usage: bash .ci/fuzz.sh [seconds-per-target]   (default 25)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+mkdir -p target
 secs=${1:-25}
 if ! cargo fuzz --version >/dev/null 2>&1; then
   cargo install cargo-fuzz --locked
@@ -13,10 +14,12 @@ targets=$(cargo fuzz list)
 for t in $targets; do
   echo "== fuzz $t (${secs}s)"
   mkdir -p "corpus/$t"
-  cargo fuzz run "$t" --sanitizer none -- -max_total_time="$secs" -max_len=4096 2>&1 \
-    | grep -E '^(#[0-9]+ +DONE|Done|==[0-9]+==|SUMMARY|thread|panicked|INFO: Running|stat::)' || true
-  # libFuzzer exits non-zero on a crash; PIPESTATUS keeps that visible.
-  rc=${PIPESTATUS[0]}
-  if [ "$rc" != "0" ]; then echo "fuzz target $t FAILED (rc=$rc)"; exit "$rc"; fi
+  set +e
+  cargo fuzz run "$t" --sanitizer none -- -max_total_time="$secs" -max_len=4096 > "../target/fuzz-$t.log" 2>&1
+  rc=$?
+  set -e
+  grep -E '^(#[0-9]+ +DONE|Done|==[0-9]+==|SUMMARY|thread|panicked|stat::)' "../target/fuzz-$t.log" || true
+  # libFuzzer exits non-zero on a crash (or a build failure): fail CI and show the tail.
+  if [ "$rc" != "0" ]; then tail -40 "../target/fuzz-$t.log"; echo "fuzz target $t FAILED (rc=$rc)"; exit "$rc"; fi
 done
 echo "fuzz: all targets clean"
