@@ -203,7 +203,7 @@ mod tests {
         let text = format!(
             "{header}\n{}\n{}\n{}\n{{\"kind\":\"po",
             rec(0, 0.0, [0.0, 10.0]),
-            rec(2, 2.0, [5.0, 10.0]),
+            rec(2, 2.0, [5.0, 5.0]),
             rec(1, 1.0, [10.0, 5.0]),
         );
         let l = parse_jsonl(&text, "mem").unwrap();
