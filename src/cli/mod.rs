@@ -14,6 +14,7 @@ pub mod predict;
 pub mod report;
 pub mod run;
 pub mod sim;
+pub mod wire_cell;
 
 /// robocal: plan, acquire, calibrate and diagnose a robot calibration cell.
 #[derive(Debug, Parser)]

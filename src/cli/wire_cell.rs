@@ -1,0 +1,236 @@
+//! The wire-level dry-run cell: the scenario's simulators served on loopback TCP / ptys
+//! (`robocal_mocks::serve::serve_all`) with the REAL protocol clients of `robocal_drivers`
+//! connected to them, so a rehearsal exercises everything but the hardware.
+//!
+//! | scenario protocol | server                  | client                                    |
+//! |-------------------|-------------------------|-------------------------------------------|
+//! | arm `bcap`        | b-CAP on TCP            | [`DensoArm`]                              |
+//! | arm `ur`          | RTDE + dashboard + script | [`UrArm`]                               |
+//! | tracker `ndi-tcp` | NDI Combined API on TCP | [`NdiTracker`] over [`NdiClient`] (TCP)   |
+//! | tracker `ndi-serial` | NDI on a pty         | [`NdiTracker`] over [`NdiClient`] (serial)|
+//! | laser `dl-rs1a`   | DL-RS1A on a pty        | [`Il600`] over [`KeyenceClient`]          |
+//!
+//! Devices with no wire protocol in this build (`optotrak`: NDI's proprietary library;
+//! `camera`) fall back to the in-process `robocal_mocks::sim` device; they are listed in
+//! [`Served::unavailable`] and logged (`tracing::warn!`).
+//!
+//! Units: as everywhere in the library, mm and radians.
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{bail, Context as _};
+use robocal_drivers::bcap::{DensoArm, DensoConfig};
+use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
+use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
+use robocal_drivers::ur::{Backoff, UrArm, UrConfig};
+use robocal_drivers::{Arm, MarkerTracker, RangeSensor};
+use robocal_mocks::scenario::Protocol;
+use robocal_mocks::serve::{serve_all, Bind, Endpoint, Served};
+use robocal_mocks::sim::{SimArm, SimRange, SimTracker};
+use robocal_mocks::WorldHandle;
+
+use crate::acquire::Devices;
+use crate::cli::run::CellInfo;
+
+/// Size of the synthetic tool definition loaded into a simulated NDI tracker. The simulator
+/// treats a `.rom` as opaque (its `k`-th tool is reported on the `k`-th handle loaded); a
+/// real cell loads the marker's `.rom` file instead.
+const SIM_ROM_LEN: usize = 752;
+
+/// Reconnect policy for loopback links: quick, bounded.
+fn loopback_backoff() -> Backoff {
+    Backoff {
+        attempts: 4,
+        initial: Duration::from_millis(20),
+        max: Duration::from_millis(200),
+    }
+}
+
+fn endpoint<'a>(served: &'a Served, device: &str, protocol: &str) -> Option<&'a Endpoint> {
+    served
+        .endpoints
+        .iter()
+        .find(|e| e.device == device && e.protocol == protocol)
+}
+
+fn tcp_addr(served: &Served, device: &str, protocol: &str) -> anyhow::Result<std::net::SocketAddr> {
+    endpoint(served, device, protocol)
+        .and_then(|e| e.addr)
+        .with_context(|| format!("no {protocol} TCP endpoint was served for {device}"))
+}
+
+fn pty_path(served: &Served, device: &str, protocol: &str) -> anyhow::Result<String> {
+    endpoint(served, device, protocol)
+        .and_then(|e| e.path.clone())
+        .with_context(|| format!("no {protocol} pty was served for {device}"))
+}
+
+fn fallback(served: &Served, device: &str, protocol: Protocol) {
+    let why = served
+        .unavailable
+        .iter()
+        .find(|(d, _, _)| d == device)
+        .map_or_else(|| "no wire protocol".to_string(), |(_, _, e)| e.clone());
+    tracing::warn!(
+        "wire cell: {device} ({}) has no wire simulator ({why}); using the in-process simulated device",
+        protocol.as_str()
+    );
+}
+
+/// A synthetic tool definition for the simulated tracker (deterministic bytes).
+fn sim_rom(tool: &str) -> Vec<u8> {
+    let tag = tool
+        .bytes()
+        .fold(0u8, |a, b| a.wrapping_mul(31).wrapping_add(b));
+    (0..SIM_ROM_LEN).map(|i| (i as u8) ^ tag).collect()
+}
+
+async fn connect_arm(
+    world: &WorldHandle,
+    served: &Served,
+    name: &str,
+    protocol: Protocol,
+) -> anyhow::Result<Arc<dyn Arm>> {
+    Ok(match protocol {
+        Protocol::Bcap => {
+            let addr = tcp_addr(served, name, "bcap")?;
+            let mut cfg = DensoConfig::new(addr.to_string());
+            cfg.name = name.to_string();
+            cfg.dof = world.arm_dof(0);
+            cfg.backoff = loopback_backoff();
+            let arm = DensoArm::connect(cfg)
+                .await
+                .with_context(|| format!("b-CAP client to {name} at {addr}"))?;
+            Arc::new(arm)
+        }
+        Protocol::Ur => {
+            let rtde = tcp_addr(served, name, "rtde")?;
+            let mut cfg = UrConfig::new(rtde.ip().to_string());
+            cfg.name = name.to_string();
+            cfg.rtde_port = rtde.port();
+            cfg.dashboard_port = tcp_addr(served, name, "dashboard")?.port();
+            cfg.script_port = tcp_addr(served, name, "script")?.port();
+            cfg.backoff = loopback_backoff();
+            let arm = UrArm::connect(cfg)
+                .await
+                .with_context(|| format!("UR client (RTDE + dashboard + script) to {name}"))?;
+            Arc::new(arm)
+        }
+        other => {
+            fallback(served, name, other);
+            Arc::new(SimArm::new(world.clone(), 0, name))
+        }
+    })
+}
+
+async fn connect_tracker(
+    world: &WorldHandle,
+    served: &Served,
+    name: &str,
+    protocol: Protocol,
+    tool: &str,
+) -> anyhow::Result<Arc<dyn MarkerTracker>> {
+    let tools = [(tool.to_string(), sim_rom(tool))];
+    Ok(match protocol {
+        Protocol::NdiTcp => {
+            let addr = tcp_addr(served, name, "ndi-tcp")?;
+            let client = NdiClient::connect(&addr.to_string(), NdiConfig::default())
+                .await
+                .with_context(|| format!("NDI TCP client to {name} at {addr}"))?;
+            let t = NdiTracker::setup(client, &tools, ReplyMode::Binary)
+                .await
+                .with_context(|| format!("NDI start-up sequence on {name}"))?;
+            Arc::new(t.with_clock(world.clock()))
+        }
+        Protocol::NdiSerial => {
+            let path = pty_path(served, name, "ndi-serial")?;
+            let client = NdiClient::open_serial(&path, NdiConfig::default())
+                .with_context(|| format!("NDI serial client to {name} on {path}"))?;
+            let t = NdiTracker::setup(client, &tools, ReplyMode::Binary)
+                .await
+                .with_context(|| format!("NDI start-up sequence on {name}"))?;
+            Arc::new(t.with_clock(world.clock()))
+        }
+        other => {
+            fallback(served, name, other);
+            Arc::new(SimTracker::new(world.clone(), 0, name))
+        }
+    })
+}
+
+fn connect_laser(
+    world: &WorldHandle,
+    served: &Served,
+    name: &str,
+    protocol: Protocol,
+) -> anyhow::Result<Arc<dyn RangeSensor>> {
+    Ok(match protocol {
+        Protocol::DlRs1a => {
+            let path = pty_path(served, name, "dl-rs1a")?;
+            let client = KeyenceClient::open_serial(&path, KeyenceConfig::default())
+                .with_context(|| format!("KEYENCE DL-RS1A client to {name} on {path}"))?;
+            Arc::new(Il600::new(client, Il600Config::default()))
+        }
+        other => {
+            fallback(served, name, other);
+            Arc::new(SimRange::new(world.clone(), 0, name))
+        }
+    })
+}
+
+/// Serve every device of the world's scenario on loopback TCP (port 0) / ptys and connect
+/// the real drivers to the first arm, tracker and laser (the same devices as
+/// [`crate::cli::run::sim_cell`]). The clock is the world's (`world.clock()`).
+///
+/// The arm is NOT wrapped in the safety decorators (`robocal run` does that for every arm).
+/// Keep the returned [`Served`] alive for the whole run: dropping it does not stop the
+/// servers, [`Served::abort`] does. Devices in [`Served::unavailable`] were wired
+/// in-process instead.
+pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo, Served)> {
+    let scenario = world.scenario();
+    let Some(arm_cfg) = scenario.arms.first() else {
+        bail!("scenario {:?} has no arm", scenario.name);
+    };
+    let served = serve_all(world, &Bind::default())
+        .await
+        .with_context(|| format!("serving the devices of {:?}", scenario.name))?;
+    let built = async {
+        let arm = connect_arm(world, &served, &arm_cfg.name, arm_cfg.protocol).await?;
+        let tracker = match scenario.trackers.first() {
+            Some(t) => Some(connect_tracker(world, &served, &t.name, t.protocol, &t.tool).await?),
+            None => None,
+        };
+        let range = match scenario.lasers.first() {
+            Some(l) => Some(connect_laser(world, &served, &l.name, l.protocol)?),
+            None => None,
+        };
+        anyhow::Ok((arm, tracker, range))
+    }
+    .await;
+    let (arm, tracker, range) = match built {
+        Ok(v) => v,
+        Err(e) => {
+            served.abort();
+            return Err(e);
+        }
+    };
+    let info = CellInfo {
+        serial: world.arm_identity(0).map(|(_, s)| s),
+        tracker_kind: scenario
+            .trackers
+            .first()
+            .map(|t| t.kind.as_str().to_string()),
+        range_kind: scenario.lasers.first().map(|l| l.kind.clone()),
+    };
+    Ok((
+        Devices {
+            arm,
+            tracker,
+            range,
+            clock: world.clock(),
+            thermometer: None,
+        },
+        info,
+        served,
+    ))
+}
