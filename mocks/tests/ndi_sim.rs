@@ -300,3 +300,35 @@ fn bad_command_crc_is_error04() {
         )
     );
 }
+
+#[tokio::test]
+async fn serve_registry_starts_tcp_and_serial_trackers() {
+    let w = world();
+    for protocol in [Protocol::NdiTcp, Protocol::NdiSerial] {
+        let eps = robocal_mocks::serve::start_device(&w, "tracker", protocol, &Default::default())
+            .await
+            .expect("registry");
+        assert_eq!(eps.len(), 1);
+        let roms = [("probe".to_string(), rom(3))];
+        let frame = match (&eps[0].addr, &eps[0].path) {
+            (Some(addr), _) => {
+                let c = NdiClient::connect(&addr.to_string(), fast()).await.unwrap();
+                let t = NdiTracker::setup(c, &roms, ReplyMode::Binary)
+                    .await
+                    .unwrap();
+                t.frame().await.unwrap()
+            }
+            (None, Some(path)) => {
+                let c = NdiClient::open_serial(path, fast()).unwrap();
+                let t = NdiTracker::setup(c, &roms, ReplyMode::Text).await.unwrap();
+                t.frame().await.unwrap()
+            }
+            _ => panic!("endpoint without address or path"),
+        };
+        assert!(matches!(
+            frame.tool(Some("probe")),
+            Some(ToolStatus::Visible { .. })
+        ));
+        eps[0].abort();
+    }
+}
