@@ -90,8 +90,3 @@ fn init_tracing() {
         .with_writer(std::io::stderr)
         .try_init();
 }
-
-/// Placeholder used by subcommands whose issue has not landed yet.
-pub(crate) fn not_yet(name: &str) -> anyhow::Result<()> {
-    anyhow::bail!("`robocal {name}` is not yet implemented")
-}
