@@ -338,6 +338,11 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
         if !args.yes {
             bail!("confirmation needed: re-run with --yes to move the hardware");
         }
+        // The engine is device-agnostic, but no device file loader exists yet.
+        bail!(
+            "live hardware runs are not wired yet ({}): use --sim for a dry run",
+            config_src.display()
+        );
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let config_name = if mode == "sim" {
