@@ -163,3 +163,112 @@ fn dry_run_chain_small_plan() {
     assert!(md.contains("## Acquisition (`run-validation/summary.json`)"));
     assert!(md.contains("## Diagnosis (`diagnose/diagnosis.json`)"));
 }
+
+/// `robocal devices --probe` against the endpoints of `robocal sim serve` (lab scenario:
+/// b-CAP arm, DL-RS1A laser on a pty), plus a refused NDI address and an Optotrak entry.
+#[test]
+fn devices_probe_against_sim_serve() {
+    use std::io::{BufRead as _, BufReader};
+    use std::process::Stdio;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args([
+            "sim",
+            "serve",
+            "--scenario",
+            p(&root.join("mocks/scenarios/lab-vs060-optotrak-il600.toml")),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    struct Kill(std::process::Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let stdout = child.stdout.take().unwrap();
+    let guard = Kill(child);
+    let mut addr = None;
+    let mut pty = None;
+    for line in BufReader::new(stdout).lines() {
+        let line = line.unwrap();
+        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+        if v["ready"] == true {
+            break;
+        }
+        match v["protocol"].as_str() {
+            Some("bcap") => addr = v["addr"].as_str().map(str::to_string),
+            Some("dl-rs1a") => pty = v["path"].as_str().map(str::to_string),
+            _ => {}
+        }
+    }
+    let (addr, pty) = (addr.expect("bcap endpoint"), pty.expect("dl-rs1a endpoint"));
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("devices.toml");
+    std::fs::write(
+        &file,
+        format!(
+            r#"
+[[device]]
+name = "vs060"
+role = "arm"
+vendor = "denso"
+protocol = "bcap"
+address = "{addr}"
+
+[[device]]
+name = "il600"
+role = "laser"
+vendor = "keyence"
+protocol = "dl-rs1a"
+serial = "{pty}"
+
+[[device]]
+name = "vega"
+role = "tracker"
+vendor = "ndi"
+protocol = "ndi-tcp"
+address = "127.0.0.1:1"
+
+[[device]]
+name = "certus"
+role = "tracker"
+vendor = "ndi"
+protocol = "optotrak-oapi"
+path = "/opt/ndi"
+"#
+        ),
+    )
+    .unwrap();
+    // Listing only: exit 0, one line per device.
+    let list = robocal(&["devices", "--devices", p(&file)]);
+    let text = String::from_utf8_lossy(&list.stdout).into_owned();
+    assert_eq!(text.lines().count(), 4, "{text}");
+    assert!(text.contains(&addr) && text.contains(&pty));
+    // Probe: the two simulated devices answer, the other two fail with their kind (exit 1).
+    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(["devices", "--devices", p(&file), "--probe"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert_eq!(o.status.code(), Some(1), "{text}");
+    assert!(
+        text.contains("ok: mode Idle, safety Normal, 6 joints at ["),
+        "{text}"
+    );
+    assert!(text.contains("ok: 1 amplifier value(s)"), "{text}");
+    assert!(text.contains("error (disconnected)"), "{text}");
+    assert!(text.contains("error (unsupported)"), "{text}");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("2 of 4 devices failed the probe"));
+    drop(guard);
+    // A strict file: unknown fields are refused with exit 1.
+    std::fs::write(&file, "[[device]]\nname = \"x\"\ncolour = 1\n").unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(["devices", "--devices", p(&file)])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+}

@@ -1,10 +1,192 @@
-//! `robocal devices`.
+//! `robocal devices --devices DEVICES.toml [--probe]`: list the devices of a device file
+//! (format: [`crate::acquire::devices`]); with `--probe`, connect to each with its real driver
+//! and print identity / state or the error kind. Read-only: nothing is ever moved, no
+//! program is started, the arm is never taken.
+use std::path::PathBuf;
+use std::time::Duration;
+
+use robocal_drivers::ErrorKind;
+
+use crate::acquire::devices::{DeviceEntry, DevicesFile, Protocol};
 
 /// Arguments of `robocal devices`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// The device file (strict TOML, `[[device]]` entries).
+    #[arg(long, value_name = "DEVICES.toml")]
+    pub devices: PathBuf,
+    /// Connect to each device (read-only) and print its identity / state or the error kind.
+    #[arg(long)]
+    pub probe: bool,
+    /// Per-device probe deadline (s).
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout_s: f64,
+}
+
+/// The outcome of probing one device.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Probe {
+    /// Reached: what it said.
+    Ok(String),
+    /// Not reached / refused: the driver's error kind and message.
+    Failed(ErrorKind, String),
+}
+
+fn fail<E: robocal_drivers::DeviceError>(e: E) -> Probe {
+    Probe::Failed(e.kind(), e.to_string())
+}
+
+fn deg(q: &[f64]) -> String {
+    let v: Vec<String> = q.iter().map(|x| format!("{:.2}", x.to_degrees())).collect();
+    format!("[{}]", v.join(", "))
+}
+
+/// Probes one device, read-only.
+pub async fn probe(d: &DeviceEntry) -> Probe {
+    let target = d.target();
+    match d.protocol {
+        Protocol::Bcap => {
+            let mut cfg = robocal_drivers::bcap::DensoConfig::new(target);
+            cfg.name = d.name.clone();
+            match robocal_drivers::bcap::DensoArm::connect(cfg).await {
+                Err(e) => fail(e),
+                Ok(arm) => arm_probe(&arm).await,
+            }
+        }
+        Protocol::Rtde => {
+            let mut cfg = robocal_drivers::ur::UrConfig::new(target);
+            cfg.name = d.name.clone();
+            if let Some(p) = d.ports {
+                cfg.rtde_port = p.rtde.unwrap_or(cfg.rtde_port);
+                cfg.dashboard_port = p.dashboard.unwrap_or(cfg.dashboard_port);
+                cfg.script_port = p.script.unwrap_or(cfg.script_port);
+            }
+            match robocal_drivers::ur::UrArm::connect(cfg).await {
+                Err(e) => fail(e),
+                Ok(arm) => arm_probe(&arm).await,
+            }
+        }
+        Protocol::NdiTcp => {
+            use robocal_drivers::ndi::{NdiClient, NdiConfig};
+            match NdiClient::connect(&target, NdiConfig::default()).await {
+                Err(e) => fail(e),
+                Ok(c) => match c.version(0).await {
+                    Ok(v) => Probe::Ok(format!("version: {}", v.trim().replace('\n', " | "))),
+                    Err(e) => fail(e),
+                },
+            }
+        }
+        Protocol::NdiSerial => {
+            use robocal_drivers::ndi::{NdiClient, NdiConfig};
+            match NdiClient::open_serial(&target, NdiConfig::default()) {
+                Err(e) => fail(e),
+                Ok(c) => match c.version(0).await {
+                    Ok(v) => Probe::Ok(format!("version: {}", v.trim().replace('\n', " | "))),
+                    Err(e) => fail(e),
+                },
+            }
+        }
+        Protocol::DlRs1a => {
+            use robocal_drivers::keyence::{KeyenceClient, KeyenceConfig};
+            match KeyenceClient::open_serial(&target, KeyenceConfig::default()) {
+                Err(e) => fail(e),
+                Ok(c) => match c.read_all().await {
+                    Ok(v) => Probe::Ok(format!("{} amplifier value(s): {v:?}", v.len())),
+                    Err(e) => fail(e),
+                },
+            }
+        }
+        Protocol::PgmFolder => {
+            match robocal_drivers::camera::FolderSource::open(std::path::Path::new(&target), false)
+            {
+                Ok(src) => Probe::Ok(format!("{src:?}")),
+                Err(e) => fail(e),
+            }
+        }
+        Protocol::OptotrakOapi => Probe::Failed(
+            ErrorKind::Unsupported,
+            "probing an Optotrak needs NDI's OAPI library (feature `optotrak`); not probed".into(),
+        ),
+    }
+}
+
+async fn arm_probe<A: robocal_drivers::Arm>(arm: &A) -> Probe {
+    let state = match arm.state().await {
+        Ok(s) => s,
+        Err(e) => return Probe::Failed(e.kind(), e.to_string()),
+    };
+    match arm.joints().await {
+        Ok(j) => Probe::Ok(format!(
+            "mode {:?}, safety {:?}, {} joints at {} deg",
+            state.mode,
+            state.safety,
+            j.q.len(),
+            deg(&j.q)
+        )),
+        Err(e) => Probe::Failed(e.kind(), e.to_string()),
+    }
+}
 
 /// Run `robocal devices`.
-pub fn exec(_args: Args) -> anyhow::Result<()> {
-    super::not_yet("devices")
+pub fn exec(args: Args) -> anyhow::Result<()> {
+    let file = DevicesFile::read(&args.devices)?;
+    if file.devices.is_empty() {
+        println!("{}: no devices", args.devices.display());
+        return Ok(());
+    }
+    let rt = if args.probe {
+        Some(
+            tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()?,
+        )
+    } else {
+        None
+    };
+    let timeout = Duration::from_secs_f64(args.timeout_s.clamp(0.1, 600.0));
+    let mut failures = 0;
+    for d in &file.devices {
+        let role = format!("{:?}", d.role).to_lowercase();
+        let proto = serde_json::to_value(d.protocol)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_string))
+            .unwrap_or_default();
+        println!(
+            "{:<12} {:<8} {:<18} {:<14} {}{}",
+            d.name,
+            role,
+            d.vendor,
+            proto,
+            d.target(),
+            d.model
+                .as_ref()
+                .map(|m| format!("  ({m})"))
+                .unwrap_or_default()
+        );
+        if let Some(rt) = &rt {
+            let r = rt.block_on(async {
+                match tokio::time::timeout(timeout, probe(d)).await {
+                    Ok(r) => r,
+                    Err(_) => Probe::Failed(
+                        ErrorKind::Timeout,
+                        format!("no answer within {:.1} s", timeout.as_secs_f64()),
+                    ),
+                }
+            });
+            match r {
+                Probe::Ok(s) => println!("    ok: {s}"),
+                Probe::Failed(kind, msg) => {
+                    failures += 1;
+                    println!("    error ({kind}): {msg}");
+                }
+            }
+        }
+    }
+    if failures > 0 {
+        anyhow::bail!(
+            "{failures} of {} devices failed the probe",
+            file.devices.len()
+        );
+    }
+    Ok(())
 }

@@ -1,0 +1,308 @@
+//! The device file (`DEVICES.toml`) of a real cell: which arm, tracker, laser and camera,
+//! how to reach each. Strict TOML (`deny_unknown_fields`), read by `robocal devices` (and
+//! meant for `robocal run --devices`).
+//!
+//! ```toml
+//! [[device]]
+//! name = "vs060"            # unique
+//! role = "arm"              # arm | tracker | laser | camera
+//! vendor = "denso"          # denso | universal-robots | ndi | keyence | generic
+//! protocol = "bcap"         # bcap | rtde | ndi-tcp | ndi-serial | optotrak-oapi | dl-rs1a | pgm-folder
+//! address = "192.168.0.1:5007"   # host:port (bcap, ndi-tcp) or host (rtde)
+//! # serial = "/dev/ttyUSB0"      # ndi-serial, dl-rs1a
+//! # path = "images/"             # pgm-folder
+//! # ports = { rtde = 30004, dashboard = 29999, script = 30003 }   # rtde only
+//! ```
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+/// A device file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DevicesFile {
+    /// The devices, in file order.
+    #[serde(default, rename = "device")]
+    pub devices: Vec<DeviceEntry>,
+}
+
+/// What a device does in the cell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Role {
+    /// The robot arm.
+    Arm,
+    /// The optical tracker.
+    Tracker,
+    /// The laser range sensor.
+    Laser,
+    /// A camera.
+    Camera,
+}
+
+/// The wire protocol (and so the driver) of a device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Protocol {
+    /// DENSO b-CAP over TCP.
+    Bcap,
+    /// Universal Robots RTDE + dashboard + script.
+    Rtde,
+    /// NDI API over TCP (Vega).
+    NdiTcp,
+    /// NDI API over a serial port (Polaris Spectra / Vicra, Aurora).
+    NdiSerial,
+    /// NDI Optotrak through the OAPI library.
+    OptotrakOapi,
+    /// KEYENCE DL-RS1A serial (IL-600 heads).
+    DlRs1a,
+    /// A folder of PGM images.
+    PgmFolder,
+}
+
+impl Protocol {
+    /// The role this protocol serves.
+    pub fn role(self) -> Role {
+        match self {
+            Protocol::Bcap | Protocol::Rtde => Role::Arm,
+            Protocol::NdiTcp | Protocol::NdiSerial | Protocol::OptotrakOapi => Role::Tracker,
+            Protocol::DlRs1a => Role::Laser,
+            Protocol::PgmFolder => Role::Camera,
+        }
+    }
+}
+
+/// Non-standard UR ports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UrPorts {
+    /// RTDE port (30004).
+    pub rtde: Option<u16>,
+    /// Dashboard port (29999).
+    pub dashboard: Option<u16>,
+    /// Script port (30003).
+    pub script: Option<u16>,
+}
+
+/// One device.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeviceEntry {
+    /// Unique name.
+    pub name: String,
+    /// Role in the cell.
+    pub role: Role,
+    /// Vendor (free text, shown in listings).
+    pub vendor: String,
+    /// Protocol / driver.
+    pub protocol: Protocol,
+    /// Model (free text).
+    #[serde(default)]
+    pub model: Option<String>,
+    /// `host:port` (bcap, ndi-tcp) or `host` (rtde).
+    #[serde(default)]
+    pub address: Option<String>,
+    /// Serial device path (ndi-serial, dl-rs1a).
+    #[serde(default)]
+    pub serial: Option<String>,
+    /// Folder (pgm-folder) or OAPI setup directory (optotrak-oapi).
+    #[serde(default)]
+    pub path: Option<String>,
+    /// UR ports when not standard.
+    #[serde(default)]
+    pub ports: Option<UrPorts>,
+}
+
+impl DeviceEntry {
+    /// Where the device is reached, for listings.
+    pub fn target(&self) -> String {
+        self.address
+            .clone()
+            .or_else(|| self.serial.clone())
+            .or_else(|| self.path.clone())
+            .unwrap_or_else(|| "—".into())
+    }
+}
+
+/// Errors of a device file.
+#[derive(Debug, thiserror::Error)]
+pub enum DevicesError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Not valid TOML for the format.
+    #[error("{path}: {message}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// The parser's message.
+        message: String,
+    },
+    /// Valid TOML, inconsistent content.
+    #[error("{path}: device {device:?}: {message}")]
+    Invalid {
+        /// The file.
+        path: String,
+        /// The device name.
+        device: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl DevicesFile {
+    /// Parses and validates `text` (`path` only names the file in errors).
+    pub fn parse(text: &str, path: &str) -> Result<Self, DevicesError> {
+        let f: DevicesFile = toml::from_str(text).map_err(|e| DevicesError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
+        f.validate(path)?;
+        Ok(f)
+    }
+
+    /// Reads and validates a device file.
+    pub fn read(path: impl AsRef<Path>) -> Result<Self, DevicesError> {
+        let p = path.as_ref();
+        let text = std::fs::read_to_string(p).map_err(|source| DevicesError::Io {
+            path: p.display().to_string(),
+            source,
+        })?;
+        Self::parse(&text, &p.display().to_string())
+    }
+
+    fn validate(&self, path: &str) -> Result<(), DevicesError> {
+        let mut names = std::collections::BTreeSet::new();
+        for d in &self.devices {
+            let bad = |message: String| DevicesError::Invalid {
+                path: path.into(),
+                device: d.name.clone(),
+                message,
+            };
+            if d.name.trim().is_empty() {
+                return Err(bad("empty name".into()));
+            }
+            if !names.insert(d.name.as_str()) {
+                return Err(bad("name used twice".into()));
+            }
+            if d.protocol.role() != d.role {
+                return Err(bad(format!(
+                    "protocol {:?} is for role {:?}, not {:?}",
+                    d.protocol,
+                    d.protocol.role(),
+                    d.role
+                )));
+            }
+            let (need, field) = match d.protocol {
+                Protocol::Bcap | Protocol::Rtde | Protocol::NdiTcp => (&d.address, "address"),
+                Protocol::NdiSerial | Protocol::DlRs1a => (&d.serial, "serial"),
+                Protocol::PgmFolder | Protocol::OptotrakOapi => (&d.path, "path"),
+            };
+            match need {
+                Some(v) if !v.trim().is_empty() => {}
+                _ => return Err(bad(format!("protocol {:?} needs `{field}`", d.protocol))),
+            }
+            let given = [
+                ("address", d.address.is_some()),
+                ("serial", d.serial.is_some()),
+                ("path", d.path.is_some()),
+            ];
+            for (f, set) in given {
+                if set && f != field {
+                    return Err(bad(format!(
+                        "`{f}` does not apply to protocol {:?} (give `{field}`)",
+                        d.protocol
+                    )));
+                }
+            }
+            if d.ports.is_some() && d.protocol != Protocol::Rtde {
+                return Err(bad("`ports` is for protocol rtde only".into()));
+            }
+            if matches!(d.protocol, Protocol::Bcap | Protocol::NdiTcp)
+                && d.address.as_deref().is_some_and(|a| !a.contains(':'))
+            {
+                return Err(bad("address must be host:port".into()));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[[device]]
+name = "vs060"
+role = "arm"
+vendor = "denso"
+protocol = "bcap"
+address = "192.168.0.1:5007"
+
+[[device]]
+name = "vega"
+role = "tracker"
+vendor = "ndi"
+protocol = "ndi-tcp"
+address = "10.0.0.5:8765"
+
+[[device]]
+name = "il600"
+role = "laser"
+vendor = "keyence"
+protocol = "dl-rs1a"
+serial = "/dev/ttyUSB0"
+
+[[device]]
+name = "ur"
+role = "arm"
+vendor = "universal-robots"
+protocol = "rtde"
+address = "10.0.0.9"
+ports = { rtde = 30004 }
+"#;
+
+    #[test]
+    fn parses_and_rejects() {
+        let f = DevicesFile::parse(GOOD, "t").unwrap();
+        assert_eq!(f.devices.len(), 4);
+        assert_eq!(f.devices[2].target(), "/dev/ttyUSB0");
+        let cases = [
+            (
+                GOOD.replace("vendor = \"denso\"", "vendor = \"denso\"\nspeed = 3"),
+                "unknown field",
+            ),
+            (GOOD.replace("name = \"vega\"", "name = \"vs060\""), "twice"),
+            (
+                GOOD.replace("role = \"laser\"", "role = \"arm\""),
+                "is for role",
+            ),
+            (
+                GOOD.replace("serial = \"/dev/ttyUSB0\"", ""),
+                "needs `serial`",
+            ),
+            (GOOD.replace("10.0.0.5:8765", "10.0.0.5"), "host:port"),
+            (
+                GOOD.replace(
+                    "serial = \"/dev/ttyUSB0\"",
+                    "serial = \"/dev/x\"\naddress = \"a:1\"",
+                ),
+                "does not apply",
+            ),
+            (
+                GOOD.replace("protocol = \"bcap\"", "protocol = \"modbus\""),
+                "unknown variant",
+            ),
+        ];
+        for (text, want) in cases {
+            let e = DevicesFile::parse(&text, "t").unwrap_err().to_string();
+            assert!(e.contains(want), "{e} (want {want})");
+        }
+    }
+}
