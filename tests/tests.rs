@@ -12,3 +12,4 @@ mod laser_world;
 mod world_vs_model;
 mod report;
 mod e2e;
+mod wire_cell;
