@@ -69,12 +69,10 @@ step "calibrate kinematics (bootstrap $BOOTSTRAP)"
     --heldout "$OUT/run-validation/dataset.jsonl" --bootstrap "$BOOTSTRAP" \
     --out "$OUT/calibrate" | tail -n 5
 
-# diagnose gets the training run only: with `--heldout run-validation/dataset.jsonl` it scores
-# the separate validation run ~372 mm off (a frame mismatch in diagnose's held-out path, while
-# calibrate kinematics scores the same file at ~1 mm), so the held-out numbers of the headline
-# come from calibrate's --heldout metrics and diagnose uses its own cross-validation.
+# diagnose scores its chain (nominal -> geometric -> with effects) on the separate validation run.
 step "diagnose the residual"
-"$BIN" diagnose --data "$OUT/run/dataset.jsonl" --out "$OUT/diagnose"
+"$BIN" diagnose --data "$OUT/run/dataset.jsonl" \
+    --heldout "$OUT/run-validation/dataset.jsonl" --out "$OUT/diagnose" | tail -n 6
 
 step "report"
 "$BIN" report --dir "$OUT" --out "$OUT/report.html" | tee "$OUT/headline.txt"

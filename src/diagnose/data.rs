@@ -122,7 +122,9 @@ fn qd_rad(p: &PoseRecord, dof: usize) -> Option<Vec<f64>> {
 /// all files of one session together (train and held-out interleave in time), so that the
 /// approach direction of a held-out pose is taken from the pose measured just before it.
 /// An explicit `approach` array on a record (signs per joint) overrides the computed one.
-pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(u64, ObsCtx)> {
+/// Each context is keyed by the record's address ([`record_key`]), not its `id`: ids of two
+/// files of one session (e.g. two `robocal run` directories) may overlap.
+pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(usize, ObsCtx)> {
     let mut v: Vec<(&PoseRecord, Vec<f64>)> = records
         .iter()
         .filter_map(|p| joint_rad(p, dof).map(|q| (*p, q)))
@@ -152,7 +154,7 @@ pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(u64, ObsCtx)> {
         }
         prev = Some(q.clone());
         out.push((
-            p.id,
+            record_key(p),
             ObsCtx {
                 id: p.id,
                 t: p.t,
@@ -166,16 +168,21 @@ pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(u64, ObsCtx)> {
     out
 }
 
+/// The identity of a record in memory (its address), unique across the files of a session.
+pub fn record_key(p: &PoseRecord) -> usize {
+    p as *const PoseRecord as usize
+}
+
 /// Observations (records with joints and a visible marker) from `records`, using the
 /// contexts computed over `session` (all records of the session, see [`contexts`]).
 pub fn observations(records: &[&PoseRecord], session: &[&PoseRecord], dof: usize) -> Vec<Obs> {
     let ctx = contexts(session, dof);
-    let map: std::collections::HashMap<u64, &ObsCtx> = ctx.iter().map(|(id, c)| (*id, c)).collect();
+    let map: std::collections::HashMap<usize, &ObsCtx> = ctx.iter().map(|(k, c)| (*k, c)).collect();
     let mut out: Vec<Obs> = records
         .iter()
         .filter_map(|p| {
             let y = marker_point(p)?;
-            let c = map.get(&p.id)?;
+            let c = map.get(&record_key(p))?;
             Some(Obs {
                 ctx: (*c).clone(),
                 y,

@@ -751,7 +751,7 @@ pub fn record_context(
     let session: Vec<&crate::dataset::PoseRecord> = ds.poses().collect();
     super::data::contexts(&session, dof)
         .into_iter()
-        .find(|(id, c)| *id == rec.id && c.t == rec.t)
+        .find(|(key, _)| *key == super::data::record_key(rec))
         .map(|(_, c)| c)
 }
 
