@@ -300,3 +300,47 @@ fn control_world_two_seeds_no_effect() {
     let (fp, n) = table::false_positives(101..103, table::SMALL);
     assert_eq!((fp, n), (0, 2));
 }
+
+/// Regression: the train and held-out files of two separate runs both number their poses from
+/// 0; the held-out poses must keep their own joints (contexts were once keyed by `id`, and the
+/// held-out error came out hundreds of mm).
+#[test]
+fn heldout_file_with_overlapping_ids_is_scored_on_its_own_poses() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = case_dir("kin-compliance-j2");
+    let text = std::fs::read_to_string(src.join("heldout.jsonl")).unwrap();
+    let mut out = String::new();
+    for (i, line) in text.lines().enumerate() {
+        if i == 0 {
+            out.push_str(line);
+        } else {
+            let mut v: serde_json::Value = serde_json::from_str(line).unwrap();
+            v["id"] = serde_json::json!(i - 1); // 0, 1, 2 … like the training file
+            out.push_str(&v.to_string());
+        }
+        out.push('\n');
+    }
+    let held = dir.path().join("heldout-renumbered.jsonl");
+    std::fs::write(&held, out).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .arg("diagnose")
+        .arg("--data")
+        .arg(src.join("train.jsonl"))
+        .arg("--heldout")
+        .arg(&held)
+        .arg("--out")
+        .arg(dir.path().join("d"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cal: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("d/calibration.json")).unwrap(),
+    )
+    .unwrap();
+    let before = cal["metrics"]["heldout_rms_mm_before"].as_f64().unwrap();
+    let after = cal["metrics"]["heldout_rms_mm_after"].as_f64().unwrap();
+    assert!(
+        before < 2.0 && after < 0.1,
+        "held-out {before} -> {after} mm"
+    );
+}
