@@ -1,15 +1,15 @@
 //! The one integration-test binary (see `Cargo.toml`: `autotests = false`).
 //! Each area adds a module here.
-mod model;
-mod dataset;
-mod cli;
-mod plan;
-mod laser;
-mod solve;
 mod acquire;
+mod cli;
+mod dataset;
 mod diagnose;
-mod laser_world;
-mod world_vs_model;
-mod report;
 mod e2e;
+mod laser;
+mod laser_world;
+mod model;
+mod plan;
+mod report;
+mod solve;
 mod wire_cell;
+mod world_vs_model;
