@@ -268,6 +268,17 @@ async fn acquire_over_wire(file: &str, n: usize) {
         })
         .collect();
     assert_eq!(recorded.len(), n);
+    // A clean run over healthy links: the only faults are the laser's (beam off the planes).
+    for r in &ds.records {
+        if let Record::Event(e) = r {
+            let why = e.reason.as_deref().unwrap_or("");
+            assert!(
+                e.what != "fault" || why.starts_with("laser out of range"),
+                "{e:?}"
+            );
+            assert!(e.what != "retry" && e.what != "skip", "{e:?}");
+        }
+    }
     for (p, plan) in recorded.iter().zip(&poses) {
         assert_eq!(p.id, plan.id);
         assert!(p.marker.is_some(), "pose {} has no marker", p.id);
