@@ -326,3 +326,148 @@ fn world_incidence_bias_is_named_with_its_coefficient_and_the_control_is_clean()
     .unwrap();
     assert!(d.findings.is_empty(), "false positive: {:?}", d.findings);
 }
+
+/// A flange pose (as a plan pose) whose nominal beam hits `hit` along `beam` from `standoff` mm.
+fn aim(
+    hit: Point3<f64>,
+    beam: nalgebra::Vector3<f64>,
+    standoff: f64,
+    id: u64,
+    target: &str,
+) -> Option<robocal::plan::PlanPose> {
+    use nalgebra::{Rotation3, Translation3, UnitQuaternion, Vector3};
+    let model = KinematicModel::preset("denso-vs060").unwrap();
+    let beam = beam.normalize();
+    let ex = beam
+        .cross(&Vector3::x())
+        .try_normalize(1e-6)
+        .unwrap_or_else(|| beam.cross(&Vector3::y()).normalize());
+    let ey = beam.cross(&ex);
+    let rot = Rotation3::from_basis_unchecked(&[ex, ey, beam]);
+    let tp = Isometry3::from_parts(
+        Translation3::from((hit - beam * standoff).coords),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    );
+    let flange = tp * Isometry3::translation(0.0, 40.0, 40.0).inverse();
+    let sol = model
+        .ik(&flange)
+        .ok()?
+        .into_iter()
+        .find(|s| s.within_limits)?;
+    Some(robocal::plan::PlanPose {
+        id,
+        point: id,
+        branch: sol.branch,
+        label: target.into(),
+        branch_label: String::new(),
+        q_deg: sol.q.iter().map(|x| x.to_degrees()).collect(),
+        flange: robocal::plan::PlanFilePose::from_iso(&flange),
+        group: "scan".into(),
+        plane: None,
+        move_kind: None,
+        block: None,
+        target: Some(target.into()),
+    })
+}
+
+#[test]
+fn world_machined_block_face_angles_and_ply_scan() {
+    use nalgebra::Vector3;
+    use robocal_mocks::scenario::{BlockConfig, Placement};
+    // Calibrate on the planes of this world first (no truth used).
+    let c = case(35, il600(0.05));
+    let cmp = laser::compare(&c.train, &c.validation, None, None).unwrap();
+    let beam = cmp.final_beam.unwrap();
+    // Seed 000 §2.3.3: a 90 × 55 × 45 mm aluminium block, 15 points on each of three faces.
+    let mut s = scenario(35, il600(0.05), false);
+    s.scene.planes.clear();
+    // Yawed 45° so that two vertical faces look back at the robot.
+    let centre = [540.0, 0.0, 100.0];
+    let yaw = nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 45f64.to_radians());
+    let size = [90.0, 55.0, 45.0];
+    s.scene.block = Some(BlockConfig {
+        placement: Placement {
+            xyz_mm: centre,
+            rpy_deg: [0.0, 0.0, 45.0],
+        },
+        size_mm: size,
+    });
+    let world = WorldHandle::from_scenario(&s).unwrap();
+    let c0 = Point3::from(centre);
+    let faces: [(&str, Vector3<f64>, Vector3<f64>, Vector3<f64>, f64, f64); 3] = [
+        // (label, outward normal, in-face u, in-face v, half u, half v)
+        (
+            "top",
+            Vector3::z(),
+            Vector3::x(),
+            Vector3::y(),
+            size[0] / 2.0,
+            size[1] / 2.0,
+        ),
+        (
+            "front",
+            -Vector3::x(),
+            Vector3::y(),
+            Vector3::z(),
+            size[1] / 2.0,
+            size[2] / 2.0,
+        ),
+        (
+            "side",
+            Vector3::y(),
+            Vector3::x(),
+            Vector3::z(),
+            size[0] / 2.0,
+            size[2] / 2.0,
+        ),
+    ];
+    let mut poses = Vec::new();
+    let mut id = 20_000;
+    for (label, n, u, v, hu, hv) in faces {
+        let half_thickness = match label {
+            "top" => size[2] / 2.0,
+            "front" => size[0] / 2.0,
+            _ => size[1] / 2.0,
+        };
+        for i in 0..5 {
+            for j in 0..3 {
+                let a = -0.7 + 0.35 * i as f64;
+                let b = -0.6 + 0.6 * j as f64;
+                let (n, u, v) = (yaw * n, yaw * u, yaw * v);
+                let hit = c0 + n * half_thickness + u * (a * hu) + v * (b * hv);
+                let tilt = u * 0.1 * (i as f64 - 2.0) + v * 0.1 * (j as f64 - 1.0);
+                if let Some(p) = aim(hit, -(n + tilt), 250.0, id, label) {
+                    poses.push(p);
+                    id += 1;
+                }
+            }
+        }
+    }
+    let scan = execute(&world, &poses);
+    let mut by_face: std::collections::BTreeMap<String, Vec<Point3<f64>>> = Default::default();
+    for (o, truth) in &scan {
+        assert!((beam.spot(&o.flange, o.d) - truth).norm() < 1.0);
+        by_face
+            .entry(o.target.clone().unwrap())
+            .or_default()
+            .push(beam.spot(&o.flange, o.d));
+    }
+    assert_eq!(by_face.len(), 3, "faces hit: {:?}", by_face.keys());
+    for pts in by_face.values() {
+        assert!(pts.len() >= 8, "only {} points on a face", pts.len());
+    }
+    let angles = laser::face_angles(&by_face);
+    println!("machined block face angles (nominal 90°): {angles:?}");
+    for (_, _, deg) in &angles {
+        // Seed 000 reports ≤ 0.4° on hardware.
+        assert!((deg - 90.0).abs() < 0.4, "{angles:?}");
+    }
+    let all: Vec<Point3<f64>> = by_face.values().flatten().copied().collect();
+    let ply = laser::ply(&all, "block scan");
+    assert!(ply.starts_with("ply\nformat ascii 1.0\n"));
+    assert!(ply.contains(&format!("element vertex {}\n", all.len())));
+    assert_eq!(ply.lines().count(), all.len() + 8);
+    let top = laser::fit::pca_plane(&by_face["top"]).unwrap();
+    let (rms, _, _) = laser::plane_stats(&by_face["top"], &top);
+    assert!(rms < 0.15, "top flatness {rms}");
+}

@@ -31,6 +31,82 @@ pub struct Args {
     /// Print the comparison as JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// A scan to reconstruct with the final calibration (pose records with `range`; the
+    /// `target` label names the face/surface of each point): face angles (seed 000 §2.3.3) and
+    /// per-face flatness are printed and written to `scan_report.json`.
+    #[arg(long, value_name = "SCAN.jsonl")]
+    pub scan: Option<PathBuf>,
+    /// Write the reconstructed scan as a PLY point cloud (needs `--scan`).
+    #[arg(long, value_name = "OUT.ply", requires = "scan")]
+    pub ply: Option<PathBuf>,
+}
+
+/// Reconstruct a scan with `beam`: per-face points (by `target` label, `-` when unlabelled),
+/// face angles and flatness; writes `DIR/scan_report.json` and the PLY when asked. Returns the
+/// console lines.
+pub fn scan_report(
+    beam: &laser::Beam,
+    scan: &Path,
+    out_dir: &Path,
+    ply_path: Option<&Path>,
+) -> anyhow::Result<String> {
+    let ds = Dataset::load(scan)?;
+    let obs = laser::observations(&ds)
+        .with_context(|| format!("reading laser poses of {}", scan.display()))?;
+    let mut faces: std::collections::BTreeMap<String, Vec<Point3<f64>>> = Default::default();
+    let mut all = Vec::new();
+    for o in &obs {
+        let p = beam.spot(&o.flange, o.d);
+        faces
+            .entry(o.target.clone().unwrap_or_else(|| "-".into()))
+            .or_default()
+            .push(p);
+        all.push(p);
+    }
+    if all.is_empty() {
+        bail!("{}: no pose record with a valid range", scan.display());
+    }
+    let angles = laser::face_angles(&faces);
+    let mut flat = Vec::new();
+    let mut s = format!(
+        "scan {}: {} points, {} face(s)\n",
+        scan.display(),
+        all.len(),
+        faces.len()
+    );
+    for (k, pts) in &faces {
+        if let Some(pl) = laser::fit::pca_plane(pts) {
+            let (rms, max, _) = laser::plane_stats(pts, &pl);
+            s.push_str(&format!(
+                "  face {k}: {} points, flatness RMS {rms:.4} mm, max {max:.4} mm\n",
+                pts.len()
+            ));
+            flat.push(
+                serde_json::json!({"face": k, "points": pts.len(), "rms_mm": rms, "max_mm": max}),
+            );
+        }
+    }
+    for (a, b, deg) in &angles {
+        s.push_str(&format!("  angle {a}/{b}: {deg:.3} deg\n"));
+    }
+    std::fs::write(
+        out_dir.join("scan_report.json"),
+        serde_json::to_string_pretty(&serde_json::json!({
+            "scan": scan.display().to_string(),
+            "points": all.len(),
+            "faces": flat,
+            "angles_deg": angles.iter().map(|(a, b, d)| serde_json::json!({"a": a, "b": b, "deg": d})).collect::<Vec<_>>(),
+        }))?,
+    )?;
+    if let Some(p) = ply_path {
+        std::fs::write(
+            p,
+            laser::ply(&all, &format!("robocal laser scan of {}", scan.display())),
+        )
+        .with_context(|| format!("writing {}", p.display()))?;
+        s.push_str(&format!("  wrote {}\n", p.display()));
+    }
+    Ok(s)
 }
 
 /// Read a truth / reference CSV `id,x_mm,y_mm,z_mm`.
@@ -148,6 +224,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             println!("outliers (ids): {:?}", cmp.outliers);
         }
         println!("wrote {}", args.out.join("calibration.json").display());
+    }
+    if let Some(scan) = &args.scan {
+        print!(
+            "{}",
+            scan_report(&beam, scan, &args.out, args.ply.as_deref())?
+        );
     }
     Ok(())
 }

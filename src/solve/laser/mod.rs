@@ -34,7 +34,10 @@ pub use fit::{
     closed_form_single_plane, fit_direct, fit_orthogonal_planes, select_data, DirectOptions,
     SelectionTrace,
 };
-pub use validate::{compare, five_direction_spread, fre_tre, table, Comparison, MethodRow};
+pub use validate::{
+    compare, face_angles, five_direction_spread, fre_tre, plane_stats, ply, table, Comparison,
+    MethodRow,
+};
 
 /// The unknowns of the laser hand-eye problem.
 #[derive(Debug, Clone, Copy, PartialEq)]

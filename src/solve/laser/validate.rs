@@ -388,3 +388,54 @@ pub fn table(c: &Comparison) -> String {
     }
     s
 }
+
+/// Angle (deg) between the PCA normals of every pair of faces of a scanned object (seed 000
+/// §2.3.3: faces of a machined block; the nominal angle is 90°). Faces with fewer than 3
+/// points are skipped. Sorted by face labels.
+pub fn face_angles(faces: &BTreeMap<String, Vec<Point3<f64>>>) -> Vec<(String, String, f64)> {
+    let normals: Vec<(&String, Vector3<f64>)> = faces
+        .iter()
+        .filter_map(|(k, pts)| super::fit::pca_plane(pts).map(|p| (k, p.n.into_inner())))
+        .collect();
+    let mut out = Vec::new();
+    for i in 0..normals.len() {
+        for j in (i + 1)..normals.len() {
+            let c = normals[i].1.dot(&normals[j].1).abs().min(1.0);
+            // Angle between the planes, folded into [0°, 90°].
+            out.push((
+                normals[i].0.clone(),
+                normals[j].0.clone(),
+                c.acos().to_degrees(),
+            ));
+        }
+    }
+    out
+}
+
+/// Point-to-surface statistics of a scan against a plane: (RMS, max |d|, mean d) in mm.
+pub fn plane_stats(points: &[Point3<f64>], plane: &Plane) -> (f64, f64, f64) {
+    if points.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    let d: Vec<f64> = points.iter().map(|p| plane.distance(p)).collect();
+    let n = d.len() as f64;
+    let rms = (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    let max = d.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+    (rms, max, d.iter().sum::<f64>() / n)
+}
+
+/// ASCII PLY of a point cloud (mm, robot base frame); `label` per point goes in a comment.
+pub fn ply(points: &[Point3<f64>], comment: &str) -> String {
+    let mut s = String::from("ply\nformat ascii 1.0\n");
+    for line in comment.lines() {
+        s.push_str(&format!("comment {line}\n"));
+    }
+    s.push_str(&format!(
+        "element vertex {}\nproperty double x\nproperty double y\nproperty double z\nend_header\n",
+        points.len()
+    ));
+    for p in points {
+        s.push_str(&format!("{:.6} {:.6} {:.6}\n", p.x, p.y, p.z));
+    }
+    s
+}
