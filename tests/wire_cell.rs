@@ -17,6 +17,7 @@ use robocal_mocks::{Scenario, WorldHandle};
 
 const HOSPITAL: &str = "mocks/scenarios/hospital-vs060-vega.toml";
 const LAB: &str = "mocks/scenarios/lab-vs060-optotrak-il600.toml";
+const UR5E: &str = "mocks/scenarios/ur5e-camera.toml";
 
 /// Joint targets (deg) in front of the VS060: the marker is visible to both trackers and
 /// the lab laser beam meets P1, P1 and P2 (about 310, 402 and 569 mm; P2 beyond the
@@ -76,8 +77,8 @@ fn assert_pose_close(got: &Isometry3<f64>, want: &Isometry3<f64>, mm: f64, rad: 
 
 /// Move through the guarded wire arm to each target; joints, flange, marker and laser
 /// readings read over the wire must equal the world's truth.
-async fn wire_equals_truth(file: &str, marker_tol_mm: f64, marker_tol_rad: f64) {
-    let world = WorldHandle::from_scenario(&scenario(file, true)).unwrap();
+async fn wire_equals_truth(s: Scenario, marker_tol_mm: f64, marker_tol_rad: f64) {
+    let world = WorldHandle::from_scenario(&s).unwrap();
     let (devices, info, served) = wire_cell(&world).await.expect("wire cell");
     assert_eq!(info.serial, world.arm_identity(0).map(|(_, s)| s));
     assert!(
@@ -90,6 +91,17 @@ async fn wire_equals_truth(file: &str, marker_tol_mm: f64, marker_tol_rad: f64) 
         s.trackers[0].protocol,
         Protocol::NdiTcp | Protocol::NdiSerial
     );
+    if tracker_on_wire {
+        let proto = s.trackers[0].protocol.as_str();
+        assert!(
+            served
+                .endpoints
+                .iter()
+                .any(|e| e.device == s.trackers[0].name && e.protocol == proto),
+            "{:?}",
+            served.json_lines()
+        );
+    }
     // The Optotrak has no wire protocol in this build: it must be listed as in-process.
     assert_eq!(
         served
@@ -183,13 +195,92 @@ async fn wire_equals_truth(file: &str, marker_tol_mm: f64, marker_tol_rad: f64) 
 #[tokio::test]
 async fn hospital_bcap_and_vega_tcp_over_the_wire_equal_the_truth() {
     // NDI BX: float32 transforms (~1e-4 mm at 2 m).
-    wire_equals_truth(HOSPITAL, 2e-3, 1e-5).await;
+    wire_equals_truth(scenario(HOSPITAL, true), 2e-3, 1e-5).await;
 }
 
 #[tokio::test]
 async fn lab_bcap_optotrak_fallback_and_keyence_pty_equal_the_truth() {
     // The Optotrak falls back to the in-process device: exact.
-    wire_equals_truth(LAB, 1e-9, 1e-12).await;
+    wire_equals_truth(scenario(LAB, true), 1e-9, 1e-12).await;
+}
+
+#[tokio::test]
+async fn hospital_with_a_serial_polaris_over_a_pty_equals_the_truth() {
+    // The same cell with a serial Polaris: the NDI client on the pty the simulator opened.
+    let mut s = scenario(HOSPITAL, true);
+    s.trackers[0].protocol = Protocol::NdiSerial;
+    wire_equals_truth(s, 2e-3, 1e-5).await;
+}
+
+#[tokio::test]
+async fn ur5e_over_rtde_dashboard_and_script_equals_the_truth() {
+    let world = WorldHandle::from_scenario(&scenario(UR5E, true)).unwrap();
+    let (devices, info, served) = wire_cell(&world).await.expect("wire cell");
+    for proto in ["rtde", "dashboard", "script"] {
+        assert!(
+            served
+                .endpoints
+                .iter()
+                .any(|e| e.device == "ur5e" && e.protocol == proto),
+            "{:?}",
+            served.json_lines()
+        );
+    }
+    // The camera has no wire protocol here; the cell has no tracker and no laser.
+    assert!(served.unavailable.iter().any(|(d, _, _)| d == "cam"));
+    assert!(devices.tracker.is_none() && devices.range.is_none());
+    assert_eq!(info.serial, world.arm_identity(0).map(|(_, s)| s));
+    let model = KinematicModel::preset("ur5e").unwrap();
+    let (joint_lower, joint_upper) = model.joint_limits().into_iter().unzip();
+    let arm = guard(
+        devices.arm.clone(),
+        SafetyLimits {
+            joint_lower,
+            joint_upper,
+            max_vel: 1.0,
+            max_acc: 2.0,
+            envelope: None,
+            table: None,
+            path_step: 1f64.to_radians(),
+        },
+        None,
+    );
+    let q0 = world.arm_joint_state(0).q;
+    let speed = MoveSpeed {
+        max_vel: 1.0,
+        max_acc: 2.0,
+    };
+    for delta_deg in [
+        [10.0, 5.0, -10.0, 5.0, 10.0, 20.0],
+        [-15.0, -10.0, 5.0, -5.0, 0.0, -20.0],
+        [0.0; 6],
+    ] {
+        let target: Vec<f64> = q0
+            .iter()
+            .zip(delta_deg)
+            .map(|(q, d)| q + f64::to_radians(d))
+            .collect();
+        arm.move_joints(&target, speed).await.expect("move");
+        assert!(!world.arm_is_moving(0));
+        // RTDE actual_q: doubles.
+        let q = arm.joints().await.expect("joints").q;
+        let truth_q = world.arm_joint_state(0).q;
+        assert!(max_abs_diff(&q, &truth_q) < 1e-9, "{q:?} vs {truth_q:?}");
+        assert!(
+            max_abs_diff(&q, &target) < 1e-3,
+            "{q:?} vs target {target:?}"
+        );
+        // RTDE actual_TCP_pose: m + rotation vector, doubles.
+        let flange = arm.flange_pose().await.expect("flange").0;
+        assert_pose_close(
+            &flange,
+            &world.arm_controller_flange(0),
+            1e-6,
+            1e-9,
+            "flange",
+        );
+    }
+    served.abort();
 }
 
 /// The first `n` poses of the seed 001 plan, built in-process for the cell of `s`: the
