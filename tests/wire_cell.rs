@@ -392,3 +392,44 @@ async fn engine_records_every_seed001_pose_over_the_hospital_wire_cell() {
 async fn engine_records_every_seed001_pose_over_the_lab_wire_cell() {
     acquire_over_wire(LAB, 12).await;
 }
+
+/// What `robocal run --sim` does: the wire cell on its own background runtime, the engine
+/// on a separate current-thread runtime.
+#[test]
+fn wire_sim_devices_serve_a_run_on_another_runtime() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(HOSPITAL);
+    let (mut devices, info) =
+        robocal::cli::wire_cell::wire_sim_devices(&path, true).expect("wire sim devices");
+    assert_eq!(info.tracker_kind.as_deref(), Some("ndi-polaris-vega"));
+    let s = scenario(HOSPITAL, false);
+    let (robot, poses) = seed001_poses(&s, 6);
+    let opts = AcquireOptions::default();
+    devices.arm = guard(
+        devices.arm.clone(),
+        limits(opts.speed.max_vel, opts.speed.max_acc),
+        None,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut header: Header = serde_json::from_value(serde_json::json!({
+        "format": "robocal-dataset/1", "robot": {"model": "denso-vs060"}}))
+    .unwrap();
+    header.robot = robot;
+    let mut journal = Journal::create(dir.path().join("dataset.jsonl"), &header).unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let summary = rt
+        .block_on(acquire(
+            &devices,
+            &poses,
+            &mut journal,
+            &[],
+            &opts,
+            &mut |_| {},
+        ))
+        .expect("acquire");
+    assert!(summary.aborted.is_none(), "{summary:?}");
+    assert_eq!((summary.planned, summary.recorded), (6, 6), "{summary:?}");
+    drop(devices);
+}
