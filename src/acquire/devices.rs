@@ -111,6 +111,9 @@ pub struct DeviceEntry {
     /// UR ports when not standard.
     #[serde(default)]
     pub ports: Option<UrPorts>,
+    /// Tracker tool definitions (`.rom` files, relative to the device file), for NDI trackers.
+    #[serde(default)]
+    pub tools: Vec<String>,
 }
 
 impl DeviceEntry {

@@ -9,6 +9,7 @@ pub mod calibrate;
 pub mod devices;
 pub mod diagnose;
 pub mod inspect;
+pub mod live_cell;
 pub mod plan;
 pub mod predict;
 pub mod report;

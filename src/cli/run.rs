@@ -38,7 +38,8 @@ pub struct Args {
     /// The plan (`robocal-plan/1`, written by `robocal plan --out`).
     #[arg(long, value_name = "PLAN.json", required_unless_present = "resume")]
     pub plan: Option<PathBuf>,
-    /// Dry run against the simulated cell of this scenario (in process).
+    /// Dry run against the simulated cell of this scenario: its devices serve the real
+    /// protocols on loopback / ptys and the real drivers connect to them.
     #[arg(long, value_name = "SCENARIO.toml", conflicts_with_all = ["devices", "live"])]
     pub sim: Option<PathBuf>,
     /// Real hardware described by this device file (needs --live).
@@ -74,6 +75,10 @@ pub struct Args {
     /// Progress as JSON lines on stdout instead of a progress bar.
     #[arg(long)]
     pub json: bool,
+    /// Dry run with in-process simulated devices instead of the wire protocols (faster; does
+    /// not exercise the drivers).
+    #[arg(long)]
+    pub in_process: bool,
 }
 
 /// `RUN_DIR/run.json`: everything `--resume` needs.
@@ -155,16 +160,15 @@ pub fn sim_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo)> {
     ))
 }
 
-fn sim_devices(scenario_path: &Path, virtual_clock: bool) -> anyhow::Result<(Devices, CellInfo)> {
+fn sim_world(scenario_path: &Path, virtual_clock: bool) -> anyhow::Result<WorldHandle> {
     let mut scenario = Scenario::load(scenario_path)?;
     scenario.clock = if virtual_clock {
         ClockMode::Virtual
     } else {
         ClockMode::Real
     };
-    let world = WorldHandle::from_scenario(&scenario)
-        .with_context(|| format!("building the world of {}", scenario_path.display()))?;
-    sim_cell(&world).with_context(|| format!("{}", scenario_path.display()))
+    WorldHandle::from_scenario(&scenario)
+        .with_context(|| format!("building the world of {}", scenario_path.display()))
 }
 
 // ----------------------------------------------------------------- run directory
@@ -263,12 +267,34 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
     let plan_path = dir.join(&cfg.plan);
     let plan = PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
     let config_path = dir.join(&cfg.config);
+    // One runtime for the whole run: the wire clients (and, in dry runs, the simulators'
+    // servers) live on it.
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let mut served = None;
     let (mut devices, info) = match cfg.mode.as_str() {
-        "sim" => sim_devices(&config_path, cfg.virtual_clock)?,
-        "live" => bail!(
-            "live hardware runs are not wired yet: use --sim for a dry run ({})",
-            config_path.display()
-        ),
+        "sim" if args.in_process => {
+            let world = sim_world(&config_path, cfg.virtual_clock)?;
+            sim_cell(&world).with_context(|| format!("{}", config_path.display()))?
+        }
+        "sim" => {
+            // The dry run proper: simulators serve the real protocols on loopback / ptys and
+            // the real drivers connect to them.
+            let world = sim_world(&config_path, cfg.virtual_clock)?;
+            let (d, i, s) = rt
+                .block_on(super::wire_cell::wire_cell(&world))
+                .with_context(|| format!("{}", config_path.display()))?;
+            served = Some(s);
+            (d, i)
+        }
+        "live" => {
+            let dof = plan.poses.first().map_or(6, |p| p.q_deg.len());
+            rt.block_on(super::live_cell::live_cell(&config_path, dof))
+                .with_context(|| format!("connecting the devices of {}", config_path.display()))?
+        }
         other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
     };
     devices.arm = guard(devices.arm.clone(), safety_limits(&plan, cfg.speed)?, None);
@@ -282,10 +308,6 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
     let done = acquire::done_pose_ids(&existing).len();
     let reporter = Reporter::new(args.json, poses.len(), done);
     let opts = options(cfg, args.max_poses);
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
     let summary = rt.block_on(acquire::acquire(
         &devices,
         &poses,
@@ -295,6 +317,9 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
         &mut |p| reporter.report(p),
     ))?;
     reporter.finish();
+    if let Some(s) = served {
+        s.abort();
+    }
     write_atomic(
         &dir.join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
@@ -336,13 +361,18 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
             args.speed_deg_s
         );
         if !args.yes {
-            bail!("confirmation needed: re-run with --yes to move the hardware");
+            use std::io::{BufRead as _, IsTerminal as _, Write as _};
+            if !std::io::stdin().is_terminal() {
+                bail!("confirmation needed: re-run with --yes to move the hardware");
+            }
+            print!("type `yes` to move the arm: ");
+            std::io::stdout().flush().ok();
+            let mut answer = String::new();
+            std::io::stdin().lock().read_line(&mut answer)?;
+            if answer.trim() != "yes" {
+                bail!("not confirmed: nothing moved");
+            }
         }
-        // The engine is device-agnostic, but no device file loader exists yet.
-        bail!(
-            "live hardware runs are not wired yet ({}): use --sim for a dry run",
-            config_src.display()
-        );
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let config_name = if mode == "sim" {

@@ -1,0 +1,134 @@
+//! The live cell: real drivers connected to the hardware named in a device file
+//! (`robocal run --devices DEVICES.toml --live`). Read-only until the engine moves the arm,
+//! and every motion then goes through the safety decorators `robocal run` wraps around the arm.
+
+use anyhow::{bail, Context as _};
+use std::path::Path;
+use std::sync::Arc;
+
+use crate::acquire::devices::{DeviceEntry, DevicesFile, Protocol, Role};
+use crate::acquire::Devices;
+use crate::cli::run::CellInfo;
+use robocal_drivers::bcap::{DensoArm, DensoConfig};
+use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
+use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
+use robocal_drivers::ur::{UrArm, UrConfig};
+use robocal_drivers::{Arm, MarkerTracker, RangeSensor, SystemClock};
+
+fn first(file: &DevicesFile, role: Role) -> Option<&DeviceEntry> {
+    file.devices.iter().find(|d| d.role == role)
+}
+
+fn tool_roms(d: &DeviceEntry, base: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
+    if d.tools.is_empty() {
+        bail!(
+            "device {:?}: an NDI tracker needs at least one tool definition (`tools = [\"probe.rom\"]`)",
+            d.name
+        );
+    }
+    d.tools
+        .iter()
+        .map(|t| {
+            let p = base.join(t);
+            let bytes = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+            let name = Path::new(t)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| t.clone());
+            Ok((name, bytes))
+        })
+        .collect()
+}
+
+/// Connect the first arm, tracker and laser of the device file at `path` with the real
+/// drivers. The arm is NOT wrapped in the safety decorators here (the caller does it).
+pub async fn live_cell(path: &Path, dof: usize) -> anyhow::Result<(Devices, CellInfo)> {
+    let file = DevicesFile::read(path)?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let Some(a) = first(&file, Role::Arm) else {
+        bail!("{}: no arm device", path.display());
+    };
+    let arm: Arc<dyn Arm> = match a.protocol {
+        Protocol::Bcap => {
+            let mut cfg = DensoConfig::new(a.target());
+            cfg.name = a.name.clone();
+            cfg.dof = dof;
+            Arc::new(
+                DensoArm::connect(cfg)
+                    .await
+                    .with_context(|| format!("b-CAP arm {:?} at {}", a.name, a.target()))?,
+            )
+        }
+        Protocol::Rtde => {
+            let mut cfg = UrConfig::new(a.target());
+            cfg.name = a.name.clone();
+            if let Some(p) = a.ports {
+                cfg.rtde_port = p.rtde.unwrap_or(cfg.rtde_port);
+                cfg.dashboard_port = p.dashboard.unwrap_or(cfg.dashboard_port);
+                cfg.script_port = p.script.unwrap_or(cfg.script_port);
+            }
+            Arc::new(
+                UrArm::connect(cfg)
+                    .await
+                    .with_context(|| format!("UR arm {:?} at {}", a.name, a.target()))?,
+            )
+        }
+        other => bail!("device {:?}: protocol {other:?} is not an arm", a.name),
+    };
+    let tracker: Option<Arc<dyn MarkerTracker>> = match first(&file, Role::Tracker) {
+        None => None,
+        Some(t) => Some(match t.protocol {
+            Protocol::NdiTcp => {
+                let client = NdiClient::connect(&t.target(), NdiConfig::default())
+                    .await
+                    .with_context(|| format!("NDI tracker {:?} at {}", t.name, t.target()))?;
+                Arc::new(
+                    NdiTracker::setup(client, &tool_roms(t, base)?, ReplyMode::Binary)
+                        .await
+                        .with_context(|| format!("NDI start-up on {:?}", t.name))?,
+                )
+            }
+            Protocol::NdiSerial => {
+                let client = NdiClient::open_serial(&t.target(), NdiConfig::default())
+                    .with_context(|| format!("NDI tracker {:?} on {}", t.name, t.target()))?;
+                Arc::new(
+                    NdiTracker::setup(client, &tool_roms(t, base)?, ReplyMode::Binary)
+                        .await
+                        .with_context(|| format!("NDI start-up on {:?}", t.name))?,
+                )
+            }
+            Protocol::OptotrakOapi => bail!(
+                "device {:?}: the Optotrak needs NDI's OAPI library (build with --features \
+                 optotrak); live acquisition through it is not wired in this build",
+                t.name
+            ),
+            other => bail!("device {:?}: protocol {other:?} is not a tracker", t.name),
+        }),
+    };
+    let range: Option<Arc<dyn RangeSensor>> = match first(&file, Role::Laser) {
+        None => None,
+        Some(l) => match l.protocol {
+            Protocol::DlRs1a => {
+                let client = KeyenceClient::open_serial(&l.target(), KeyenceConfig::default())
+                    .with_context(|| format!("KEYENCE laser {:?} on {}", l.name, l.target()))?;
+                Some(Arc::new(Il600::new(client, Il600Config::default())))
+            }
+            other => bail!("device {:?}: protocol {other:?} is not a laser", l.name),
+        },
+    };
+    let info = CellInfo {
+        serial: None,
+        tracker_kind: first(&file, Role::Tracker).and_then(|t| t.model.clone()),
+        range_kind: first(&file, Role::Laser).and_then(|l| l.model.clone()),
+    };
+    Ok((
+        Devices {
+            arm,
+            tracker,
+            range,
+            clock: Arc::new(SystemClock::default()),
+            thermometer: None,
+        },
+        info,
+    ))
+}
