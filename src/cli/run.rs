@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
-use robocal_drivers::safety::{guard, SafetyLimits};
+use robocal_drivers::safety::{guard, ArmGeometry, SafetyLimits};
 use robocal_drivers::{Arm, MarkerTracker, RangeSensor};
 use robocal_mocks::scenario::ClockMode;
 use robocal_mocks::sim::SimDevices;
@@ -212,18 +212,52 @@ fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
 }
 
 /// Safety limits of the plan's robot: its joint limits and the run's speed caps.
-fn safety_limits(plan: &PlanFile, speed: MoveSpeedOpt) -> anyhow::Result<SafetyLimits> {
+/// The safety limits of a run: the robot's joint limits, the speed caps, and — from the plan's
+/// own constraints — the table plane and the Cartesian envelope, checked along every
+/// joint-interpolated move at the flange and the tool point (the planner checks the same).
+fn safety_limits(
+    plan: &PlanFile,
+    speed: MoveSpeedOpt,
+) -> anyhow::Result<(SafetyLimits, Option<Arc<dyn ArmGeometry>>)> {
     let model = KinematicModel::from_robot_block(&plan.robot).context("the plan's robot")?;
     let (lower, upper) = model.joint_limits().into_iter().unzip();
-    Ok(SafetyLimits {
-        joint_lower: lower,
-        joint_upper: upper,
-        max_vel: speed.max_vel,
-        max_acc: speed.max_acc,
-        envelope: None,
-        table: None,
-        path_step: 1f64.to_radians(),
-    })
+    let spec: Option<crate::plan::PlanSpec> = serde_json::from_value(plan.spec.clone()).ok();
+    let (envelope, table) = match &spec {
+        Some(sp) => (
+            sp.constraints.envelope.clone(),
+            crate::plan::constraints::table_plane(&sp.constraints),
+        ),
+        None => (None, None),
+    };
+    let geometry: Option<Arc<dyn ArmGeometry>> = match (&envelope, &table) {
+        (None, None) => None,
+        _ => {
+            let tool = plan
+                .tool
+                .to_iso()
+                .unwrap_or_else(nalgebra::Isometry3::identity);
+            let m = model.clone();
+            Some(Arc::new(move |q: &[f64]| {
+                let fl = m.flange_pose(q);
+                vec![
+                    nalgebra::Point3::from(fl.translation.vector),
+                    nalgebra::Point3::from((fl * tool).translation.vector),
+                ]
+            }))
+        }
+    };
+    Ok((
+        SafetyLimits {
+            joint_lower: lower,
+            joint_upper: upper,
+            max_vel: speed.max_vel,
+            max_acc: speed.max_acc,
+            envelope,
+            table,
+            path_step: 1f64.to_radians(),
+        },
+        geometry,
+    ))
 }
 
 struct Reporter {
@@ -297,7 +331,8 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
         }
         other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
     };
-    devices.arm = guard(devices.arm.clone(), safety_limits(&plan, cfg.speed)?, None);
+    let (limits, geometry) = safety_limits(&plan, cfg.speed)?;
+    devices.arm = guard(devices.arm.clone(), limits, geometry);
     let header = header_for(&plan, &info);
     let journal_path = dir.join(DATASET);
     let (mut journal, existing, warnings) = Journal::open_or_create(&journal_path, &header)?;
@@ -448,4 +483,57 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The run's safety wrapper carries the plan's table and envelope: a move that swings the
+    /// flange below the table is refused before it reaches the arm.
+    #[test]
+    fn run_guard_enforces_the_plans_table_and_envelope() {
+        let spec_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/seed001-annulus.toml");
+        let mut spec =
+            crate::plan::PlanSpec::from_toml_str(&std::fs::read_to_string(spec_path).unwrap())
+                .unwrap();
+        if let Some(a) = spec.annulus.as_mut() {
+            a.points = 5;
+        }
+        let model = KinematicModel::preset("denso-vs060").unwrap();
+        let robot = crate::dataset::RobotBlock {
+            model: "denso-vs060".into(),
+            serial: None,
+            chain: None,
+            flange: None,
+            extra: Default::default(),
+        };
+        let plan = crate::plan::build_plan(&spec, robot, &model, &Default::default())
+            .unwrap()
+            .file;
+        let (limits, geometry) = safety_limits(
+            &plan,
+            MoveSpeedOpt {
+                max_vel: 1.0,
+                max_acc: 2.0,
+            },
+        )
+        .unwrap();
+        assert!(limits.table.is_some() && limits.envelope.is_some());
+        let geometry = geometry.expect("a geometry for the path check");
+        // Upright (flange high above the table) to folded down over the table edge.
+        let up = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let down = [0.0, 100f64.to_radians(), 100f64.to_radians(), 0.0, 0.0, 0.0];
+        assert!(model.flange_pose(&down).translation.z < 0.0);
+        let fake = robocal_drivers::fake::FakeArm::new(up.to_vec());
+        let arm = guard(Arc::new(fake.clone()), limits, Some(geometry));
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        let err = rt
+            .block_on(arm.move_joints(&down, robocal_drivers::MoveSpeed::default()))
+            .unwrap_err();
+        assert_eq!(err.kind(), robocal_drivers::ErrorKind::SafetyViolation);
+        assert!(fake.commands().is_empty());
+    }
 }
