@@ -394,7 +394,9 @@ fn world_machined_block_face_angles_and_ply_scan() {
     });
     let world = WorldHandle::from_scenario(&s).unwrap();
     let c0 = Point3::from(centre);
-    let faces: [(&str, Vector3<f64>, Vector3<f64>, Vector3<f64>, f64, f64); 3] = [
+    /// (label, outward normal, in-face u, in-face v, half u, half v)
+    type Face<'a> = (&'a str, Vector3<f64>, Vector3<f64>, Vector3<f64>, f64, f64);
+    let faces: [Face; 3] = [
         // (label, outward normal, in-face u, in-face v, half u, half v)
         (
             "top",
