@@ -4,7 +4,7 @@
 //! Units inside the library: lengths in millimetres, angles in radians, time in seconds.
 //! Files use millimetres and degrees (see `dataset`), conversion happens at the file edge.
 //!
-//! Estimation code (`model`, `solve`, `diagnose`, `plan`) never depends on `robocal_mocks`;
+//! Estimation code (`model`, `solve`, `diagnose`, `plan`) never depends on the simulator crate (`mocks/`);
 //! only the CLI layer wires the simulators in for dry runs.
 
 pub mod acquire;
