@@ -257,11 +257,17 @@ impl BcapClient {
             .await
             .map(drop)
     }
-    /// `Controller_GetRobot(h, name, option)` → robot handle.
-    pub async fn controller_get_robot(&self, h: i32, name: &str) -> Result<i32, BcapError> {
+    /// The `*_GetRobot` / `*_GetVariable` shape: `(h, name, "")` → a new handle.
+    async fn get_handle(
+        &self,
+        id: i32,
+        what: &'static str,
+        h: i32,
+        name: &str,
+    ) -> Result<i32, BcapError> {
         let v = self
             .call(
-                func::CONTROLLER_GET_ROBOT,
+                id,
                 vec![
                     Variant::I4(h),
                     Variant::Bstr(name.into()),
@@ -269,21 +275,22 @@ impl BcapClient {
                 ],
             )
             .await?;
-        Self::handle("Controller_GetRobot", v)
+        Self::handle(what, v)
+    }
+    /// `Controller_GetRobot(h, name, option)` → robot handle.
+    pub async fn controller_get_robot(&self, h: i32, name: &str) -> Result<i32, BcapError> {
+        self.get_handle(func::CONTROLLER_GET_ROBOT, "Controller_GetRobot", h, name)
+            .await
     }
     /// `Controller_GetVariable(h, name, option)` → variable handle.
     pub async fn controller_get_variable(&self, h: i32, name: &str) -> Result<i32, BcapError> {
-        let v = self
-            .call(
-                func::CONTROLLER_GET_VARIABLE,
-                vec![
-                    Variant::I4(h),
-                    Variant::Bstr(name.into()),
-                    Variant::Bstr(String::new()),
-                ],
-            )
-            .await?;
-        Self::handle("Controller_GetVariable", v)
+        self.get_handle(
+            func::CONTROLLER_GET_VARIABLE,
+            "Controller_GetVariable",
+            h,
+            name,
+        )
+        .await
     }
     /// `Controller_Execute(h, command, param)`.
     pub async fn controller_execute(
@@ -302,17 +309,8 @@ impl BcapClient {
     }
     /// `Robot_GetVariable(h, name, option)` → variable handle.
     pub async fn robot_get_variable(&self, h: i32, name: &str) -> Result<i32, BcapError> {
-        let v = self
-            .call(
-                func::ROBOT_GET_VARIABLE,
-                vec![
-                    Variant::I4(h),
-                    Variant::Bstr(name.into()),
-                    Variant::Bstr(String::new()),
-                ],
-            )
-            .await?;
-        Self::handle("Robot_GetVariable", v)
+        self.get_handle(func::ROBOT_GET_VARIABLE, "Robot_GetVariable", h, name)
+            .await
     }
     /// `Robot_Execute(h, command, param)`.
     pub async fn robot_execute(
