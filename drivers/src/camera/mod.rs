@@ -1,12 +1,15 @@
 //! Cameras as image sources.
 //!
 //! * [`pgm`]: a dependency-free PGM (P5 binary / P2 ASCII, 8- or 16-bit) reader and writer.
-//! * [`FolderSource`]: an [`ImageSource`] that serves the `.pgm` files of a folder in name
-//!   order (recorded sessions, or images a simulator renders from the world).
-//!
-//! Not included: PNG (kept dependency-light) and OpenCV `VideoCapture` (feature `opencv` is
-//! declared but empty: it needs `libopencv-dev`, `clang` and `libclang-dev` on the host).
+//! * [`FolderSource`]: an [`ImageSource`] that serves the image files of a folder in name
+//!   order (recorded sessions, or images a simulator renders from the world); with feature
+//!   `opencv` also PNG, JPEG, BMP and TIFF files.
+//! * `opencv` (feature `opencv`): OpenCV `VideoCapture` cameras and network streams, image
+//!   files of any format, chessboard detection. Needs `libopencv-dev`, `clang` and
+//!   `libclang-dev` on the host (Debian's OpenCV 4.6).
 
+#[cfg(feature = "opencv")]
+pub mod opencv;
 pub mod pgm;
 
 use crate::error::{DeviceError, DriverError, DriverResult, ErrorKind};
@@ -39,6 +42,31 @@ pub enum Error {
     /// The folder holds no images, or all were served and `repeat` is off.
     #[error("no more images in {0}")]
     Exhausted(String),
+    /// The camera / stream could not be opened, or its link dropped.
+    #[error("cannot open camera {target}: {detail}")]
+    Open {
+        /// What was opened (index, URL, file).
+        target: String,
+        /// Why.
+        detail: String,
+    },
+    /// No frame arrived in time.
+    #[error("no frame from {target} within {secs} s")]
+    Timeout {
+        /// What was opened.
+        target: String,
+        /// The deadline (s).
+        secs: f64,
+    },
+    /// The image library failed.
+    #[error("image backend: {detail}")]
+    Backend {
+        /// What failed.
+        detail: String,
+    },
+    /// A bad argument (image size, pattern size).
+    #[error("invalid argument: {0}")]
+    Invalid(String),
 }
 
 impl DeviceError for Error {
@@ -47,11 +75,15 @@ impl DeviceError for Error {
             Error::Io { .. } => ErrorKind::Disconnected,
             Error::Format { .. } => ErrorKind::Protocol,
             Error::Exhausted(_) => ErrorKind::Other,
+            Error::Open { .. } => ErrorKind::Disconnected,
+            Error::Timeout { .. } => ErrorKind::Timeout,
+            Error::Backend { .. } => ErrorKind::Other,
+            Error::Invalid(_) => ErrorKind::InvalidArgument,
         }
     }
 }
 
-/// Serves the `.pgm` files of a folder in file-name order.
+/// Serves the image files of a folder ([`IMAGE_EXTENSIONS`]) in file-name order.
 pub struct FolderSource {
     dir: PathBuf,
     files: Vec<PathBuf>,
@@ -79,7 +111,7 @@ impl FolderSource {
         let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
             .map_err(io)?
             .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("pgm")))
+            .filter(|p| is_image_file(p))
             .collect();
         files.sort();
         if files.is_empty() {
@@ -124,21 +156,55 @@ impl FolderSource {
             *n += 1;
             p
         };
-        let bytes = std::fs::read(&path).map_err(|source| Error::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-        let (width, height, data) = pgm::decode(&bytes).map_err(|e| Error::Format {
-            path: path.display().to_string(),
-            detail: e.to_string(),
-        })?;
-        Ok(Image {
-            width,
-            height,
-            data,
-            t: self.clock.now(),
-        })
+        let mut img = read_image_file(&path)?;
+        img.t = self.clock.now();
+        Ok(img)
     }
+}
+
+/// The extensions [`FolderSource`] serves: `pgm`, and with feature `opencv` also `png`,
+/// `jpg`, `jpeg`, `bmp`, `tif`, `tiff`.
+pub const IMAGE_EXTENSIONS: &[&str] = if cfg!(feature = "opencv") {
+    &["pgm", "png", "jpg", "jpeg", "bmp", "tif", "tiff"]
+} else {
+    &["pgm"]
+};
+
+fn is_image_file(p: &Path) -> bool {
+    p.extension()
+        .and_then(|x| x.to_str())
+        .is_some_and(|x| IMAGE_EXTENSIONS.iter().any(|e| x.eq_ignore_ascii_case(e)))
+}
+
+/// Read one image file as 8-bit grey (PGM natively; other formats need feature `opencv`).
+/// The timestamp is 0.
+pub fn read_image_file(path: &Path) -> Result<Image, Error> {
+    let is_pgm = path
+        .extension()
+        .is_some_and(|x| x.eq_ignore_ascii_case("pgm"));
+    if !is_pgm {
+        #[cfg(feature = "opencv")]
+        return opencv::read_image(path);
+        #[cfg(not(feature = "opencv"))]
+        return Err(Error::Format {
+            path: path.display().to_string(),
+            detail: "only PGM images without feature `opencv`".into(),
+        });
+    }
+    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let (width, height, data) = pgm::decode(&bytes).map_err(|e| Error::Format {
+        path: path.display().to_string(),
+        detail: e.to_string(),
+    })?;
+    Ok(Image {
+        width,
+        height,
+        data,
+        t: 0.0,
+    })
 }
 
 #[async_trait]
