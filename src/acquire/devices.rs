@@ -7,8 +7,9 @@
 //! name = "vs060"            # unique
 //! role = "arm"              # arm | tracker | laser | camera
 //! vendor = "denso"          # denso | universal-robots | ndi | keyence | generic
-//! protocol = "bcap"         # bcap | rtde | ndi-tcp | ndi-serial | optotrak-oapi | dl-rs1a | pgm-folder
-//! address = "192.168.0.1:5007"   # host:port (bcap, ndi-tcp) or host (rtde)
+//! protocol = "bcap"         # bcap | rtde | ndi-tcp | ndi-serial | optotrak-oapi | dl-rs1a | pgm-folder | opencv
+//! address = "192.168.0.1:5007"   # host:port (bcap, ndi-tcp), host (rtde), or for opencv a
+//!                                # camera index / `/dev/videoN` / stream URL / video file
 //! # serial = "/dev/ttyUSB0"      # ndi-serial, dl-rs1a
 //! # path = "images/"             # pgm-folder
 //! # ports = { rtde = 30004, dashboard = 29999, script = 30003 }   # rtde only
@@ -56,8 +57,11 @@ pub enum Protocol {
     OptotrakOapi,
     /// KEYENCE DL-RS1A serial (IL-600 heads).
     DlRs1a,
-    /// A folder of PGM images.
+    /// A folder of images (PGM; also PNG, JPEG, BMP, TIFF with feature `opencv`).
+    #[serde(alias = "image-folder")]
     PgmFolder,
+    /// An OpenCV `VideoCapture` camera or stream (feature `opencv`).
+    Opencv,
 }
 
 impl Protocol {
@@ -67,7 +71,7 @@ impl Protocol {
             Protocol::Bcap | Protocol::Rtde => Role::Arm,
             Protocol::NdiTcp | Protocol::NdiSerial | Protocol::OptotrakOapi => Role::Tracker,
             Protocol::DlRs1a => Role::Laser,
-            Protocol::PgmFolder => Role::Camera,
+            Protocol::PgmFolder | Protocol::Opencv => Role::Camera,
         }
     }
 }
@@ -202,7 +206,9 @@ impl DevicesFile {
                 )));
             }
             let (need, field) = match d.protocol {
-                Protocol::Bcap | Protocol::Rtde | Protocol::NdiTcp => (&d.address, "address"),
+                Protocol::Bcap | Protocol::Rtde | Protocol::NdiTcp | Protocol::Opencv => {
+                    (&d.address, "address")
+                }
                 Protocol::NdiSerial | Protocol::DlRs1a => (&d.serial, "serial"),
                 Protocol::PgmFolder | Protocol::OptotrakOapi => (&d.path, "path"),
             };

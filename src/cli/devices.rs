@@ -103,6 +103,30 @@ pub async fn probe(d: &DeviceEntry) -> Probe {
                 Err(e) => fail(e),
             }
         }
+        #[cfg(feature = "opencv")]
+        Protocol::Opencv => {
+            use robocal_drivers::camera::opencv::{CaptureConfig, VideoCaptureSource};
+            use robocal_drivers::ImageSource;
+            match VideoCaptureSource::open(CaptureConfig::new(target.clone())) {
+                Err(e) => fail(e),
+                Ok(src) => match src.grab().await {
+                    Ok(img) => Probe::Ok(format!(
+                        "{}×{} grey frame ({:?} mode)",
+                        img.width,
+                        img.height,
+                        src.config().effective_mode()
+                    )),
+                    Err(e) => Probe::Failed(e.kind(), e.to_string()),
+                },
+            }
+        }
+        #[cfg(not(feature = "opencv"))]
+        Protocol::Opencv => Probe::Failed(
+            ErrorKind::Unsupported,
+            "this robocal was built without OpenCV: rebuild with `cargo build --release \
+             --features opencv` (needs libopencv-dev clang libclang-dev)"
+                .into(),
+        ),
         Protocol::OptotrakOapi => Probe::Failed(
             ErrorKind::Unsupported,
             "probing an Optotrak needs NDI's OAPI library (feature `optotrak`); not probed".into(),
