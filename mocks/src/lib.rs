@@ -5,6 +5,7 @@
 #![warn(missing_docs)]
 
 pub mod bcap;
+pub mod camera;
 pub mod keyence;
 pub mod ndi;
 pub mod scenario;

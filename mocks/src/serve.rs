@@ -143,7 +143,8 @@ pub async fn start_device(
         Protocol::NdiSerial => crate::ndi::start_serial(world.clone(), device, bind).await,
         Protocol::DlRs1a => crate::keyence::start(world.clone(), device, bind).await,
         Protocol::Bcap => crate::bcap::start(world.clone(), device, bind).await,
-        Protocol::Optotrak | Protocol::Camera => Err(ServeError::NotAvailable {
+        Protocol::Camera => crate::camera::start(world.clone(), device, bind).await,
+        Protocol::Optotrak => Err(ServeError::NotAvailable {
             protocol: protocol.as_str().to_string(),
             device: device.to_string(),
         }),
