@@ -226,8 +226,16 @@ async fn ur5e_over_rtde_dashboard_and_script_equals_the_truth() {
             served.json_lines()
         );
     }
-    // The camera has no wire protocol here; the cell has no tracker and no laser.
-    assert!(served.unavailable.iter().any(|(d, _, _)| d == "cam"));
+    // The camera is served as MJPEG over HTTP; the cell has no tracker and no laser.
+    assert!(
+        served
+            .endpoints
+            .iter()
+            .any(|e| e.device == "cam" && e.protocol == "mjpeg"),
+        "{:?}",
+        served.json_lines()
+    );
+    assert!(served.unavailable.is_empty(), "{:?}", served.unavailable);
     assert!(devices.tracker.is_none() && devices.range.is_none());
     assert_eq!(info.serial, world.arm_identity(0).map(|(_, s)| s));
     let model = KinematicModel::preset("ur5e").unwrap();

@@ -228,11 +228,11 @@ async fn check(py: &PathBuf, noise: bool) {
         res["opencv"], res["backend"]
     );
     assert!(
-        sub_max <= 0.5,
+        sub_max <= 0.15,
         "sub-pixel corners off by up to {sub_max} px"
     );
     assert!(
-        raw_max <= 1.5,
+        raw_max <= 0.5,
         "findChessboardCorners corners off by up to {raw_max} px"
     );
 }

@@ -26,8 +26,8 @@ pub use control::{Control, Fault};
 use effects::{ArmPhysics, JointContext, PointMass};
 use motion::Move;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
-use rand::Rng;
 use rand::SeedableRng;
+use rand::{Rng, RngCore};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 pub use robocal_drivers::{ArmMode, ArmState, SafetyState};
@@ -845,27 +845,36 @@ impl WorldHandle {
         })
     }
 
-    /// Render an 8-bit image of the chessboard from camera `camera`.
+    /// Render an 8-bit image of the chessboard from camera `camera`. The world is locked only
+    /// to read the pose and draw the image's noise seed; the rendering itself runs unlocked, so
+    /// a camera stream never stalls the other devices.
     pub fn render_camera_of(&self, camera: usize) -> Image {
         let t = self.now();
         let pose = self.camera_in_base(camera);
-        self.with(|w| {
+        let job = self.with(|w| {
             let World { cameras, scene, .. } = w;
-            match (cameras.get_mut(camera), pose) {
-                (Some(c), Some(pose)) => Image {
-                    width: c.cfg.width,
-                    height: c.cfg.height,
-                    data: sensors::render(&c.cfg, &pose, scene.chessboard.as_ref(), &mut c.rng),
-                    t,
-                },
-                _ => Image {
-                    width: 0,
-                    height: 0,
-                    data: Vec::new(),
-                    t,
-                },
-            }
-        })
+            cameras.get_mut(camera).map(|c| {
+                (
+                    c.cfg.clone(),
+                    scene.chessboard.clone(),
+                    ChaCha8Rng::seed_from_u64(c.rng.next_u64()),
+                )
+            })
+        });
+        match (job, pose) {
+            (Some((cfg, board, mut rng)), Some(pose)) => Image {
+                width: cfg.width,
+                height: cfg.height,
+                data: sensors::render(&cfg, &pose, board.as_ref(), &mut rng),
+                t,
+            },
+            _ => Image {
+                width: 0,
+                height: 0,
+                data: Vec::new(),
+                t,
+            },
+        }
     }
 
     // ---------------------------------------------------------------- control

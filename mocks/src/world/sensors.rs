@@ -137,26 +137,55 @@ pub fn project(cam: &CameraConfig, p: &Point3<f64>) -> Option<(f64, f64)> {
     Some((cam.fx * x * f + cam.cx, cam.fy * y * f + cam.cy))
 }
 
-/// Grey level of the board at board-frame point (x, y) (mm).
-fn board_grey(b: &ChessboardConfig, x: f64, y: f64) -> f64 {
-    let (w, h) = (b.cols as f64 * b.square_mm, b.rows as f64 * b.square_mm);
-    let margin = b.square_mm;
-    if x >= 0.0 && y >= 0.0 && x < w && y < h {
-        let (i, j) = ((x / b.square_mm) as i64, (y / b.square_mm) as i64);
-        if (i + j) % 2 == 0 {
-            30.0
-        } else {
-            225.0
-        }
-    } else if x >= -margin && y >= -margin && x < w + margin && y < h + margin {
-        225.0
+/// Grey levels of the board: dark squares, bright squares and the white margin, and the
+/// background around the board.
+const DARK: f64 = 30.0;
+const BRIGHT: f64 = 225.0;
+const BACKGROUND: f64 = 90.0;
+
+/// Mean over `[x - h, x + h]` of the indicator of `[lo, hi]`.
+fn box_indicator(x: f64, h: f64, lo: f64, hi: f64) -> f64 {
+    ((x + h).min(hi) - (x - h).max(lo)).max(0.0) / (2.0 * h)
+}
+
+/// ∫₀ᵗ P(s) ds for the square wave P = +1 on even squares, −1 on odd ones (a triangle wave),
+/// with P restricted to `[0, len]`.
+fn square_wave_integral(t: f64, sq: f64, len: f64) -> f64 {
+    let t = t.clamp(0.0, len);
+    let k = (t / sq).floor();
+    let f = t - k * sq;
+    if (k as i64) % 2 == 0 {
+        f
     } else {
-        90.0
+        sq - f
     }
 }
 
-/// Render an 8-bit image of the chessboard seen from `cam_in_base` (2×2 supersampling, then
-/// Gaussian blur `blur_px` and grey noise `noise_grey`).
+/// Mean grey of the board (and its surroundings) over the board-frame box
+/// `[x ± hx] × [y ± hy]` (mm), in closed form: the pattern is
+/// `BACKGROUND + (BRIGHT − BACKGROUND)·1_margin − ½(BRIGHT − DARK)·1_squares·(1 + Px·Py)`
+/// and every term is a product of a function of x and one of y, so its box mean is the product
+/// of 1-D means. No sampling, so edges and corners land exactly where the geometry puts them.
+fn board_grey_box(b: &ChessboardConfig, x: f64, y: f64, hx: f64, hy: f64) -> f64 {
+    let (w, h) = (b.cols as f64 * b.square_mm, b.rows as f64 * b.square_mm);
+    let m = b.square_mm;
+    let (hx, hy) = (hx.max(1e-9), hy.max(1e-9));
+    let margin = box_indicator(x, hx, -m, w + m) * box_indicator(y, hy, -m, h + m);
+    let inside = box_indicator(x, hx, 0.0, w) * box_indicator(y, hy, 0.0, h);
+    let px = (square_wave_integral(x + hx, b.square_mm, w)
+        - square_wave_integral(x - hx, b.square_mm, w))
+        / (2.0 * hx);
+    let py = (square_wave_integral(y + hy, b.square_mm, h)
+        - square_wave_integral(y - hy, b.square_mm, h))
+        / (2.0 * hy);
+    let half = 0.5 * (BRIGHT - DARK);
+    BACKGROUND + (BRIGHT - BACKGROUND) * margin - half * (inside + px * py)
+}
+
+/// Render an 8-bit image of the chessboard seen from `cam_in_base`, then Gaussian blur
+/// `blur_px` and grey noise `noise_grey`. Each pixel is the exact mean of the pattern over the
+/// pixel's footprint on the board (the footprint taken as the board-aligned box spanned by the
+/// pixel's projection), so corner positions carry no sampling bias.
 pub fn render<R: Rng>(
     cam: &CameraConfig,
     cam_in_base: &Isometry3<f64>,
@@ -164,24 +193,44 @@ pub fn render<R: Rng>(
     rng: &mut R,
 ) -> Vec<u8> {
     let (w, h) = (cam.width as usize, cam.height as usize);
-    let mut img = vec![90.0f64; w * h];
+    let mut img = vec![BACKGROUND; w * h];
     if let Some(b) = board {
         let board_from_cam = b.placement.isometry().inverse() * cam_in_base;
         let o = board_from_cam * Point3::origin();
+        // Board-plane point hit by the ray through image point (u, v).
+        let hit = |u: f64, v: f64| -> Option<(f64, f64)> {
+            let ray = board_from_cam * pixel_ray(cam, u, v);
+            if ray.z.abs() > 1e-12 && -o.z / ray.z > 0.0 {
+                let s = -o.z / ray.z;
+                Some((o.x + ray.x * s, o.y + ray.y * s))
+            } else {
+                None
+            }
+        };
+        // Hits at the pixel corners (u ± ½, v ± ½): (w+1)·(h+1) rays.
+        let corners: Vec<Option<(f64, f64)>> = (0..=h)
+            .flat_map(|j| (0..=w).map(move |i| (i, j)))
+            .map(|(i, j)| hit(i as f64 - 0.5, j as f64 - 0.5))
+            .collect();
+        let at = |i: usize, j: usize| corners[j * (w + 1) + i];
         for v in 0..h {
             for u in 0..w {
-                let mut acc = 0.0;
-                for (du, dv) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
-                    let ray =
-                        board_from_cam * pixel_ray(cam, u as f64 + du - 0.5, v as f64 + dv - 0.5);
-                    acc += if ray.z.abs() > 1e-12 && -o.z / ray.z > 0.0 {
-                        let s = -o.z / ray.z;
-                        board_grey(b, o.x + ray.x * s, o.y + ray.y * s)
-                    } else {
-                        90.0
-                    };
-                }
-                img[v * w + u] = acc / 4.0;
+                let (Some(c00), Some(c10), Some(c01), Some(c11)) =
+                    (at(u, v), at(u + 1, v), at(u, v + 1), at(u + 1, v + 1))
+                else {
+                    continue;
+                };
+                let xs = [c00.0, c10.0, c01.0, c11.0];
+                let ys = [c00.1, c10.1, c01.1, c11.1];
+                let (x, y) = (xs.iter().sum::<f64>() / 4.0, ys.iter().sum::<f64>() / 4.0);
+                // Half-extents of the footprint parallelogram along the board axes.
+                let hx = 0.25
+                    * ((c10.0 - c00.0 + c11.0 - c01.0).abs()
+                        + (c01.0 - c00.0 + c11.0 - c10.0).abs());
+                let hy = 0.25
+                    * ((c10.1 - c00.1 + c11.1 - c01.1).abs()
+                        + (c01.1 - c00.1 + c11.1 - c10.1).abs());
+                img[v * w + u] = board_grey_box(b, x, y, hx, hy);
             }
         }
     }
