@@ -1,6 +1,6 @@
 //! Run every simulated device of a scenario as a protocol server.
 //!
-//! # Contract for protocol-simulator authors (`crate::{ur, bcap, ndi, keyence}`)
+//! # Contract for protocol-simulator authors (`crate::{ur, bcap, ndi, keyence, camera}`)
 //!
 //! Each protocol module exposes exactly one entry point with this signature:
 //!
