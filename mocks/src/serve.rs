@@ -35,7 +35,7 @@ pub struct Bind {
     /// Host address (e.g. 127.0.0.1, or 127.0.0.N to give each simulated controller its own IP).
     pub host: IpAddr,
     /// Bind the vendors' fixed ports (RTDE 30004, dashboard 29999, script 30001–30003,
-    /// b-CAP 5007, NDI 8765) instead of port 0.
+    /// b-CAP 5007, NDI 8765, camera 8080) instead of port 0.
     pub standard_ports: bool,
 }
 
