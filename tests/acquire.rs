@@ -150,6 +150,7 @@ fn cell(plan: &[PlannedPose], journal_path: Option<&Path>) -> Cell {
         range: Some(Arc::new(range.clone())),
         clock: clock.clone(),
         thermometer: None,
+        camera: None,
     };
     Cell {
         arm,

@@ -2,10 +2,13 @@
 //! docs of [`crate::acquire`]).
 use std::collections::{BTreeMap, HashSet};
 use std::future::Future;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
 
 use nalgebra::Point3;
+use robocal_drivers::camera::pgm;
 use robocal_drivers::{
-    DriverError, DriverResult, ErrorKind, JointState, RangeReading, SafetyState, ToolStatus,
+    DriverError, DriverResult, ErrorKind, Image, JointState, RangeReading, SafetyState, ToolStatus,
 };
 use serde_json::{json, Map, Value};
 
@@ -84,6 +87,47 @@ enum Step<T> {
     LinkLost(String),
 }
 
+/// Where the images of the journal at `journal` go: `<dir>/<stem>.images` (for
+/// `run/dataset.jsonl`: `run/dataset.images`). Pose records name their image relative to
+/// the journal's directory (`dataset.images/pose-12.pgm`).
+pub fn images_dir(journal: &Path) -> PathBuf {
+    let stem = journal
+        .file_stem()
+        .map_or_else(|| "dataset".into(), |s| s.to_string_lossy().into_owned());
+    journal.with_file_name(format!("{stem}.images"))
+}
+
+/// File name of pose `id`'s image inside [`images_dir`].
+pub fn image_file_name(id: u64) -> String {
+    format!("pose-{id}.pgm")
+}
+
+/// Fsync a directory (so a rename or a new entry in it survives a power cut).
+fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    #[cfg(unix)]
+    std::fs::File::open(dir)?.sync_all()?;
+    #[cfg(not(unix))]
+    let _ = dir;
+    Ok(())
+}
+
+/// Writes `bytes` to `path` durably: a temp file in the same directory, fsync'd, renamed over
+/// `path` (an orphan from an earlier, killed run is replaced), then the directory fsync'd.
+fn write_durably(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let tmp = dir.join(format!(".{name}.tmp"));
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)?;
+    sync_dir(dir)
+}
+
 struct Run<'a> {
     dev: &'a Devices,
     opts: &'a AcquireOptions,
@@ -95,6 +139,10 @@ struct Run<'a> {
     events: BTreeMap<String, usize>,
     /// Tracker scatter (`spread_mm`) of the last poses, for the settling detector.
     spreads: Vec<f64>,
+    /// Where pose images are written ([`images_dir`] of the journal).
+    images_dir: PathBuf,
+    /// Whether `images_dir` is known to exist (created and its parent fsync'd).
+    images_dir_ready: bool,
 }
 
 fn deg(v: &[f64]) -> Vec<f64> {
@@ -527,6 +575,117 @@ impl Run<'_> {
         Ok(Ok(Some(avg)))
     }
 
+    /// One camera image: `Ok(None)` when there is no camera or it failed with a non-link
+    /// error (then a `fault` event says so and the pose is recorded without an image). Link
+    /// drops are retried like the laser's; a link that stays down aborts the run (resumable).
+    async fn grab_image(
+        &mut self,
+        id: u64,
+    ) -> Result<Result<Option<Image>, Outcome>, AcquireError> {
+        let Some(cam) = self.dev.camera.clone() else {
+            return Ok(Ok(None));
+        };
+        let start = self.now();
+        let step = self
+            .link(id, "camera grab", || {
+                let c = cam.clone();
+                async move { c.grab().await }
+            })
+            .await?;
+        self.time.sample_s += self.now() - start;
+        match step {
+            Step::Ok(img) => {
+                let n = u64::from(img.width) * u64::from(img.height);
+                if n == 0 || img.data.len() as u64 != n {
+                    self.event(
+                        "fault",
+                        Some(id),
+                        format!(
+                            "camera image malformed ({}×{} with {} bytes); pose recorded without an image",
+                            img.width,
+                            img.height,
+                            img.data.len()
+                        ),
+                    )?;
+                    return Ok(Ok(None));
+                }
+                Ok(Ok(Some(img)))
+            }
+            Step::Failed(e) => {
+                self.event(
+                    "fault",
+                    Some(id),
+                    format!("camera grab failed: {e}; pose recorded without an image"),
+                )?;
+                Ok(Ok(None))
+            }
+            Step::LinkLost(m) => Ok(Err(Outcome::Abort(m))),
+        }
+    }
+
+    /// Saves pose `id`'s image as binary PGM in [`images_dir`]; returns its path relative to
+    /// the journal's directory. Durable before it returns (the record naming it comes after).
+    fn save_image(&mut self, id: u64, img: &Image) -> Result<String, AcquireError> {
+        let dir = self.images_dir.clone();
+        let io = |file: &Path, error| {
+            AcquireError::Journal(DatasetError::Io {
+                file: file.to_path_buf(),
+                error,
+            })
+        };
+        if !self.images_dir_ready {
+            if !dir.is_dir() {
+                std::fs::create_dir_all(&dir).map_err(|e| io(&dir, e))?;
+                let parent = dir.parent().unwrap_or(Path::new("."));
+                sync_dir(parent).map_err(|e| io(parent, e))?;
+            }
+            self.images_dir_ready = true;
+        }
+        let name = image_file_name(id);
+        let path = dir.join(&name);
+        write_durably(&path, &pgm::encode(img.width, img.height, &img.data))
+            .map_err(|e| io(&path, e))?;
+        let dir_name = dir
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        Ok(format!("{dir_name}/{name}"))
+    }
+
+    /// The chessboard's inner corners in `img` (feature `opencv`, board configured);
+    /// `None` with a `note` event when the board is not found.
+    #[cfg(feature = "opencv")]
+    fn corners(&mut self, id: u64, img: &Image) -> Result<Option<Vec<[f64; 2]>>, AcquireError> {
+        use robocal_drivers::camera::opencv::{find_chessboard, Detector};
+        let Some((cols, rows)) = self.opts.capture.board else {
+            return Ok(None);
+        };
+        match find_chessboard(img, cols, rows, Detector::Classic) {
+            Ok(Some(c)) => Ok(Some(c)),
+            Ok(None) => {
+                self.event(
+                    "note",
+                    Some(id),
+                    format!("chessboard ({cols}×{rows} inner corners) not found in the image"),
+                )?;
+                Ok(None)
+            }
+            Err(e) => {
+                self.event(
+                    "note",
+                    Some(id),
+                    format!("chessboard detection failed: {e}"),
+                )?;
+                Ok(None)
+            }
+        }
+    }
+
+    /// Without feature `opencv` no corners are detected (the images are still saved).
+    #[cfg(not(feature = "opencv"))]
+    fn corners(&mut self, _id: u64, _img: &Image) -> Result<Option<Vec<[f64; 2]>>, AcquireError> {
+        Ok(None)
+    }
+
     async fn pose(&mut self, p: &PlannedPose) -> Result<Outcome, AcquireError> {
         let target: Vec<f64> = p.q_deg.iter().map(|d| d.to_radians()).collect();
         if let Err(o) = self.move_to(p.id, &target).await? {
@@ -542,6 +701,10 @@ impl Run<'_> {
         };
         let range = match self.sample_range(p.id).await? {
             Ok(r) => r,
+            Err(o) => return Ok(o),
+        };
+        let image = match self.grab_image(p.id).await? {
+            Ok(i) => i,
             Err(o) => return Ok(o),
         };
         // Joints and the controller's flange pose at measurement time.
@@ -587,6 +750,15 @@ impl Run<'_> {
                 extra: me,
             }
         });
+        // The image file is durable before the record naming it is appended: a kill leaves
+        // at worst an orphan image, which the resumed run overwrites.
+        let (image, corners) = match &image {
+            Some(img) => {
+                let rel = self.save_image(p.id, img)?;
+                (Some(rel), self.corners(p.id, img)?)
+            }
+            None => (None, None),
+        };
         let rec = PoseRecord {
             id: p.id,
             t,
@@ -602,8 +774,8 @@ impl Run<'_> {
             plane: p.plane.clone(),
             move_kind: p.move_kind.clone(),
             target: p.target.clone(),
-            image: None,
-            corners: None,
+            image,
+            corners,
             tip: None,
             extra,
         };
@@ -675,6 +847,7 @@ pub async fn acquire(
     }
     let todo: Vec<&PlannedPose> = poses.iter().filter(|p| !done.contains(&p.id)).collect();
     let t0 = dev.clock.now();
+    let images = images_dir(journal.path());
     let mut run = Run {
         dev,
         opts,
@@ -685,6 +858,8 @@ pub async fn acquire(
         skipped: Vec::new(),
         events: BTreeMap::new(),
         spreads: Vec::new(),
+        images_dir: images,
+        images_dir_ready: false,
     };
     if !existing.is_empty() {
         run.event(

@@ -13,6 +13,14 @@
 //! back off and retry (drivers reconnect on their next call), then re-verify the position;
 //! protective stop → pause, try to recover, resume; unreachable / refused motion → skip.
 //!
+//! Camera (when [`Devices::camera`] is set): one image per pose, grabbed after the settle
+//! with the other sensors, saved as lossless binary PGM to `<dataset-stem>.images/pose-<id>.pgm`
+//! next to the journal (temp file, fsync, rename, directory fsync) **before** the pose record
+//! that names it is appended; with feature `opencv` and [`CaptureOptions::board`] set, the
+//! chessboard's inner corners are detected into the record's `corners`. A camera link drop is
+//! retried like the laser's; any other camera error records the pose without an image plus a
+//! `fault` event.
+//!
 //! Resuming: the poses already recorded (and those skipped for good) are read back from
 //! the journal, and the run continues with the remaining poses of the plan.
 //!
@@ -27,10 +35,10 @@ pub mod summary;
 
 use std::sync::Arc;
 
-use robocal_drivers::{Arm, Clock, MarkerTracker, MoveSpeed, RangeSensor};
+use robocal_drivers::{Arm, Clock, ImageSource, MarkerTracker, MoveSpeed, RangeSensor};
 use serde::{Deserialize, Serialize};
 
-pub use engine::{acquire, done_pose_ids, AcquireError, Progress};
+pub use engine::{acquire, done_pose_ids, image_file_name, images_dir, AcquireError, Progress};
 pub use summary::{RunSummary, SkippedPose, TimeBreakdown};
 
 /// A source of the cell temperature (°C), when one is wired.
@@ -53,6 +61,9 @@ pub struct Devices {
     pub clock: Arc<dyn Clock>,
     /// Cell temperature, if available.
     pub thermometer: Option<Arc<dyn Thermometer>>,
+    /// The camera, if the plan records images (one image per pose; see
+    /// [`AcquireOptions::capture`] for what is done with it).
+    pub camera: Option<Arc<dyn ImageSource>>,
 }
 
 impl std::fmt::Debug for Devices {
@@ -61,6 +72,7 @@ impl std::fmt::Debug for Devices {
             .field("tracker", &self.tracker.is_some())
             .field("range", &self.range.is_some())
             .field("thermometer", &self.thermometer.is_some())
+            .field("camera", &self.camera.is_some())
             .finish()
     }
 }
@@ -227,6 +239,15 @@ impl Default for FaultOptions {
     }
 }
 
+/// What the engine does with the camera's image at each pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CaptureOptions {
+    /// Inner corners `(cols, rows)` of the chessboard to detect in each image (feature
+    /// `opencv`; without it only the images are saved). `None`: no detection.
+    pub board: Option<(u32, u32)>,
+}
+
 /// Everything the engine needs besides devices, plan and journal.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AcquireOptions {
@@ -240,6 +261,8 @@ pub struct AcquireOptions {
     pub faults: FaultOptions,
     /// Stop after this many poses of this invocation (`None`: run to the end).
     pub max_poses: Option<usize>,
+    /// Camera images and chessboard detection.
+    pub capture: CaptureOptions,
 }
 
 /// Serializable move speed (rad/s, rad/s²).

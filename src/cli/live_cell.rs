@@ -13,7 +13,7 @@ use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
 use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
 use robocal_drivers::ur::{UrArm, UrConfig};
-use robocal_drivers::{Arm, MarkerTracker, RangeSensor, SystemClock};
+use robocal_drivers::{Arm, Clock, ImageSource, MarkerTracker, RangeSensor, SystemClock};
 
 fn first(file: &DevicesFile, role: Role) -> Option<&DeviceEntry> {
     file.devices.iter().find(|d| d.role == role)
@@ -40,9 +40,53 @@ fn tool_roms(d: &DeviceEntry, base: &Path) -> anyhow::Result<Vec<(String, Vec<u8
         .collect()
 }
 
+/// Open the camera of device entry `c`: `pgm-folder` → [`FolderSource`] over `path`
+/// (relative to the device file), `opencv` → an OpenCV `VideoCapture` on `address` (feature
+/// `opencv`).
+///
+/// [`FolderSource`]: robocal_drivers::camera::FolderSource
+fn open_camera(
+    c: &DeviceEntry,
+    base: &Path,
+    clock: Arc<dyn Clock>,
+) -> anyhow::Result<Arc<dyn ImageSource>> {
+    Ok(match c.protocol {
+        Protocol::PgmFolder => {
+            let dir = base.join(c.path.as_deref().unwrap_or("."));
+            let src =
+                robocal_drivers::camera::FolderSource::open(&dir, false).with_context(|| {
+                    format!("image folder camera {:?} at {}", c.name, dir.display())
+                })?;
+            Arc::new(src.with_clock(clock))
+        }
+        #[cfg(feature = "opencv")]
+        Protocol::Opencv => {
+            use robocal_drivers::camera::opencv::{CaptureConfig, VideoCaptureSource};
+            let target = c.address.clone().unwrap_or_else(|| c.target());
+            Arc::new(
+                VideoCaptureSource::open_with_clock(CaptureConfig::new(target.clone()), clock)
+                    .with_context(|| format!("OpenCV camera {:?} at {target}", c.name))?,
+            )
+        }
+        #[cfg(not(feature = "opencv"))]
+        Protocol::Opencv => bail!(
+            "device {:?}: protocol opencv needs a robocal built with OpenCV: rebuild with \
+             `cargo build --release --features opencv` (needs libopencv-dev clang libclang-dev), \
+             or record with protocol pgm-folder",
+            c.name
+        ),
+        other => bail!("device {:?}: protocol {other:?} is not a camera", c.name),
+    })
+}
+
 /// Connect the first arm, tracker and laser of the device file at `path` with the real
-/// drivers. The arm is NOT wrapped in the safety decorators here (the caller does it).
-pub async fn live_cell(path: &Path, dof: usize) -> anyhow::Result<(Devices, CellInfo)> {
+/// drivers, and with `camera` its first camera. The arm is NOT wrapped in the safety
+/// decorators here (the caller does it).
+pub async fn live_cell(
+    path: &Path,
+    dof: usize,
+    camera: bool,
+) -> anyhow::Result<(Devices, CellInfo)> {
     let file = DevicesFile::read(path)?;
     let base = path.parent().unwrap_or(Path::new("."));
     let Some(a) = first(&file, Role::Arm) else {
@@ -116,6 +160,11 @@ pub async fn live_cell(path: &Path, dof: usize) -> anyhow::Result<(Devices, Cell
             other => bail!("device {:?}: protocol {other:?} is not a laser", l.name),
         },
     };
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::default());
+    let camera = match (camera, first(&file, Role::Camera)) {
+        (false, _) | (true, None) => None,
+        (true, Some(c)) => Some(open_camera(c, base, clock.clone())?),
+    };
     let info = CellInfo {
         serial: None,
         tracker_kind: first(&file, Role::Tracker).and_then(|t| t.model.clone()),
@@ -126,8 +175,9 @@ pub async fn live_cell(path: &Path, dof: usize) -> anyhow::Result<(Devices, Cell
             arm,
             tracker,
             range,
-            clock: Arc::new(SystemClock::default()),
+            clock,
             thermometer: None,
+            camera,
         },
         info,
     ))

@@ -6,7 +6,13 @@
 //! robocal run --resume RUN_DIR                                                         # continue
 //! ```
 //! `RUN_DIR` receives `dataset.jsonl` (the journal, `robocal-dataset/1`), `plan.json` and
-//! the scenario / device file (copies), `run.json` (how to resume) and `summary.json`.
+//! the scenario / device file (copies), `run.json` (how to resume) and `summary.json`; runs
+//! that record camera images also `dataset.images/pose-<id>.pgm` (named by the records).
+//!
+//! Camera: a cell with a camera (scenario `[[camera]]`, device-file role `camera`) records one
+//! image per pose when the plan is a camera plan (a `shell` spec: camera viewpoints), or
+//! always with `--camera`; never with `--no-camera`. `--board COLSxROWS` (inner corners)
+//! sets the chessboard to detect (feature `opencv`); sim runs default to the scenario's board.
 //!
 //! This is the only place where the simulators are wired in: `--sim` builds the
 //! `robocal_mocks` world in-process and adapts it to the device traits; the engine
@@ -17,7 +23,7 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use robocal_drivers::safety::{guard, ArmGeometry, SafetyLimits};
-use robocal_drivers::{Arm, MarkerTracker, RangeSensor};
+use robocal_drivers::{Arm, ImageSource, MarkerTracker, RangeSensor};
 use robocal_mocks::scenario::ClockMode;
 use robocal_mocks::sim::SimDevices;
 use robocal_mocks::{Scenario, WorldHandle};
@@ -25,8 +31,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 use crate::acquire::{
-    self, AcquireOptions, Devices, FaultOptions, MoveSpeedOpt, PlannedPose, Progress, RunSummary,
-    SampleOptions, SettleOptions,
+    self, AcquireOptions, CaptureOptions, Devices, FaultOptions, MoveSpeedOpt, PlannedPose,
+    Progress, RunSummary, SampleOptions, SettleOptions,
 };
 use crate::dataset::{Header, Journal, DATASET_FORMAT};
 use crate::model::KinematicModel;
@@ -79,6 +85,40 @@ pub struct Args {
     /// not exercise the drivers).
     #[arg(long)]
     pub in_process: bool,
+    /// Record a camera image at every pose even when the plan is not a camera plan. By
+    /// default the cell's camera (scenario `[[camera]]`, device-file role `camera`) is used
+    /// only for camera-viewpoint plans (a `shell` spec, e.g. plans/seed004-shell.toml).
+    /// Images go to RUN_DIR/dataset.images/pose-<id>.pgm.
+    #[arg(long, conflicts_with_all = ["no_camera", "resume"])]
+    pub camera: bool,
+    /// Never use the camera, also for camera-viewpoint plans.
+    #[arg(long, conflicts_with = "resume")]
+    pub no_camera: bool,
+    /// Chessboard to detect in each image, as inner corners COLSxROWS (a board of 9×6
+    /// squares has 8x5 inner corners); fills the records' `corners` (needs a build with
+    /// `--features opencv`). Sim runs default to the scenario's chessboard.
+    #[arg(long, value_name = "COLSxROWS", value_parser = parse_board, conflicts_with_all = ["no_camera", "resume"])]
+    pub board: Option<(u32, u32)>,
+}
+
+/// `--board COLSxROWS`: inner corners, each at least 2.
+pub fn parse_board(s: &str) -> Result<(u32, u32), String> {
+    let bad = || {
+        format!(
+            "{s:?} is not COLSxROWS: give the chessboard's inner corners, e.g. 8x5 for a \
+             board of 9×6 squares"
+        )
+    };
+    let (c, r) = s.trim().split_once(['x', 'X', '×']).ok_or_else(bad)?;
+    let c: u32 = c.trim().parse().map_err(|_| bad())?;
+    let r: u32 = r.trim().parse().map_err(|_| bad())?;
+    if c < 2 || r < 2 || c > 1000 || r > 1000 {
+        return Err(format!(
+            "{s:?}: a chessboard needs 2 to 1000 inner corners each way (a board of 9×6 \
+             squares has 8x5 inner corners)"
+        ));
+    }
+    Ok((c, r))
 }
 
 /// `RUN_DIR/run.json`: everything `--resume` needs.
@@ -103,6 +143,12 @@ pub struct RunConfig {
     pub sample: SampleOptions,
     /// Fault handling.
     pub faults: FaultOptions,
+    /// Record a camera image at every pose (runs made before cameras: `false`).
+    #[serde(default)]
+    pub camera: bool,
+    /// What is done with the images (chessboard detection).
+    #[serde(default)]
+    pub capture: CaptureOptions,
 }
 
 const RUN_FORMAT: &str = "robocal-run/1";
@@ -122,7 +168,8 @@ pub struct CellInfo {
 }
 
 /// The in-process simulated devices of a world (`robocal_mocks::sim`): its first arm,
-/// tracker and laser, and its clock. The arm is NOT yet wrapped in the safety decorators.
+/// tracker, laser and camera, and its clock. The arm is NOT yet wrapped in the safety
+/// decorators. (`robocal run` drops the camera when the run does not record images.)
 pub fn sim_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo)> {
     let scenario = world.scenario();
     let sim = SimDevices::of(world);
@@ -139,6 +186,11 @@ pub fn sim_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo)> {
         .into_iter()
         .next()
         .map(|(_, l)| Arc::new(l) as Arc<dyn RangeSensor>);
+    let camera = sim
+        .cameras
+        .into_iter()
+        .next()
+        .map(|(_, c)| Arc::new(c) as Arc<dyn ImageSource>);
     let info = CellInfo {
         serial: world.arm_identity(0).map(|(_, s)| s),
         tracker_kind: scenario
@@ -155,6 +207,7 @@ pub fn sim_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo)> {
             range,
             clock: world.clock(),
             thermometer: None,
+            camera,
         },
         info,
     ))
@@ -208,7 +261,53 @@ fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
         sample: cfg.sample.clone(),
         faults: cfg.faults,
         max_poses,
+        capture: cfg.capture,
     }
+}
+
+/// Whether the plan is a camera plan: its spec has camera viewpoints (`shell`).
+fn is_camera_plan(plan: &PlanFile) -> bool {
+    serde_json::from_value::<crate::plan::PlanSpec>(plan.spec.clone())
+        .is_ok_and(|sp| sp.shell.is_some())
+}
+
+/// The camera of a cell and, for a simulated cell, its chessboard as inner corners.
+struct CellCamera {
+    /// The camera's device name, if the cell has one.
+    name: Option<String>,
+    /// The scenario's chessboard (inner corners), sim cells only.
+    board: Option<(u32, u32)>,
+}
+
+/// The camera of the cell described by `config` (a scenario for `sim`, else a device file).
+fn cell_camera(mode: &str, config: &Path) -> anyhow::Result<CellCamera> {
+    Ok(match mode {
+        "sim" => {
+            let s = Scenario::load(config)?;
+            let board = s
+                .scene
+                .chessboard
+                .as_ref()
+                .filter(|b| b.cols >= 3 && b.rows >= 3)
+                .map(|b| (b.cols - 1, b.rows - 1));
+            CellCamera {
+                name: s.cameras.first().map(|c| c.name.clone()),
+                board,
+            }
+        }
+        _ => {
+            let f = crate::acquire::devices::DevicesFile::read(config)?;
+            let cam = f
+                .devices
+                .iter()
+                .find(|d| d.role == crate::acquire::devices::Role::Camera)
+                .map(|d| d.name.clone());
+            CellCamera {
+                name: cam,
+                board: None,
+            }
+        }
+    })
 }
 
 /// Safety limits of the plan's robot: its joint limits and the run's speed caps.
@@ -326,11 +425,20 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
         }
         "live" => {
             let dof = plan.poses.first().map_or(6, |p| p.q_deg.len());
-            rt.block_on(super::live_cell::live_cell(&config_path, dof))
+            rt.block_on(super::live_cell::live_cell(&config_path, dof, cfg.camera))
                 .with_context(|| format!("connecting the devices of {}", config_path.display()))?
         }
         other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
     };
+    if !cfg.camera {
+        devices.camera = None;
+    } else if devices.camera.is_none() {
+        bail!(
+            "{}: the run records camera images but {} has no camera",
+            dir.join("run.json").display(),
+            config_path.display()
+        );
+    }
     let (limits, geometry) = safety_limits(&plan, cfg.speed)?;
     devices.arm = guard(devices.arm.clone(), limits, geometry);
     let header = header_for(&plan, &info);
@@ -388,6 +496,46 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
             dir.display()
         );
     }
+    let CellCamera {
+        name: cam_name,
+        board: scenario_board,
+    } = cell_camera(mode, config_src)
+        .with_context(|| format!("reading {}", config_src.display()))?;
+    let camera = if args.no_camera {
+        false
+    } else if args.camera {
+        if cam_name.is_none() {
+            bail!(
+                "--camera: {} has no camera (add a [[camera]] to the scenario, or a device with \
+                 role = \"camera\" to the device file)",
+                config_src.display()
+            );
+        }
+        true
+    } else {
+        let camera_plan = is_camera_plan(&plan);
+        if let (Some(c), false) = (&cam_name, camera_plan) {
+            eprintln!(
+                "note: camera {c:?} not used: plan {:?} is not a camera-viewpoint plan (add \
+                 --camera to record images anyway)",
+                plan.name
+            );
+        }
+        cam_name.is_some() && camera_plan
+    };
+    let board = args.board.or(scenario_board.filter(|_| camera));
+    if args.board.is_some() && !camera {
+        bail!(
+            "--board: this run records no camera images (the plan is not a camera plan or the \
+             cell has no camera); add --camera"
+        );
+    }
+    if camera && board.is_some() && !cfg!(feature = "opencv") {
+        eprintln!(
+            "note: chessboard corners are not detected by this build (rebuild with \
+             `--features opencv`); images are saved without `corners`"
+        );
+    }
     if mode == "live" {
         println!(
             "will move the arm through {} poses of plan {:?} at ≤ {} °/s",
@@ -439,6 +587,8 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
         settle: SettleOptions::default(),
         sample,
         faults: FaultOptions::default(),
+        camera,
+        capture: CaptureOptions { board },
     };
     // run.json last: a directory with run.json is complete enough to resume.
     write_atomic(

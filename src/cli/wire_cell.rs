@@ -12,7 +12,9 @@
 //!
 //! Devices with no wire protocol in this build (`optotrak`: NDI's proprietary library;
 //! `camera`) fall back to the in-process `robocal_mocks::sim` device; they are listed in
-//! [`Served::unavailable`] and logged (`tracing::warn!`).
+//! [`Served::unavailable`] and logged (`tracing::warn!`). The first camera of the scenario is
+//! the in-process [`SimCamera`] for now, also when the simulator serves it (MJPEG over HTTP):
+//! no wire camera client is connected yet (see `connect_camera`).
 //!
 //! Units: as everywhere in the library, mm and radians.
 use std::sync::Arc;
@@ -23,10 +25,10 @@ use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
 use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
 use robocal_drivers::ur::{Backoff, UrArm, UrConfig};
-use robocal_drivers::{Arm, MarkerTracker, RangeSensor};
+use robocal_drivers::{Arm, ImageSource, MarkerTracker, RangeSensor};
 use robocal_mocks::scenario::Protocol;
 use robocal_mocks::serve::{serve_all, Bind, Endpoint, Served};
-use robocal_mocks::sim::{SimArm, SimRange, SimTracker};
+use robocal_mocks::sim::{SimArm, SimCamera, SimRange, SimTracker};
 use robocal_mocks::WorldHandle;
 
 use crate::acquire::Devices;
@@ -178,9 +180,18 @@ fn connect_laser(
     })
 }
 
+/// The scenario's camera `index` (named `name`).
+fn connect_camera(world: &WorldHandle, index: usize, name: &str) -> Arc<dyn ImageSource> {
+    // camera: in-process. No client of a wire camera is wired yet: the simulator serves one
+    // (MJPEG over HTTP, `robocal_mocks::camera`, endpoint protocol "mjpeg"); connect the real
+    // client to it here, like `connect_tracker`, and keep `SimCamera` as the fallback.
+    tracing::debug!("wire cell: camera {name} is the in-process simulated camera");
+    Arc::new(SimCamera::new(world.clone(), index, name))
+}
+
 /// Serve every device of the world's scenario on loopback TCP (port 0) / ptys and connect
-/// the real drivers to the first arm, tracker and laser (the same devices as
-/// [`crate::cli::run::sim_cell`]). The clock is the world's (`world.clock()`).
+/// the real drivers to the first arm, tracker and laser, plus the first camera (the same
+/// devices as [`crate::cli::run::sim_cell`]). The clock is the world's (`world.clock()`).
 ///
 /// The arm is NOT wrapped in the safety decorators (`robocal run` does that for every arm).
 /// Keep the returned [`Served`] alive for the whole run: dropping it does not stop the
@@ -214,6 +225,10 @@ pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo
             return Err(e);
         }
     };
+    let camera = scenario
+        .cameras
+        .first()
+        .map(|c| connect_camera(world, 0, &c.name));
     let info = CellInfo {
         serial: world.arm_identity(0).map(|(_, s)| s),
         tracker_kind: scenario
@@ -229,6 +244,7 @@ pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo
             range,
             clock: world.clock(),
             thermometer: None,
+            camera,
         },
         info,
         served,
