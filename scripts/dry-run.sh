@@ -20,6 +20,8 @@ HELDOUT_POINTS=${HELDOUT_POINTS:-40}
 SCENARIO=${SCENARIO:-mocks/scenarios/lab-vs060-optotrak-il600.toml}
 BOOTSTRAP=${BOOTSTRAP:-100}
 SPEC=plans/seed001-annulus.toml
+CAMERA_SCENARIO=${CAMERA_SCENARIO:-mocks/scenarios/ur5e-camera.toml}
+FEATURES=${FEATURES:-}
 
 step() { printf '\n==> [%s] %s\n' "$(date -u +%H:%M:%S)" "$*"; }
 fail() { printf '\nDRY RUN FAILED at line %s: %s\n' "$1" "$2" >&2; }
@@ -28,7 +30,8 @@ trap 'fail $LINENO "$BASH_COMMAND"' ERR
 START=$SECONDS
 
 step "cargo build --release"
-cargo build --release --bin robocal
+# shellcheck disable=SC2086
+cargo build --release --bin robocal $FEATURES
 BIN="$ROOT/target/release/robocal"
 test -x "$BIN"
 
@@ -73,6 +76,17 @@ step "calibrate kinematics (bootstrap $BOOTSTRAP)"
 step "diagnose the residual"
 "$BIN" diagnose --data "$OUT/run/dataset.jsonl" \
     --heldout "$OUT/run-validation/dataset.jsonl" --out "$OUT/diagnose" | tail -n 6
+
+# A camera session on the UR5e eye-in-hand cell (seed 004 viewpoints on a shell about the
+# chessboard): one image per pose, served by the camera simulator; chessboard corners too when
+# robocal is built with `--features opencv` (FEATURES="--features opencv").
+step "camera session: seed 004 shell on the UR5e camera cell ($CAMERA_SCENARIO)"
+mkdir -p "$OUT/camera"
+"$BIN" plan --spec plans/seed004-ur5e-camera.toml --robot ur5e --out "$OUT/camera/plan.json" \
+    --summary "$OUT/camera/plan.txt" > /dev/null
+"$BIN" run --plan "$OUT/camera/plan.json" --sim "$CAMERA_SCENARIO" --virtual-clock \
+    --out "$OUT/camera/run" | tail -n 3
+"$BIN" inspect "$OUT/camera/run/dataset.jsonl" | grep -E "^(records|poses|camera)"
 
 step "report"
 "$BIN" report --dir "$OUT" --out "$OUT/report.html" | tee "$OUT/headline.txt"

@@ -9,12 +9,12 @@
 //! | tracker `ndi-tcp` | NDI Combined API on TCP | [`NdiTracker`] over [`NdiClient`] (TCP)   |
 //! | tracker `ndi-serial` | NDI on a pty         | [`NdiTracker`] over [`NdiClient`] (serial)|
 //! | laser `dl-rs1a`   | DL-RS1A on a pty        | [`Il600`] over [`KeyenceClient`]          |
+//! | camera `camera`   | MJPEG over HTTP         | OpenCV `VideoCaptureSource` (feature `opencv`) |
 //!
-//! Devices with no wire protocol in this build (`optotrak`: NDI's proprietary library;
-//! `camera`) fall back to the in-process `robocal_mocks::sim` device; they are listed in
-//! [`Served::unavailable`] and logged (`tracing::warn!`). The first camera of the scenario is
-//! the in-process [`SimCamera`] for now, also when the simulator serves it (MJPEG over HTTP):
-//! no wire camera client is connected yet (see `connect_camera`).
+//! Devices with no wire protocol in this build (`optotrak`: NDI's proprietary library) fall
+//! back to the in-process `robocal_mocks::sim` device; they are listed in
+//! [`Served::unavailable`] and logged (`tracing::warn!`). The camera needs the OpenCV client:
+//! without feature `opencv` it is the in-process [`SimCamera`] (same renderer, no wire).
 //!
 //! Units: as everywhere in the library, mm and radians.
 use std::sync::Arc;
@@ -180,13 +180,32 @@ fn connect_laser(
     })
 }
 
-/// The scenario's camera `index` (named `name`).
-fn connect_camera(world: &WorldHandle, index: usize, name: &str) -> Arc<dyn ImageSource> {
-    // camera: in-process. No client of a wire camera is wired yet: the simulator serves one
-    // (MJPEG over HTTP, `robocal_mocks::camera`, endpoint protocol "mjpeg"); connect the real
-    // client to it here, like `connect_tracker`, and keep `SimCamera` as the fallback.
+/// The scenario's camera `index` (named `name`): with feature `opencv`, OpenCV's
+/// `VideoCapture` reading the simulator's MJPEG stream (frames stamped by the world's clock);
+/// otherwise, or when no stream is served, the in-process [`SimCamera`].
+async fn connect_camera(
+    world: &WorldHandle,
+    served: &Served,
+    index: usize,
+    name: &str,
+) -> anyhow::Result<Arc<dyn ImageSource>> {
+    #[cfg(feature = "opencv")]
+    if let Some(addr) = endpoint(served, name, "mjpeg").and_then(|e| e.addr) {
+        use robocal_drivers::camera::opencv::{CaptureConfig, VideoCaptureSource};
+        let config = CaptureConfig::new(format!("http://{addr}/video.mjpg"));
+        let clock = world.clock();
+        // Opening blocks until the first HTTP reply: off the runtime that serves it.
+        let src =
+            tokio::task::spawn_blocking(move || VideoCaptureSource::open_with_clock(config, clock))
+                .await
+                .context("camera open task")?
+                .with_context(|| format!("connecting OpenCV to the camera stream of {name}"))?;
+        tracing::debug!("wire cell: camera {name} over MJPEG at {addr} (OpenCV)");
+        return Ok(Arc::new(src));
+    }
+    let _ = served;
     tracing::debug!("wire cell: camera {name} is the in-process simulated camera");
-    Arc::new(SimCamera::new(world.clone(), index, name))
+    Ok(Arc::new(SimCamera::new(world.clone(), index, name)))
 }
 
 /// Serve every device of the world's scenario on loopback TCP (port 0) / ptys and connect
@@ -215,20 +234,20 @@ pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo
             Some(l) => Some(connect_laser(world, &served, &l.name, l.protocol)?),
             None => None,
         };
-        anyhow::Ok((arm, tracker, range))
+        let camera = match scenario.cameras.first() {
+            Some(c) => Some(connect_camera(world, &served, 0, &c.name).await?),
+            None => None,
+        };
+        anyhow::Ok((arm, tracker, range, camera))
     }
     .await;
-    let (arm, tracker, range) = match built {
+    let (arm, tracker, range, camera) = match built {
         Ok(v) => v,
         Err(e) => {
             served.abort();
             return Err(e);
         }
     };
-    let camera = scenario
-        .cameras
-        .first()
-        .map(|c| connect_camera(world, 0, &c.name));
     let info = CellInfo {
         serial: world.arm_identity(0).map(|(_, s)| s),
         tracker_kind: scenario

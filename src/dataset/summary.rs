@@ -75,6 +75,10 @@ pub struct Summary {
     pub marker: MarkerStats,
     /// Laser readings.
     pub range: RangeStats,
+    /// Pose records with a saved camera `image`.
+    pub poses_with_image: usize,
+    /// Pose records with detected image `corners`.
+    pub poses_with_corners: usize,
     /// Event counts by `what`.
     pub events: BTreeMap<String, usize>,
     /// Pivot frame counts by `tool` (`(none)` when unnamed).
@@ -116,6 +120,7 @@ impl Summary {
         let mut rms_max: Option<f64> = None;
         let mut range_acc = None;
         let (mut with_q, mut with_flange) = (0, 0);
+        let (mut with_image, mut with_corners) = (0, 0);
         for r in &ds.records {
             let (kind, t) = match r {
                 Record::Pose(p) => ("pose", p.t),
@@ -153,6 +158,12 @@ impl Summary {
                         } else {
                             marker.not_visible += 1;
                         }
+                    }
+                    if p.image.is_some() {
+                        with_image += 1;
+                    }
+                    if p.corners.as_ref().is_some_and(|c| !c.is_empty()) {
+                        with_corners += 1;
                     }
                     if let Some(rg) = p.range {
                         range.with_range += 1;
@@ -205,6 +216,8 @@ impl Summary {
             joints,
             marker,
             range,
+            poses_with_image: with_image,
+            poses_with_corners: with_corners,
             events,
             pivots_by_tool: pivots,
             warnings,
@@ -285,6 +298,13 @@ impl std::fmt::Display for Summary {
                 write!(f, "; {lo:.3} .. {hi:.3} mm")?;
             }
             writeln!(f)?;
+        }
+        if self.poses_with_image > 0 || self.poses_with_corners > 0 {
+            writeln!(
+                f,
+                "camera:   {} images, {} with detected corners",
+                self.poses_with_image, self.poses_with_corners
+            )?;
         }
         if !self.events.is_empty() {
             let e: Vec<String> = self

@@ -558,7 +558,13 @@ fn reader(
                 live.cv.notify_all();
             }
             Err(e) => {
-                tracing::warn!(target = %config.target, "camera: {e}; reopening");
+                if live.stop.load(Ordering::SeqCst) {
+                    break;
+                }
+                if lock(&live.state).opened {
+                    // Once per outage; the reopen attempts that follow are quiet.
+                    tracing::warn!(target = %config.target, "camera: {e}; reopening");
+                }
                 if let Some(mut c) = cap.take() {
                     let _ = c.release();
                 }
