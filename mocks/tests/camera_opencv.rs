@@ -168,3 +168,72 @@ async fn video_capture_reads_the_mjpeg_simulator_live_and_reconnects() {
     );
     assert!(src.frames_received() > before);
 }
+
+/// Every wire fault of the camera simulator, seen through the OpenCV driver: what `grab`
+/// reports, and that a good frame (board found where the truth projects it) follows.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_stream_fault_is_survived_by_the_opencv_driver() {
+    let s = scenario();
+    let w = WorldHandle::from_scenario(&s).unwrap();
+    let cfg = SimCameraConfig {
+        rate_hz: 10.0,
+        ..SimCameraConfig::default()
+    };
+    let sim = camera::serve(w.clone(), "cam", cfg, "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let mut cc = CaptureConfig::new(sim.url());
+    cc.timeout_s = 1.0;
+    let src = VideoCaptureSource::open(cc).unwrap();
+    src.grab().await.expect("first frame");
+    let faults = [
+        ("DropLink", Fault::DropLink),
+        ("Truncated", Fault::Truncated),
+        ("BadCrc", Fault::BadCrc),
+        (
+            "Garbage",
+            Fault::Garbage {
+                bytes: b"\x00\xffnot a part\r\n--x\r\n".to_vec(),
+            },
+        ),
+        ("Silence 2 s", Fault::Silence { secs: 2.0 }),
+        ("Delay 2 s", Fault::Delay { secs: 2.0 }),
+        ("ErrorReply", Fault::ErrorReply { code: 503 }),
+    ];
+    for (name, fault) in faults {
+        w.control().inject("cam", fault);
+        let t0 = std::time::Instant::now();
+        let mut seen = Vec::new();
+        let mut good = None;
+        while t0.elapsed().as_secs_f64() < 15.0 {
+            match src.grab().await {
+                Ok(img) => match find_chessboard(&img, 8, 5, Detector::Classic).unwrap() {
+                    Some(c) => {
+                        let (_, m) = rms_max(&errors(&c, &truth(&w, &s)));
+                        if m < 0.3 {
+                            good = Some(t0.elapsed().as_secs_f64());
+                            break;
+                        }
+                        seen.push(format!("frame with corners off by {m:.2} px"));
+                    }
+                    None => seen.push("frame without a board (damaged)".into()),
+                },
+                Err(e) => seen.push(format!("{}", e.kind())),
+            }
+        }
+        seen.dedup();
+        println!(
+            "{name:<12} → {} ; good frame after {:.2} s",
+            if seen.is_empty() {
+                "no visible effect".to_string()
+            } else {
+                seen.join(", ")
+            },
+            good.unwrap_or(f64::NAN)
+        );
+        assert!(
+            good.is_some(),
+            "{name}: no good frame within 15 s ({seen:?})"
+        );
+    }
+}
