@@ -77,6 +77,21 @@ async fn move_to(w: &WorldHandle, deg: &[f64; 6]) {
     w.arm_wait_arrival(0).await;
 }
 
+/// The camera simulator at 10 Hz and our OpenCV driver reading its stream live.
+async fn live(w: &WorldHandle, timeout_s: f64) -> (camera::SimCamera, VideoCaptureSource) {
+    let cfg = SimCameraConfig {
+        rate_hz: 10.0,
+        ..SimCameraConfig::default()
+    };
+    let sim = camera::serve(w.clone(), "cam", cfg, "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let mut cc = CaptureConfig::new(sim.url());
+    cc.timeout_s = timeout_s;
+    let src = VideoCaptureSource::open(cc).unwrap();
+    (sim, src)
+}
+
 #[tokio::test]
 async fn opencv_finds_the_rendered_corners_where_the_true_pose_projects_them() {
     let s = scenario();
@@ -115,16 +130,7 @@ async fn opencv_finds_the_rendered_corners_where_the_true_pose_projects_them() {
 async fn video_capture_reads_the_mjpeg_simulator_live_and_reconnects() {
     let s = scenario();
     let w = WorldHandle::from_scenario(&s).unwrap();
-    let cfg = SimCameraConfig {
-        rate_hz: 10.0,
-        ..SimCameraConfig::default()
-    };
-    let sim = camera::serve(w.clone(), "cam", cfg, "127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
-    let mut cc = CaptureConfig::new(sim.url());
-    cc.timeout_s = 5.0;
-    let src = VideoCaptureSource::open(cc).unwrap();
+    let (_sim, src) = live(&w, 5.0).await;
 
     for q in &POSES_DEG[..3] {
         move_to(&w, q).await;
@@ -175,16 +181,7 @@ async fn video_capture_reads_the_mjpeg_simulator_live_and_reconnects() {
 async fn every_stream_fault_is_survived_by_the_opencv_driver() {
     let s = scenario();
     let w = WorldHandle::from_scenario(&s).unwrap();
-    let cfg = SimCameraConfig {
-        rate_hz: 10.0,
-        ..SimCameraConfig::default()
-    };
-    let sim = camera::serve(w.clone(), "cam", cfg, "127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
-    let mut cc = CaptureConfig::new(sim.url());
-    cc.timeout_s = 1.0;
-    let src = VideoCaptureSource::open(cc).unwrap();
+    let (_sim, src) = live(&w, 1.0).await;
     src.grab().await.expect("first frame");
     let faults = [
         ("DropLink", Fault::DropLink),

@@ -11,29 +11,9 @@ use robocal_mocks::camera::{self, SimCameraConfig};
 use robocal_mocks::world::sensors::project;
 use robocal_mocks::{Scenario, WorldHandle};
 use std::path::PathBuf;
+use std::time::Duration;
 
-fn workspace() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-/// The peer interpreter, or `None` (loud SKIP) when it is missing outside CI.
-fn peer_python() -> Option<PathBuf> {
-    let py = workspace().join(".venv/peers-cv2/bin/python");
-    if py.exists() {
-        return Some(py);
-    }
-    if std::env::var_os("CI").is_some() {
-        panic!(
-            "CI is set but {} is missing (run .ci/peers.sh)",
-            py.display()
-        );
-    }
-    eprintln!(
-        "SKIP camera peer test: {} missing (run .ci/peers.sh)",
-        py.display()
-    );
-    None
-}
+mod peer;
 
 async fn run_peer(
     py: &PathBuf,
@@ -42,30 +22,13 @@ async fn run_peer(
     cols: u32,
     rows: u32,
 ) -> Vec<serde_json::Value> {
-    let script = workspace().join("scripts/peers/camera_cv2.py");
-    let mut cmd = tokio::process::Command::new(py);
-    cmd.arg(script)
-        .arg(url)
-        .arg(frames.to_string())
-        .arg(cols.to_string())
-        .arg(rows.to_string())
-        .kill_on_drop(true);
-    let out = tokio::time::timeout(std::time::Duration::from_secs(120), cmd.output())
-        .await
-        .expect("peer timed out")
-        .expect("peer runs");
-    assert!(
-        out.status.success(),
-        "peer failed: {}\nstdout: {}\nstderr: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .filter(|l| l.starts_with('{'))
-        .map(|l| serde_json::from_str(l).expect("json line"))
-        .collect()
+    let args = vec![
+        url.to_string(),
+        frames.to_string(),
+        cols.to_string(),
+        rows.to_string(),
+    ];
+    peer::run_json_lines(py, "camera_cv2.py", args, Duration::from_secs(120)).await
 }
 
 fn points(v: &serde_json::Value) -> Vec<(f64, f64)> {
@@ -109,7 +72,9 @@ fn stats(e: &[(f64, f64)]) -> (f64, f64, f64, f64) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn opencv_videocapture_reads_the_stream_and_finds_the_true_corners() {
-    let Some(py) = peer_python() else { return };
+    let Some(py) = peer::python("cv2", "camera peer test") else {
+        return;
+    };
     // The scenario as it is (blur 0.7 px, noise 2 grey), then without noise to separate the
     // error of the image from the error of the corner finder on a clean render.
     for noise in [true, false] {
@@ -118,7 +83,8 @@ async fn opencv_videocapture_reads_the_stream_and_finds_the_true_corners() {
 }
 
 async fn check(py: &PathBuf, noise: bool) {
-    let mut s = Scenario::load(&workspace().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
+    let mut s =
+        Scenario::load(&peer::workspace().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
     if !noise {
         s.cameras[0].noise_grey = 0.0;
     }

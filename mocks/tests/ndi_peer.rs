@@ -12,28 +12,7 @@ use robocal_mocks::{Scenario, WorldHandle};
 use std::path::PathBuf;
 use std::sync::Arc;
 
-fn workspace() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-/// The peer interpreter, or `None` (loud SKIP) when it is missing outside CI.
-fn peer_python() -> Option<PathBuf> {
-    let py = workspace().join(".venv/peers-ndi/bin/python");
-    if py.exists() {
-        return Some(py);
-    }
-    if std::env::var_os("CI").is_some() {
-        panic!(
-            "CI is set but {} is missing (run .ci/peers.sh)",
-            py.display()
-        );
-    }
-    eprintln!(
-        "SKIP ndi peer test: {} missing (run .ci/peers.sh)",
-        py.display()
-    );
-    None
-}
+mod peer;
 
 fn world() -> WorldHandle {
     let mut s = Scenario::single_arm("ur5e", 11);
@@ -82,28 +61,16 @@ async fn run_peer_args(
     frames: usize,
     roms: &[PathBuf],
 ) -> Vec<serde_json::Value> {
-    let script = workspace().join("scripts/peers/ndi_sksurgery.py");
-    let mut cmd = tokio::process::Command::new(py);
-    cmd.arg(script)
-        .args(target)
-        .arg(frames.to_string())
-        .args(roms);
-    let out = tokio::time::timeout(std::time::Duration::from_secs(60), cmd.output())
-        .await
-        .expect("peer timed out")
-        .expect("peer runs");
-    assert!(
-        out.status.success(),
-        "peer failed: {}\nstdout: {}\nstderr: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .filter(|l| l.starts_with('{'))
-        .map(|l| serde_json::from_str(l).expect("json line"))
-        .collect()
+    let mut args = target;
+    args.push(frames.to_string());
+    args.extend(roms.iter().map(|r| r.display().to_string()));
+    peer::run_json_lines(
+        py,
+        "ndi_sksurgery.py",
+        args,
+        std::time::Duration::from_secs(60),
+    )
+    .await
 }
 
 fn row_pose(row: &serde_json::Value) -> Isometry3<f64> {
@@ -127,7 +94,9 @@ fn close(a: &Isometry3<f64>, b: &Isometry3<f64>, mm: f64, rad: f64) -> bool {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sksurgerynditracker_reads_the_world_marker_pose_bx_and_tx() {
-    let Some(py) = peer_python() else { return };
+    let Some(py) = peer::python("ndi", "NDI peer test") else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let roms = rom_files(dir.path(), 1);
     // Freeze tag " Polaris Vega 007" makes the client use BX:0801, " Polaris Vega 008" TX:0801.
@@ -197,7 +166,9 @@ async fn sksurgerynditracker_reads_the_world_marker_pose_bx_and_tx() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sksurgerynditracker_sees_missing_as_nan_for_one_of_two_tools() {
-    let Some(py) = peer_python() else { return };
+    let Some(py) = peer::python("ndi", "NDI peer test") else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let roms = rom_files(dir.path(), 2);
     let pose = Isometry3::from_parts(
@@ -226,7 +197,9 @@ async fn sksurgerynditracker_sees_missing_as_nan_for_one_of_two_tools() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sksurgerynditracker_polaris_over_the_pty_serial_simulator() {
-    let Some(py) = peer_python() else { return };
+    let Some(py) = peer::python("ndi", "NDI peer test") else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let roms = rom_files(dir.path(), 1);
     let w = world();

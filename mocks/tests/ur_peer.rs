@@ -8,30 +8,9 @@ use robocal_mocks::serve::Bind;
 use robocal_mocks::{Scenario, WorldHandle};
 use std::net::{IpAddr, Ipv4Addr};
 use std::path::PathBuf;
-use std::process::Command;
 use std::time::Duration;
 
-fn workspace() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn python() -> Option<PathBuf> {
-    let p = workspace().join(".venv/peers-urrtde/bin/python");
-    if p.exists() {
-        Some(p)
-    } else if std::env::var_os("CI").is_some() {
-        panic!(
-            "CI is set but {} is missing (run .ci/peers.sh)",
-            p.display()
-        );
-    } else {
-        eprintln!(
-            "\n!!!!! SKIP: ur-rtde peer venv missing at {} (run .ci/peers.sh) !!!!!\n",
-            p.display()
-        );
-        None
-    }
-}
+mod peer;
 
 /// A loopback address unique to this process and test (ur_rtde needs the fixed ports).
 fn host(test: u8) -> IpAddr {
@@ -46,27 +25,15 @@ fn host(test: u8) -> IpAddr {
 
 async fn run_peer(args: Vec<String>) -> serde_json::Value {
     let py = python().expect("checked by caller");
-    let out = tokio::time::timeout(
-        Duration::from_secs(60),
-        tokio::task::spawn_blocking(move || Command::new(py).args(&args).output()),
-    )
-    .await
-    .expect("peer timed out")
-    .unwrap()
-    .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        out.status.success(),
-        "peer failed: {}\nstdout:\n{stdout}\nstderr:\n{stderr}",
-        out.status
-    );
-    let line = stdout
-        .lines()
-        .rev()
-        .find(|l| l.starts_with('{'))
-        .unwrap_or_else(|| panic!("no JSON from peer\nstdout:\n{stdout}\nstderr:\n{stderr}"));
-    serde_json::from_str(line).unwrap()
+    let (script, rest) = args.split_first().expect("script path first");
+    let script = PathBuf::from(script);
+    let name = script.file_name().unwrap().to_string_lossy().into_owned();
+    let lines = peer::run_json_lines(&py, &name, rest.to_vec(), Duration::from_secs(60)).await;
+    lines.into_iter().last().expect("no JSON from peer")
+}
+
+fn python() -> Option<PathBuf> {
+    peer::python("urrtde", "ur-rtde peer test")
 }
 
 fn start_world(home_deg: Vec<f64>) -> WorldHandle {
@@ -96,7 +63,7 @@ async fn ur_rtde_receive_reads_the_world_joints() {
     let eps = robocal_mocks::ur::start(world.clone(), "arm", &bind)
         .await
         .unwrap();
-    let script = workspace().join("scripts/peers/ur_rtde_receive.py");
+    let script = peer::workspace().join("scripts/peers/ur_rtde_receive.py");
     let j = run_peer(vec![script.display().to_string(), bind.host.to_string()]).await;
     eprintln!("ur_rtde receive peer: {j}");
     let q = floats(&j["actual_q"]);
@@ -139,7 +106,7 @@ async fn ur_rtde_control_movej_moves_the_simulated_arm() {
     let target = [0.3, -1.3, 1.2, -1.4, -1.5, 0.4];
     let t0 = world.now();
     let mut args = vec![
-        workspace()
+        peer::workspace()
             .join("scripts/peers/ur_rtde_control.py")
             .display()
             .to_string(),
