@@ -272,3 +272,73 @@ path = "/opt/ndi"
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
 }
+
+/// `robocal devices --probe` on an OpenCV camera (`protocol = "opencv"`) pointed at the camera
+/// simulator's MJPEG stream served by `robocal sim serve`: one frame with the feature, a clear
+/// `unsupported` error (rebuild hint) without it.
+#[test]
+fn devices_probe_opencv_camera_against_sim_serve() {
+    use std::io::{BufRead as _, BufReader};
+    use std::process::Stdio;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args([
+            "sim",
+            "serve",
+            "--scenario",
+            p(&root.join("mocks/scenarios/ur5e-camera.toml")),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    struct Kill(std::process::Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let stdout = child.stdout.take().unwrap();
+    let guard = Kill(child);
+    let mut cam = None;
+    for line in BufReader::new(stdout).lines() {
+        let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
+        if v["ready"] == true {
+            break;
+        }
+        if v["protocol"] == "mjpeg" {
+            cam = v["addr"].as_str().map(str::to_string);
+        }
+    }
+    let cam = cam.expect("mjpeg endpoint");
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("devices.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "[[device]]\nname = \"cam\"\nrole = \"camera\"\nvendor = \"generic\"\n\
+             protocol = \"opencv\"\naddress = \"http://{cam}/video.mjpg\"\n"
+        ),
+    )
+    .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(["devices", "--devices", p(&file), "--probe"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    if cfg!(feature = "opencv") {
+        assert_eq!(o.status.code(), Some(0), "{text}");
+        assert!(
+            text.contains("ok: 640×480 grey frame (Live mode)"),
+            "{text}"
+        );
+    } else {
+        assert_eq!(o.status.code(), Some(1), "{text}");
+        assert!(
+            text.contains("error (unsupported)") && text.contains("--features opencv"),
+            "{text}"
+        );
+    }
+    drop(guard);
+}
