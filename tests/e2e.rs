@@ -166,45 +166,59 @@ fn dry_run_chain_small_plan() {
 
 /// `robocal devices --probe` against the endpoints of `robocal sim serve` (lab scenario:
 /// b-CAP arm, DL-RS1A laser on a pty), plus a refused NDI address and an Optotrak entry.
+/// A running `robocal sim serve --scenario SCENARIO` (killed on drop) and the endpoint lines it
+/// printed before `{"ready": true}`.
+struct SimServe {
+    child: std::process::Child,
+    endpoints: Vec<serde_json::Value>,
+}
+
+impl SimServe {
+    fn start(scenario: &Path) -> SimServe {
+        use std::io::{BufRead as _, BufReader};
+        use std::process::Stdio;
+        let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
+            .args(["sim", "serve", "--scenario", p(scenario)])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let mut endpoints = Vec::new();
+        for line in BufReader::new(stdout).lines() {
+            let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
+            if v["ready"] == true {
+                break;
+            }
+            endpoints.push(v);
+        }
+        SimServe { child, endpoints }
+    }
+
+    /// The `addr` (or `path`) of the first endpoint speaking `protocol`.
+    fn endpoint(&self, protocol: &str, field: &str) -> Option<String> {
+        self.endpoints
+            .iter()
+            .find(|v| v["protocol"] == protocol)
+            .and_then(|v| v[field].as_str().map(str::to_string))
+    }
+}
+
+impl Drop for SimServe {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
 #[test]
 fn devices_probe_against_sim_serve() {
-    use std::io::{BufRead as _, BufReader};
-    use std::process::Stdio;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
-        .args([
-            "sim",
-            "serve",
-            "--scenario",
-            p(&root.join("mocks/scenarios/lab-vs060-optotrak-il600.toml")),
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    struct Kill(std::process::Child);
-    impl Drop for Kill {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let stdout = child.stdout.take().unwrap();
-    let guard = Kill(child);
-    let mut addr = None;
-    let mut pty = None;
-    for line in BufReader::new(stdout).lines() {
-        let line = line.unwrap();
-        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
-        if v["ready"] == true {
-            break;
-        }
-        match v["protocol"].as_str() {
-            Some("bcap") => addr = v["addr"].as_str().map(str::to_string),
-            Some("dl-rs1a") => pty = v["path"].as_str().map(str::to_string),
-            _ => {}
-        }
-    }
+    let guard = SimServe::start(&root.join("mocks/scenarios/lab-vs060-optotrak-il600.toml"));
+    let (addr, pty) = (
+        guard.endpoint("bcap", "addr"),
+        guard.endpoint("dl-rs1a", "path"),
+    );
     let (addr, pty) = (addr.expect("bcap endpoint"), pty.expect("dl-rs1a endpoint"));
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("devices.toml");
@@ -278,39 +292,9 @@ path = "/opt/ndi"
 /// `unsupported` error (rebuild hint) without it.
 #[test]
 fn devices_probe_opencv_camera_against_sim_serve() {
-    use std::io::{BufRead as _, BufReader};
-    use std::process::Stdio;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
-        .args([
-            "sim",
-            "serve",
-            "--scenario",
-            p(&root.join("mocks/scenarios/ur5e-camera.toml")),
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    struct Kill(std::process::Child);
-    impl Drop for Kill {
-        fn drop(&mut self) {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-    let stdout = child.stdout.take().unwrap();
-    let guard = Kill(child);
-    let mut cam = None;
-    for line in BufReader::new(stdout).lines() {
-        let v: serde_json::Value = serde_json::from_str(&line.unwrap()).unwrap();
-        if v["ready"] == true {
-            break;
-        }
-        if v["protocol"] == "mjpeg" {
-            cam = v["addr"].as_str().map(str::to_string);
-        }
-    }
+    let guard = SimServe::start(&root.join("mocks/scenarios/ur5e-camera.toml"));
+    let cam = guard.endpoint("mjpeg", "addr");
     let cam = cam.expect("mjpeg endpoint");
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("devices.toml");
