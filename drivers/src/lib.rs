@@ -10,6 +10,7 @@ pub mod camera;
 pub mod error;
 pub mod fake;
 pub mod keyence;
+mod link;
 pub mod ndi;
 pub mod optotrak;
 pub mod safety;

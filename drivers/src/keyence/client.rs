@@ -13,10 +13,11 @@ use super::codec;
 use super::error::Error;
 use super::frame::{Reply, Request, Value};
 use crate::error::{DriverError, DriverResult};
+use crate::link::{open_serial_8n1, Link, LinkError};
 use crate::traits::{RangeReading, RangeSensor};
 use async_trait::async_trait;
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::Mutex;
 use tokio::time::Instant;
 
@@ -38,11 +39,6 @@ impl Default for KeyenceConfig {
     }
 }
 
-struct Link<T> {
-    io: T,
-    buf: Vec<u8>,
-}
-
 /// A DL-RS1A session over any byte stream (serial port, pty, in-memory duplex).
 pub struct KeyenceClient<T> {
     link: Mutex<Link<T>>,
@@ -62,17 +58,10 @@ impl<T> std::fmt::Debug for KeyenceClient<T> {
 impl KeyenceClient<tokio_serial::SerialStream> {
     /// Open the DL-RS1A at `path` (8N1, speed from the config).
     pub fn open_serial(path: &str, config: KeyenceConfig) -> Result<Self, Error> {
-        use tokio_serial::SerialPortBuilderExt;
-        let port = tokio_serial::new(path, config.baud)
-            .data_bits(tokio_serial::DataBits::Eight)
-            .parity(tokio_serial::Parity::None)
-            .stop_bits(tokio_serial::StopBits::One)
-            .flow_control(tokio_serial::FlowControl::None)
-            .open_native_async()
-            .map_err(|e| Error::Open {
-                path: path.to_string(),
-                message: e.to_string(),
-            })?;
+        let port = open_serial_8n1(path, config.baud).map_err(|e| Error::Open {
+            path: path.to_string(),
+            message: e.to_string(),
+        })?;
         Ok(Self::attach_named(port, config, format!("dl-rs1a@{path}")))
     }
 }
@@ -85,10 +74,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> KeyenceClient<T> {
 
     fn attach_named(io: T, config: KeyenceConfig, name: String) -> Self {
         Self {
-            link: Mutex::new(Link {
-                io,
-                buf: Vec::new(),
-            }),
+            link: Mutex::new(Link::new(io)),
             config,
             name,
         }
@@ -104,31 +90,21 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> KeyenceClient<T> {
         let command = req.command();
         let mut guard = self.link.lock().await;
         let link = &mut *guard;
-        link.buf.clear();
-        let mut scratch = [0u8; 1024];
-        while let Ok(Ok(n)) = tokio::time::timeout(Duration::ZERO, link.io.read(&mut scratch)).await
-        {
-            if n == 0 {
-                break;
-            }
-        }
-        let disconnected = |source: std::io::Error| Error::Disconnected {
-            command: command.to_string(),
-            source,
-        };
-        let timeout = || Error::Timeout {
-            command: command.to_string(),
-            timeout_ms: self.config.reply_timeout.as_millis() as u64,
+        link.flush_input().await;
+        let lift = |e: LinkError| match e {
+            LinkError::Timeout => Error::Timeout {
+                command: command.to_string(),
+                timeout_ms: self.config.reply_timeout.as_millis() as u64,
+            },
+            LinkError::Io(source) => Error::Disconnected {
+                command: command.to_string(),
+                source,
+            },
         };
         let deadline = Instant::now() + self.config.reply_timeout;
-        let wire = codec::encode_request(req);
-        tokio::time::timeout_at(deadline, async {
-            link.io.write_all(&wire).await?;
-            link.io.flush().await
-        })
-        .await
-        .map_err(|_| timeout())?
-        .map_err(disconnected)?;
+        link.send(&codec::encode_request(req), deadline)
+            .await
+            .map_err(lift)?;
         loop {
             while let Some((line, used)) = codec::take_line(&link.buf) {
                 if codec::is_reply_to(line, command) {
@@ -152,14 +128,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> KeyenceClient<T> {
                 );
                 link.buf.drain(..used);
             }
-            let n = tokio::time::timeout_at(deadline, link.io.read(&mut scratch))
-                .await
-                .map_err(|_| timeout())?
-                .map_err(disconnected)?;
-            if n == 0 {
-                return Err(disconnected(std::io::ErrorKind::UnexpectedEof.into()));
-            }
-            link.buf.extend_from_slice(&scratch[..n]);
+            link.fill(deadline).await.map_err(lift)?;
         }
     }
 

@@ -16,8 +16,9 @@
 use super::codec::{self, DecodeError, Decoded};
 use super::error::Error;
 use super::frame::{PortHandleStatus, Reply, TrackingReply};
+use crate::link::{open_serial_8n1, Link, LinkError};
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::Mutex;
 use tokio::time::Instant;
 
@@ -37,11 +38,6 @@ impl Default for NdiConfig {
             connect_timeout: Duration::from_secs(5),
         }
     }
-}
-
-struct Link<T> {
-    io: T,
-    buf: Vec<u8>,
 }
 
 /// A Combined API session over any byte stream (TCP, serial, in-memory duplex).
@@ -80,17 +76,10 @@ impl NdiClient<tokio::net::TcpStream> {
 impl NdiClient<tokio_serial::SerialStream> {
     /// Open a serial Polaris (Spectra / Vicra) at `path`, 9600 8N1 (the power-up setting).
     pub fn open_serial(path: &str, config: NdiConfig) -> Result<Self, Error> {
-        use tokio_serial::SerialPortBuilderExt;
-        let port = tokio_serial::new(path, 9600)
-            .data_bits(tokio_serial::DataBits::Eight)
-            .parity(tokio_serial::Parity::None)
-            .stop_bits(tokio_serial::StopBits::One)
-            .flow_control(tokio_serial::FlowControl::None)
-            .open_native_async()
-            .map_err(|e| Error::Open {
-                target: path.to_string(),
-                message: e.to_string(),
-            })?;
+        let port = open_serial_8n1(path, 9600).map_err(|e| Error::Open {
+            target: path.to_string(),
+            message: e.to_string(),
+        })?;
         Ok(Self::attach_named(port, config, format!("ndi@{path}")))
     }
 
@@ -135,10 +124,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> NdiClient<T> {
 
     fn attach_named(io: T, config: NdiConfig, name: String) -> Self {
         Self {
-            link: Mutex::new(Link {
-                io,
-                buf: Vec::new(),
-            }),
+            link: Mutex::new(Link::new(io)),
             config,
             name,
         }
@@ -156,31 +142,21 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> NdiClient<T> {
         let mut link = self.link.lock().await;
         let link = &mut *link;
         // Drop whatever a previous (failed) exchange left behind.
-        link.buf.clear();
-        let mut scratch = [0u8; 4096];
-        while let Ok(Ok(n)) = tokio::time::timeout(Duration::ZERO, link.io.read(&mut scratch)).await
-        {
-            if n == 0 {
-                break;
-            }
-        }
-        let disconnected = |source: std::io::Error| Error::Disconnected {
-            command: command.to_string(),
-            source,
+        link.flush_input().await;
+        let lift = |e: LinkError| match e {
+            LinkError::Timeout => Error::Timeout {
+                command: command.to_string(),
+                timeout_ms: self.config.reply_timeout.as_millis() as u64,
+            },
+            LinkError::Io(source) => Error::Disconnected {
+                command: command.to_string(),
+                source,
+            },
         };
-        let wire = codec::encode_command(command);
         let deadline = Instant::now() + self.config.reply_timeout;
-        let timeout = || Error::Timeout {
-            command: command.to_string(),
-            timeout_ms: self.config.reply_timeout.as_millis() as u64,
-        };
-        tokio::time::timeout_at(deadline, async {
-            link.io.write_all(&wire).await?;
-            link.io.flush().await
-        })
-        .await
-        .map_err(|_| timeout())?
-        .map_err(disconnected)?;
+        link.send(&codec::encode_command(command), deadline)
+            .await
+            .map_err(lift)?;
         loop {
             match codec::decode_reply(&link.buf, binary) {
                 Decoded::Reply { reply, consumed } => {
@@ -214,14 +190,7 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> NdiClient<T> {
                 }
                 Decoded::Incomplete => {}
             }
-            let n = tokio::time::timeout_at(deadline, link.io.read(&mut scratch))
-                .await
-                .map_err(|_| timeout())?
-                .map_err(disconnected)?;
-            if n == 0 {
-                return Err(disconnected(std::io::ErrorKind::UnexpectedEof.into()));
-            }
-            link.buf.extend_from_slice(&scratch[..n]);
+            link.fill(deadline).await.map_err(lift)?;
         }
     }
 
