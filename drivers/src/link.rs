@@ -16,6 +16,24 @@ pub(crate) enum LinkError {
     Io(std::io::Error),
 }
 
+impl LinkError {
+    /// This failure as the client's own error, for `command` under deadline `timeout`.
+    pub fn into_error<E: FromLinkError>(self, command: &str, timeout: Duration) -> E {
+        match self {
+            LinkError::Timeout => E::timeout(command.to_string(), timeout.as_millis() as u64),
+            LinkError::Io(source) => E::disconnected(command.to_string(), source),
+        }
+    }
+}
+
+/// A client error enum with the two link failures (`Timeout`, `Disconnected`).
+pub(crate) trait FromLinkError {
+    /// No reply to `command` within `timeout_ms`.
+    fn timeout(command: String, timeout_ms: u64) -> Self;
+    /// The link failed or closed during `command`.
+    fn disconnected(command: String, source: std::io::Error) -> Self;
+}
+
 /// A byte stream and the bytes received but not yet decoded.
 pub(crate) struct Link<T> {
     /// The stream.
@@ -43,6 +61,15 @@ impl<T: AsyncRead + AsyncWrite + Unpin> Link<T> {
                 break;
             }
         }
+    }
+
+    /// Start an exchange: drop stale input, then send `wire` within `timeout`; returns the
+    /// exchange's deadline (for the [`Self::fill`] calls that read the reply).
+    pub async fn begin(&mut self, wire: &[u8], timeout: Duration) -> Result<Instant, LinkError> {
+        self.flush_input().await;
+        let deadline = Instant::now() + timeout;
+        self.send(wire, deadline).await?;
+        Ok(deadline)
     }
 
     /// Write `wire` (and flush) by `deadline`.

@@ -19,7 +19,6 @@ use async_trait::async_trait;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::Mutex;
-use tokio::time::Instant;
 
 /// Client settings.
 #[derive(Debug, Clone)]
@@ -90,19 +89,10 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> KeyenceClient<T> {
         let command = req.command();
         let mut guard = self.link.lock().await;
         let link = &mut *guard;
-        link.flush_input().await;
-        let lift = |e: LinkError| match e {
-            LinkError::Timeout => Error::Timeout {
-                command: command.to_string(),
-                timeout_ms: self.config.reply_timeout.as_millis() as u64,
-            },
-            LinkError::Io(source) => Error::Disconnected {
-                command: command.to_string(),
-                source,
-            },
-        };
-        let deadline = Instant::now() + self.config.reply_timeout;
-        link.send(&codec::encode_request(req), deadline)
+        let timeout = self.config.reply_timeout;
+        let lift = |e: LinkError| e.into_error::<Error>(command, timeout);
+        let deadline = link
+            .begin(&codec::encode_request(req), timeout)
             .await
             .map_err(lift)?;
         loop {

@@ -69,3 +69,15 @@ impl DeviceError for Error {
         }
     }
 }
+
+impl crate::link::FromLinkError for Error {
+    fn timeout(command: String, timeout_ms: u64) -> Self {
+        Error::Timeout {
+            command,
+            timeout_ms,
+        }
+    }
+    fn disconnected(command: String, source: std::io::Error) -> Self {
+        Error::Disconnected { command, source }
+    }
+}

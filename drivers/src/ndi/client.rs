@@ -20,7 +20,6 @@ use crate::link::{open_serial_8n1, Link, LinkError};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::Mutex;
-use tokio::time::Instant;
 
 /// Client settings.
 #[derive(Debug, Clone)]
@@ -141,20 +140,11 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> NdiClient<T> {
         let binary = codec::is_binary_command(command);
         let mut link = self.link.lock().await;
         let link = &mut *link;
-        // Drop whatever a previous (failed) exchange left behind.
-        link.flush_input().await;
-        let lift = |e: LinkError| match e {
-            LinkError::Timeout => Error::Timeout {
-                command: command.to_string(),
-                timeout_ms: self.config.reply_timeout.as_millis() as u64,
-            },
-            LinkError::Io(source) => Error::Disconnected {
-                command: command.to_string(),
-                source,
-            },
-        };
-        let deadline = Instant::now() + self.config.reply_timeout;
-        link.send(&codec::encode_command(command), deadline)
+        // Drop whatever a previous (failed) exchange left behind, then send.
+        let timeout = self.config.reply_timeout;
+        let lift = |e: LinkError| e.into_error::<Error>(command, timeout);
+        let deadline = link
+            .begin(&codec::encode_command(command), timeout)
             .await
             .map_err(lift)?;
         loop {
