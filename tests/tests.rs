@@ -9,6 +9,7 @@ mod e2e;
 mod laser;
 mod laser_world;
 mod model;
+mod navchain;
 mod plan;
 mod report;
 mod solve;

@@ -4,6 +4,7 @@ pub mod kinematics;
 pub mod laser;
 pub mod nominal;
 pub mod pivot;
+pub mod robot_world;
 
 /// Arguments of `robocal calibrate`.
 #[derive(Debug, clap::Args)]
@@ -23,6 +24,8 @@ pub enum What {
     Pivot(pivot::Args),
     /// Laser range sensor hand-eye calibration from planes (seed 000).
     Laser(laser::Args),
+    /// Tracker ↔ robot base (AX = YB: Shah, Li, Tsai; LM refinement; on-site check).
+    RobotWorld(robot_world::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -32,5 +35,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Kinematics(a) => kinematics::exec(a),
         What::Pivot(a) => pivot::exec(a),
         What::Laser(a) => laser::exec(a),
+        What::RobotWorld(a) => robot_world::exec(a),
     }
 }

@@ -1,0 +1,415 @@
+//! The navigation chain of seed 003 (issue 19) on the simulated operating room
+//! (`robocal_mocks::navchain`): coverage of the predicted 95 % ellipsoid, each link's share,
+//! ICP convergence from a rough start, the peers (scikit-surgerycore, OpenCV) and the CLI.
+//! Heavier figures (≥ 500 ICP trials): `cargo run --release --example nav_chain`.
+use std::path::PathBuf;
+use std::process::Command;
+
+use nalgebra::Point3;
+use robocal::register::icp::SurfaceIndex;
+use robocal::register::paired::{iso_to_rows, register_paired, PairedOptions};
+use robocal::register::robot_world::{self as rw, RwObs};
+use robocal_mocks::navchain::{NavNoise, NavWorld};
+
+#[path = "navchain_sim.rs"]
+mod sim;
+
+fn workspace() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn python(venv: &str, what: &str) -> Option<PathBuf> {
+    let py = workspace().join(format!(".venv/peers-{venv}/bin/python"));
+    if py.exists() {
+        return Some(py);
+    }
+    if std::env::var_os("CI").is_some() {
+        panic!(
+            "CI is set but {} is missing (run .ci/peers.sh)",
+            py.display()
+        );
+    }
+    eprintln!(
+        "\n!!!!! SKIP {what}: {} missing (run .ci/peers.sh) !!!!!\n",
+        py.display()
+    );
+    None
+}
+
+fn run_peer(py: &PathBuf, script: &str, input: &serde_json::Value) -> Vec<serde_json::Value> {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("in.json");
+    std::fs::write(&f, input.to_string()).unwrap();
+    let out = Command::new(py)
+        .arg(workspace().join("scripts/peers").join(script))
+        .arg(&f)
+        .output()
+        .expect("peer runs");
+    assert!(
+        out.status.success(),
+        "peer {script}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter(|l| l.starts_with('{'))
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+#[test]
+fn chain_coverage_and_link_shares_over_500_trials() {
+    let noise = NavNoise::default();
+    let trials = 500;
+    let mut covered = 0;
+    let mut var = [0.0; 5];
+    let mut pred2 = 0.0;
+    let mut act2 = 0.0;
+    for s in 0..trials {
+        let t = sim::chain_trial(1000 + s, noise);
+        covered += t.covered as usize;
+        for k in 0..5 {
+            var[k] += t.link_var[k];
+        }
+        pred2 += t.cov.trace();
+        act2 += t.err.norm_squared();
+    }
+    let cov = covered as f64 / trials as f64;
+    let tot: f64 = var.iter().sum();
+    println!(
+        "chain: {trials} trials, 95 % ellipsoid covers {:.1} % of actual tip errors",
+        100.0 * cov
+    );
+    println!(
+        "chain: predicted RMS tip error {:.3} mm, actual RMS {:.3} mm",
+        (pred2 / trials as f64).sqrt(),
+        (act2 / trials as f64).sqrt()
+    );
+    for (k, name) in robocal::chain::LINKS.iter().enumerate() {
+        println!(
+            "chain: link {name:<36} RMS {:.3} mm, share of variance {:.1} %",
+            (var[k] / trials as f64).sqrt(),
+            100.0 * var[k] / tot
+        );
+    }
+    assert!((0.93..=0.97).contains(&cov), "coverage {cov}");
+}
+
+#[test]
+fn icp_converges_from_15_deg_30_mm() {
+    let mesh = sim::phantom();
+    let idx = SurfaceIndex::new(&mesh, 1.0).unwrap();
+    let trials = 40;
+    let mut ok = 0;
+    let mut worst: f64 = 0.0;
+    for s in 0..trials {
+        let (rot, pos) = sim::icp_trial(&idx, 5000 + s, 15.0, 30.0);
+        if rot < 1.0 && pos < 2.0 {
+            ok += 1;
+            worst = worst.max(pos);
+        }
+    }
+    println!(
+        "icp: {ok}/{trials} converged from 15 deg / 30 mm (worst fiducial error of the converged {worst:.3} mm)"
+    );
+    assert_eq!(ok, trials);
+}
+
+#[test]
+fn paired_registration_matches_scikit_surgerycore() {
+    let Some(py) = python("sksurgery", "scikit-surgerycore paired-registration peer") else {
+        return;
+    };
+    let mut cases = Vec::new();
+    let mut ours = Vec::new();
+    for s in 0..5 {
+        let mut w = NavWorld::new(200 + s, NavNoise::default());
+        let ct = sim::named(w.ct_fiducials());
+        let trk = sim::named(w.tracker_fiducials());
+        let r = register_paired(&ct, &trk, &PairedOptions::default()).unwrap();
+        let targets: Vec<Point3<f64>> = (0..3).map(|_| w.random_target()).collect();
+        cases.push(serde_json::json!({
+            "fixed": r.tracker.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
+            "moving": r.ct.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
+            "targets": targets.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
+            "fle2": r.fle_mm * r.fle_mm,
+        }));
+        ours.push((r, targets));
+    }
+    let peer = run_peer(
+        &py,
+        "register_sksurgery.py",
+        &serde_json::Value::Array(cases),
+    );
+    assert_eq!(peer.len(), ours.len());
+    let (mut dr, mut dt, mut dfre, mut dtre, mut dtre_sk) = (0f64, 0f64, 0f64, 0f64, 0f64);
+    for ((r, targets), p) in ours.iter().zip(&peer) {
+        let m = iso_to_rows(&r.t_tracker_ct);
+        let pr: Vec<f64> = serde_json::from_value(p["R"].clone()).unwrap();
+        let pt: Vec<f64> = serde_json::from_value(p["t"].clone()).unwrap();
+        for i in 0..3 {
+            for j in 0..3 {
+                dr = dr.max((m[4 * i + j] - pr[3 * i + j]).abs());
+            }
+            dt = dt.max((m[4 * i + 3] - pt[i]).abs());
+        }
+        dfre = dfre.max((r.fre_mm - p["fre"].as_f64().unwrap()).abs());
+        for (k, x) in targets.iter().enumerate() {
+            let ours2 = r.tre_fw(x).powi(2);
+            dtre = dtre.max((ours2 - p["tre2_cols"][k].as_f64().unwrap()).abs());
+            dtre_sk = dtre_sk.max((ours2 - p["tre2"][k].as_f64().unwrap()).abs());
+        }
+    }
+    println!("peer scikit-surgerycore 0.8.3 orthogonal_procrustes: max |dR| {dr:.2e}, max |dt| {dt:.2e} mm, max |dFRE| {dfre:.2e} mm");
+    println!("peer F&W TRE^2 (numpy, eigenvectors as columns): max abs diff {dtre:.2e} mm^2");
+    println!("peer F&W TRE^2 (scikit-surgerycore compute_tre_from_fle as published): max abs diff {dtre_sk:.2e} mm^2");
+    assert!(dr < 1e-9 && dt < 1e-9 && dfre < 1e-9, "{dr} {dt} {dfre}");
+    assert!(dtre < 1e-9, "{dtre}");
+}
+
+#[test]
+fn robot_world_matches_opencv() {
+    let Some(py) = python("cv2", "OpenCV robot-world peer") else {
+        return;
+    };
+    let mut w = NavWorld::new(77, NavNoise::default());
+    let obs: Vec<RwObs> = w
+        .robot_world_poses(20)
+        .into_iter()
+        .enumerate()
+        .map(|(i, (a, b))| RwObs { id: i as u64, a, b })
+        .collect();
+    let input = serde_json::json!({
+        "A": obs.iter().map(|o| iso_to_rows(&o.a).to_vec()).collect::<Vec<_>>(),
+        "B": obs.iter().map(|o| iso_to_rows(&o.b).to_vec()).collect::<Vec<_>>(),
+    });
+    let peer = run_peer(&py, "robot_world_cv2.py", &input);
+    let ours = [
+        ("shah", rw::shah(&obs).unwrap()),
+        ("li", rw::li(&obs).unwrap()),
+        ("tsai", rw::tsai_route(&obs).unwrap()),
+    ];
+    for (name, (x, y)) in ours {
+        let p = peer.iter().find(|p| p["method"] == name).unwrap();
+        let py_: Vec<f64> = serde_json::from_value(p["Y"].clone()).unwrap();
+        let my = iso_to_rows(&y);
+        let dy = (0..16).map(|k| (my[k] - py_[k]).abs()).fold(0.0, f64::max);
+        let dx = match p.get("X") {
+            Some(px) => {
+                let px: Vec<f64> = serde_json::from_value(px.clone()).unwrap();
+                let mx = iso_to_rows(&x);
+                (0..16).map(|k| (mx[k] - px[k]).abs()).fold(0.0, f64::max)
+            }
+            None => 0.0,
+        };
+        let truth = (y.translation.vector - w.t_base_tracker.translation.vector).norm();
+        println!(
+            "peer OpenCV {name}: max |dY| {dy:.2e}, max |dX| {dx:.2e} (4x4 entries, mm); ours vs truth |dt_Y| {truth:.3} mm"
+        );
+        assert!(dy < 1e-9 && dx < 1e-9, "{name}: {dy} {dx}");
+    }
+}
+
+fn robocal(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(args)
+        .output()
+        .expect("robocal runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
+}
+
+fn write_csv(path: &std::path::Path, pts: &[(String, Point3<f64>)]) {
+    let mut s = String::from("name,x_mm,y_mm,z_mm\n");
+    for (n, p) in pts {
+        s += &format!("{n},{:.9},{:.9},{:.9}\n", p.x, p.y, p.z);
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+fn quat(i: &nalgebra::Isometry3<f64>) -> [f64; 4] {
+    let q = i.rotation;
+    [q.w, q.i, q.j, q.k]
+}
+
+#[test]
+fn cli_register_predict_robot_world_chain() {
+    let d = tempfile::tempdir().unwrap();
+    let p = |n: &str| d.path().join(n).display().to_string();
+    let noise = NavNoise::default();
+    let mut w = NavWorld::new(31, noise);
+    write_csv(d.path().join("ct.csv").as_path(), &w.ct_fiducials());
+    write_csv(d.path().join("trk.csv").as_path(), &w.tracker_fiducials());
+    let targets: Vec<_> = (0..3)
+        .map(|i| (format!("T{i}"), w.random_target()))
+        .collect();
+    write_csv(d.path().join("targets.csv").as_path(), &targets);
+    let model = sim::model_of(&noise);
+    std::fs::write(p("model.json"), serde_json::to_string(&model).unwrap()).unwrap();
+    let (ok, out, err) = robocal(&[
+        "register",
+        "--ct",
+        &p("ct.csv"),
+        "--tracker",
+        &p("trk.csv"),
+        "--targets",
+        &p("targets.csv"),
+        "--tracker-model",
+        &p("model.json"),
+        "--ct-sigma-mm",
+        "0.25",
+        "--out",
+        &p("registration.json"),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(out.contains("FRE") && out.contains("target T0"), "{out}");
+    // predict maps the CT targets into the tracker frame.
+    let (ok, out, err) = robocal(&[
+        "predict",
+        "--calibration",
+        &p("registration.json"),
+        "--points",
+        &p("targets.csv"),
+    ]);
+    assert!(ok, "{err}");
+    let line = out.lines().nth(1).unwrap();
+    let v: Vec<f64> = line
+        .split(',')
+        .skip(1)
+        .map(|x| x.parse().unwrap())
+        .collect();
+    let truth = w.t_tracker_ct * targets[0].1;
+    let e = (Point3::new(v[0], v[1], v[2]) - truth).norm();
+    assert!(e < 2.0, "predicted target {e} mm from the truth");
+    // Surface registration from a rough start through the CLI (PLY mesh, INIT json).
+    let mesh = sim::phantom();
+    mesh.write_ply(&d.path().join("head.ply")).unwrap();
+    let surf: Vec<_> = w
+        .surface_points(150)
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| (format!("S{i}"), p))
+        .collect();
+    write_csv(d.path().join("surf.csv").as_path(), &surf);
+    let start = w.perturbed_start(15.0, 30.0);
+    std::fs::write(
+        p("init.json"),
+        serde_json::json!({"T_tracker_ct": {"matrix": iso_to_rows(&start).to_vec()}}).to_string(),
+    )
+    .unwrap();
+    let (ok, out, err) = robocal(&[
+        "register",
+        "--ct-mesh",
+        &p("head.ply"),
+        "--tracker",
+        &p("surf.csv"),
+        "--init",
+        &p("init.json"),
+        "--out",
+        &p("surface.json"),
+    ]);
+    assert!(ok, "{out}{err}");
+    let f = robocal::register::RegistrationFile::load(&d.path().join("surface.json")).unwrap();
+    let t = f.transform().unwrap();
+    assert!(t.rotation.angle_to(&w.t_tracker_ct.rotation).to_degrees() < 1.0);
+    assert_eq!(f.points.len(), 150);
+    // Robot-world from a dataset with flange poses.
+    let mut lines = vec![
+        serde_json::json!({"format": "robocal-dataset/1", "robot": {"model": "ur5e"}}).to_string(),
+    ];
+    for (i, (a, b)) in w.robot_world_poses(20).into_iter().enumerate() {
+        let at = a.translation.vector;
+        let bt = b.translation.vector;
+        lines.push(
+            serde_json::json!({"kind": "pose", "id": i, "t": i as f64,
+                "flange": {"p": [at.x, at.y, at.z], "quat": quat(&a)},
+                "marker": {"p": [bt.x, bt.y, bt.z], "quat": quat(&b)}})
+            .to_string(),
+        );
+    }
+    std::fs::write(p("rw.jsonl"), lines.join("\n") + "\n").unwrap();
+    let (ok, out, err) = robocal(&[
+        "calibrate",
+        "robot-world",
+        "--data",
+        &p("rw.jsonl"),
+        "--tracker-model",
+        &p("model.json"),
+        "--sigma-pos-mm",
+        "0.15",
+        "--sigma-rot-deg",
+        "0.03",
+        "--out",
+        &p("robot_world.json"),
+    ]);
+    assert!(ok, "{out}{err}");
+    assert!(out.contains("closed form shah"), "{out}");
+    // The on-site check against itself passes.
+    let (ok, out, err) = robocal(&[
+        "calibrate",
+        "robot-world",
+        "--data",
+        &p("rw.jsonl"),
+        "--tracker-model",
+        &p("model.json"),
+        "--check",
+        &p("robot_world.json"),
+        "--out",
+        &p("rw2.json"),
+    ]);
+    assert!(ok && out.contains("PASS"), "{out}{err}");
+    let (ok, out, err) = robocal(&[
+        "chain",
+        "--registration",
+        &p("registration.json"),
+        "--robot-world",
+        &p("robot_world.json"),
+        "--targets",
+        &p("targets.csv"),
+        "--robot-sigma-mm",
+        "0.15",
+        "--tool-sigma-mm",
+        "0.05",
+        "--mc",
+        "4000",
+        "--out",
+        &p("chain.json"),
+    ]);
+    assert!(ok, "{out}{err}");
+    println!("{out}");
+    let c = robocal::chain::ChainReport::load(&d.path().join("chain.json")).unwrap();
+    assert_eq!(c.targets.len(), 3);
+    for t in &c.targets {
+        assert!(
+            (t.mc_rms_mm / t.rms_mm - 1.0).abs() < 0.05,
+            "MC {} vs FO {}",
+            t.mc_rms_mm,
+            t.rms_mm
+        );
+    }
+    // Bad input: collinear CT fiducials are refused with the reason.
+    write_csv(
+        d.path().join("line.csv").as_path(),
+        &(0..4)
+            .map(|i| {
+                (
+                    format!("F{}", i + 1),
+                    Point3::new(i as f64 * 40.0, 0.0, 0.0),
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    let (ok, _, err) = robocal(&[
+        "register",
+        "--ct",
+        &p("line.csv"),
+        "--tracker",
+        &p("line.csv"),
+        "--out",
+        &p("x.json"),
+    ]);
+    assert!(!ok && err.contains("collinear"), "{err}");
+}
