@@ -161,8 +161,8 @@ fn paired_registration_matches_scikit_surgerycore() {
         }
     }
     println!("peer scikit-surgerycore 0.8.3 orthogonal_procrustes: max |dR| {dr:.2e}, max |dt| {dt:.2e} mm, max |dFRE| {dfre:.2e} mm");
-    println!("peer F&W TRE^2 (numpy, eigenvectors as columns): max abs diff {dtre:.2e} mm^2");
-    println!("peer F&W TRE^2 (scikit-surgerycore compute_tre_from_fle as published): max abs diff {dtre_sk:.2e} mm^2");
+    println!("peer F&W TRE^2 (numpy, principal axes through the centroid): max abs diff {dtre:.2e} mm^2");
+    println!("peer F&W TRE^2 (scikit-surgerycore 0.8.3 compute_tre_from_fle, which takes an eigenvector as a point of the axis): max abs diff {dtre_sk:.2e} mm^2");
     assert!(dr < 1e-9 && dt < 1e-9 && dfre < 1e-9, "{dr} {dt} {dfre}");
     assert!(dtre < 1e-9, "{dtre}");
 }
@@ -206,7 +206,9 @@ fn robot_world_matches_opencv() {
         println!(
             "peer OpenCV {name}: max |dY| {dy:.2e}, max |dX| {dx:.2e} (4x4 entries, mm); ours vs truth |dt_Y| {truth:.3} mm"
         );
-        assert!(dy < 1e-9 && dx < 1e-9, "{name}: {dy} {dx}");
+        // Entries up to ~2000 mm: 1e-9 relative to the largest entry.
+        let scale = my.iter().map(|v| v.abs()).fold(1.0, f64::max);
+        assert!(dy < 1e-9 * scale && dx < 1e-9 * scale, "{name}: {dy} {dx} (scale {scale})");
     }
 }
 
@@ -412,4 +414,131 @@ fn cli_register_predict_robot_world_chain() {
         &p("x.json"),
     ]);
     assert!(!ok && err.contains("collinear"), "{err}");
+}
+
+#[allow(dead_code, unused_imports)]
+#[path = "../examples/diagnose_table.rs"]
+mod table;
+
+/// Seed 003's network against robocal's physical effects / `nonparametric` correction on
+/// held-out poses (noise-free truth), on simulated worlds with a hidden effect inside the
+/// library (compliance) and outside it (link deflection). Takes ~1 min:
+/// `cargo test -p robocal --test integration navchain::seed_network -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn seed_network_vs_physical_and_nonparametric() {
+    use robocal::chain::nn::{NetOptions, SeedNet};
+    use robocal::dataset::PoseRecord;
+    use robocal::diagnose::{self, data, effects, Options};
+    use robocal::model::KinematicModel;
+    use robocal_mocks::scenario::Scenario;
+    use robocal_mocks::synth::{synthesize, SynthConfig};
+    use robocal_mocks::WorldHandle;
+    use std::collections::HashMap;
+    for world in table::worlds()
+        .into_iter()
+        .filter(|w| w.name.contains("compliance") || w.name.contains("deflection"))
+        .take(2)
+    {
+        let seed = 3;
+        let mut s = Scenario::single_arm("denso-vs060", 1000 + seed);
+        s.trackers[0].effects.noise_lateral_mm = 0.035;
+        s.trackers[0].effects.noise_depth_mm = 0.035;
+        (world.effects)(&mut s);
+        let wh = WorldHandle::from_scenario(&s).unwrap();
+        let cfg = SynthConfig {
+            n_train: 200,
+            n_heldout: 60,
+            seed,
+            frames_per_pose: 1,
+            ..SynthConfig::default()
+        };
+        let out = synthesize(&wh, &cfg).unwrap();
+        let tr = data::parse_jsonl(&out.train_jsonl, "train").unwrap();
+        let he = data::parse_jsonl(&out.heldout_jsonl, "heldout").unwrap();
+        let model = KinematicModel::from_robot_block(&tr.header.robot).unwrap();
+        let session: Vec<&PoseRecord> = tr.poses.iter().chain(he.poses.iter()).collect();
+        let train = data::observations(&tr.poses.iter().collect::<Vec<_>>(), &session, model.dof());
+        let held = data::observations(&he.poses.iter().collect::<Vec<_>>(), &session, model.dof());
+        let truth: HashMap<u64, [f64; 3]> = out
+            .truth_csv
+            .lines()
+            .skip(1)
+            .filter_map(|l| {
+                let f: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
+                (f.len() == 4).then(|| (f[0] as u64, [f[1], f[2], f[3]]))
+            })
+            .collect();
+        let d = diagnose::diagnose(&model, &train, &held, &Options::default()).unwrap();
+        let geo = &d.geometric;
+        let pose6 = |ctx: &data::ObsCtx| -> [f64; 6] {
+            let t = geo.model.tool_pose_in_base(&ctx.q);
+            let (r, p, y) = t.rotation.euler_angles();
+            let v = t.translation.vector;
+            [v.x, v.y, v.z, r, p, y]
+        };
+        let xs: Vec<[f64; 6]> = train.iter().map(|o| pose6(&o.ctx)).collect();
+        let ys: Vec<[f64; 6]> = train
+            .iter()
+            .map(|o| {
+                let r = o.y - effects::apply_effects(&geo.model, &geo.effects, &o.ctx);
+                [r.x, r.y, r.z, 0.0, 0.0, 0.0]
+            })
+            .collect();
+        let net = SeedNet::train(&xs, &ys, &NetOptions::default());
+        let rms = |f: &dyn Fn(&data::Obs) -> [f64; 3]| {
+            let (mut s, mut n) = (0.0, 0);
+            for o in &held {
+                if let Some(t) = truth.get(&o.ctx.id) {
+                    let p = f(o);
+                    s += (p[0] - t[0]).powi(2) + (p[1] - t[1]).powi(2) + (p[2] - t[2]).powi(2);
+                    n += 1;
+                }
+            }
+            (s / n.max(1) as f64).sqrt()
+        };
+        let geo_rms = rms(&|o| {
+            let p = effects::apply_effects(&geo.model, &geo.effects, &o.ctx);
+            [p.x, p.y, p.z]
+        });
+        let final_rms = rms(&|o| {
+            let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
+            [p.x, p.y, p.z]
+        });
+        let nn_rms = rms(&|o| {
+            let p = effects::apply_effects(&geo.model, &geo.effects, &o.ctx);
+            let c = net.predict(&pose6(&o.ctx));
+            [p.x + c[0], p.y + c[1], p.z + c[2]]
+        });
+        println!(
+            "seed network on `{}`: held-out RMS vs truth: geometric {geo_rms:.4} mm, robocal diagnose ({}) {final_rms:.4} mm, seed 003 network (6-32-6, noisy ReLU) {nn_rms:.4} mm",
+            world.name,
+            if d.found_physical() { "physical effects" } else if d.nonparametric.is_some() { "nonparametric" } else { "nothing added" }
+        );
+        assert!(nn_rms.is_finite());
+    }
+}
+
+/// The 500-trial ICP figure (minutes at the test profile's opt-level):
+/// `cargo test -p robocal --test integration navchain::icp_500 -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn icp_500_trials_from_15_and_30_deg() {
+    let mesh = sim::phantom();
+    let idx = SurfaceIndex::new(&mesh, 1.0).unwrap();
+    for (ang, shift) in [(15.0, 30.0), (30.0, 30.0)] {
+        let trials = 500;
+        let mut ok = 0;
+        for s in 0..trials {
+            let (rot, pos) = sim::icp_trial(&idx, 900_000 + s, ang, shift);
+            ok += (rot < 1.0 && pos < 2.0) as usize;
+        }
+        println!(
+            "icp: start {ang} deg / {shift} mm off: {ok}/{trials} = {:.1} % converged (< 1 deg, < 2 mm at every fiducial)",
+            100.0 * ok as f64 / trials as f64
+        );
+        if ang == 15.0 {
+            assert!(ok as f64 >= 0.99 * trials as f64);
+        }
+    }
 }

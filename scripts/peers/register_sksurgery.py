@@ -3,7 +3,9 @@ Procrustes (Arun 1987) and its Fitzpatrick-West TRE, on the same points.
 
 Usage: register_sksurgery.py IN.json   (fixed = tracker, moving = CT, targets, fle2)
 Prints one JSON line per case: R (row-major), t, fre, tre2 (sksurgerycore) and tre2_cols
-(the same formula with the eigenvectors taken as columns of numpy's eig output).
+(the same formula with numpy, the principal axes as the lines through the centroid along
+the eigenvectors = columns of eig's output; scikit-surgerycore 0.8.3 passes an eigenvector
+row as a second *point* of the line, which is right only when the centroid is the origin).
 """
 import json
 import sys
@@ -20,8 +22,8 @@ def tre2_columns(fid, fle2, target):
     s = 0.0
     for k in range(3):
         u = ev[:, k]
-        fk2 = np.mean([vm.distance_from_line(c, u, p) ** 2 for p in fid])
-        dk = vm.distance_from_line(c, u, target[0])
+        fk2 = np.mean([vm.distance_from_line(c, c + u, p) ** 2 for p in fid])
+        dk = vm.distance_from_line(c, c + u, target[0])
         s += dk * dk / fk2
     return fle2 / n * (1.0 + s / 3.0)
 

@@ -386,10 +386,29 @@ pub fn register_surface_indexed(
     let dof = (keep as f64 - 6.0).max(1.0);
     let s2 = rms * rms * keep as f64 / dof;
     let jtj = j.transpose() * &j;
+    // Degeneracy in a well-conditioned frame: rotations about the mapped centroid, columns
+    // normalised (a sphere or plane patch leaves a null direction).
+    let sc = bs * c;
+    let mut jc = DMatrix::zeros(xs.len(), 6);
+    for (i, x) in xs.iter().enumerate() {
+        let dw = (bs * x - sc).cross(&ns[i]);
+        for k in 0..3 {
+            jc[(i, k)] = dw[k];
+            jc[(i, 3 + k)] = ns[i][k];
+        }
+    }
+    let mut g = jc.transpose() * &jc;
+    let d: Vec<f64> = (0..6).map(|k| g[(k, k)].max(1e-300).sqrt()).collect();
+    for a in 0..6 {
+        for b in 0..6 {
+            g[(a, b)] /= d[a] * d[b];
+        }
+    }
+    let well_posed = g.symmetric_eigenvalues().min() > 1e-8;
     let cov_s = jtj
         .clone()
         .try_inverse()
-        .filter(|m| m.iter().all(|x| x.is_finite()) && jtj.symmetric_eigenvalues().min() > 1e-9 * jtj.norm())
+        .filter(|m| m.iter().all(|x| x.is_finite()) && well_posed)
         .ok_or_else(|| {
             RegisterError::Degenerate(
                 "the surface points do not constrain all 6 degrees of freedom (a plane, sphere or cylinder patch slides): digitise more distinctive anatomy".into(),
