@@ -161,7 +161,9 @@ fn paired_registration_matches_scikit_surgerycore() {
         }
     }
     println!("peer scikit-surgerycore 0.8.3 orthogonal_procrustes: max |dR| {dr:.2e}, max |dt| {dt:.2e} mm, max |dFRE| {dfre:.2e} mm");
-    println!("peer F&W TRE^2 (numpy, principal axes through the centroid): max abs diff {dtre:.2e} mm^2");
+    println!(
+        "peer F&W TRE^2 (numpy, principal axes through the centroid): max abs diff {dtre:.2e} mm^2"
+    );
     println!("peer F&W TRE^2 (scikit-surgerycore 0.8.3 compute_tre_from_fle, which takes an eigenvector as a point of the axis): max abs diff {dtre_sk:.2e} mm^2");
     assert!(dr < 1e-9 && dt < 1e-9 && dfre < 1e-9, "{dr} {dt} {dfre}");
     assert!(dtre < 1e-9, "{dtre}");
@@ -208,7 +210,10 @@ fn robot_world_matches_opencv() {
         );
         // Entries up to ~2000 mm: 1e-9 relative to the largest entry.
         let scale = my.iter().map(|v| v.abs()).fold(1.0, f64::max);
-        assert!(dy < 1e-9 * scale && dx < 1e-9 * scale, "{name}: {dy} {dx} (scale {scale})");
+        assert!(
+            dy < 1e-9 * scale && dx < 1e-9 * scale,
+            "{name}: {dy} {dx} (scale {scale})"
+        );
     }
 }
 
