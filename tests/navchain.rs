@@ -185,11 +185,41 @@ fn robot_world_matches_opencv() {
         "A": obs.iter().map(|o| iso_to_rows(&o.a).to_vec()).collect::<Vec<_>>(),
         "B": obs.iter().map(|o| iso_to_rows(&o.b).to_vec()).collect::<Vec<_>>(),
     });
-    let peer = run_peer(&py, "robot_world_cv2.py", &input);
+    let mut peer = run_peer(&py, "robot_world_cv2.py", &input);
+    // Tsai: OpenCV's rot2quatMinimal leaves the quaternion sign free for relative rotations
+    // beyond 120° (its non-trace branches), robocal takes w ≥ 0 (θ ∈ [0, π], Tsai's
+    // convention); on poses whose pairwise relative rotations stay below 110° both are the
+    // same algorithm, so the comparison runs there.
+    let mut sub: Vec<RwObs> = Vec::new();
+    for o in &obs {
+        let ok = sub.iter().all(|p| {
+            (p.a.inverse() * o.a).rotation.angle() < 110f64.to_radians()
+                && (p.b * o.b.inverse()).rotation.angle() < 110f64.to_radians()
+        });
+        if ok {
+            sub.push(o.clone());
+        }
+    }
+    let sub_input = serde_json::json!({
+        "A": sub.iter().map(|o| iso_to_rows(&o.a).to_vec()).collect::<Vec<_>>(),
+        "B": sub.iter().map(|o| iso_to_rows(&o.b).to_vec()).collect::<Vec<_>>(),
+    });
+    let tsai_peer = run_peer(&py, "robot_world_cv2.py", &sub_input)
+        .into_iter()
+        .find(|p| p["method"] == "tsai")
+        .unwrap();
+    peer.retain(|p| p["method"] != "tsai");
+    peer.push(tsai_peer);
+    println!(
+        "peer OpenCV tsai on {} of {} poses (pairwise relative rotations < 110 deg)",
+        sub.len(),
+        obs.len()
+    );
+    let tsai_sub = rw::tsai_route(&sub).unwrap();
     let ours = [
         ("shah", rw::shah(&obs).unwrap()),
         ("li", rw::li(&obs).unwrap()),
-        ("tsai", rw::tsai_route(&obs).unwrap()),
+        ("tsai", tsai_sub),
     ];
     for (name, (x, y)) in ours {
         let p = peer.iter().find(|p| p["method"] == name).unwrap();
