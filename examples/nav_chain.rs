@@ -25,8 +25,8 @@ fn main() {
     for s in 0..chain_trials as u64 {
         let t = sim::chain_trial(100_000 + s, noise);
         covered += t.covered as usize;
-        for k in 0..5 {
-            var[k] += t.link_var[k];
+        for (v, l) in var.iter_mut().zip(t.link_var) {
+            *v += l;
         }
         pred2 += t.cov.trace();
         act2 += t.err.norm_squared();

@@ -68,8 +68,8 @@ fn chain_coverage_and_link_shares_over_500_trials() {
     for s in 0..trials {
         let t = sim::chain_trial(1000 + s, noise);
         covered += t.covered as usize;
-        for k in 0..5 {
-            var[k] += t.link_var[k];
+        for (v, l) in var.iter_mut().zip(t.link_var) {
+            *v += l;
         }
         pred2 += t.cov.trace();
         act2 += t.err.norm_squared();
@@ -456,9 +456,7 @@ fn cli_register_predict_robot_world_chain() {
     assert!(!ok && err.contains("collinear"), "{err}");
 }
 
-#[allow(dead_code, unused_imports)]
-#[path = "../examples/diagnose_table.rs"]
-mod table;
+use crate::diagnose::table;
 
 /// Seed 003's network against robocal's physical effects / `nonparametric` correction on
 /// held-out poses (noise-free truth), on simulated worlds with a hidden effect inside the

@@ -11,6 +11,7 @@
 //! Internally the solved transform is `S = T_ct_tracker` (tracker points onto the mesh);
 //! the result is reported as `T_tracker_ct = S⁻¹` with its covariance re-expressed for the
 //! left perturbation of `T_tracker_ct`.
+#![allow(clippy::type_complexity)] // (points, normals, ...) tuples of parallel vectors
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6,
 };

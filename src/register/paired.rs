@@ -14,6 +14,7 @@
 //! solver ([`PairedProblem`]) and the covariance of the transform is split into the CT part
 //! and the tracker part (the chain's two registration links). The transform covariance is
 //! over a left perturbation `(ω, t)`: `T = (Exp(ω)·R₀, t₀ + t)` (rad, mm, tracker frame).
+#![allow(clippy::type_complexity)] // (points, normals, ...) tuples of parallel vectors
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Matrix6, Point3, Rotation3, Translation3,
     UnitQuaternion, Vector3,

@@ -17,6 +17,7 @@
 //! The closed forms follow the published equations in the conventions of OpenCV's
 //! `calibrateRobotWorldHandEye` (`cTw = B⁻¹`, `gTb = A⁻¹`, outputs `wTb = Y⁻¹`, `cTg = X⁻¹`),
 //! so the peer check compares the same numbers.
+#![allow(clippy::type_complexity)] // (points, normals, ...) tuples of parallel vectors
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix3, Matrix6, Point3, SMatrix, Translation3, UnitQuaternion,
     Vector3,
@@ -64,7 +65,7 @@ fn kron3(a: &Matrix3<f64>, b: &Matrix3<f64>) -> SMatrix<f64, 9, 9> {
 /// rotation.
 fn normalize_rotation(m: &Matrix3<f64>) -> Result<Matrix3<f64>, RegisterError> {
     let d = m.determinant();
-    if !(d.abs() > f32::EPSILON as f64) {
+    if !d.is_finite() || d.abs() <= f32::EPSILON as f64 {
         return Err(RegisterError::Degenerate(
             "robot-world: rotation estimate has a null determinant (too little rotation in the poses)".into(),
         ));
