@@ -1,0 +1,508 @@
+//! Plausibility of a dataset's records against the robot's nominal geometry, its joint
+//! limits and the sensors' ranges. The strict reader (`crate::dataset::io`) checks types and
+//! structure; these checks catch values that are well-formed but cannot be right: joint
+//! angles outside the limits or in radians, marker / flange / pivot positions in metres, a
+//! negative laser range, a coordinate of 1e308. Every error names the file, the line, the
+//! field and the likely cause.
+use std::path::Path;
+
+use nalgebra::Point3;
+
+use crate::dataset::{Dataset, DatasetError, Location, PoseRecord, Record};
+use crate::model::KinematicModel;
+
+/// Largest plausible coordinate (mm) of a tracker or robot position: 100 m.
+pub const MAX_COORD_MM: f64 = 1.0e5;
+/// Largest plausible `t` (s since `created`): ten years.
+pub const MAX_T_S: f64 = 3.2e8;
+/// How far a measured joint angle may lie outside its limit (deg): encoder overshoot.
+pub const JOINT_LIMIT_TOL_DEG: f64 = 0.5;
+/// Plausible temperatures (°C) of a calibration cell.
+pub const TEMP_RANGE_C: [f64; 2] = [-40.0, 150.0];
+/// Largest plausible laser range reading (mm) when the sensor model is unknown.
+pub const MAX_RANGE_MM: f64 = 1.0e4;
+/// Largest plausible tracker fit RMS (mm).
+pub const MAX_RMS_MM: f64 = 100.0;
+
+fn field_err(file: &Path, line: usize, field: impl Into<String>, msg: String) -> DatasetError {
+    DatasetError::Field {
+        at: Location {
+            file: file.to_path_buf(),
+            line: Some(line),
+        },
+        field: field.into(),
+        msg,
+    }
+}
+
+/// The 1-based line of record `i` (the strict reader allows no blank lines: header = 1).
+fn line_of(i: usize) -> usize {
+    i + 2
+}
+
+/// Measuring window (mm) of a known range sensor, from the header's `range_sensor.kind`.
+pub fn sensor_window(kind: &str) -> Option<[f64; 2]> {
+    let k = kind.to_ascii_lowercase().replace(['-', '_', ' '], "");
+    // KEYENCE IL series: reference distance ± measuring range (catalogue values).
+    if k.contains("il600") {
+        Some([200.0, 1000.0])
+    } else if k.contains("il300") {
+        Some([160.0, 450.0])
+    } else if k.contains("il100") {
+        Some([75.0, 130.0])
+    } else {
+        None
+    }
+}
+
+fn range_kind(ds: &Dataset) -> Option<String> {
+    ds.header
+        .range_sensor
+        .as_ref()
+        .and_then(|v| v.get("kind"))
+        .and_then(|v| v.as_str())
+        .map(str::to_string)
+}
+
+/// RMS distance of points from their centroid (mm).
+fn spread(pts: &[Point3<f64>]) -> f64 {
+    if pts.is_empty() {
+        return 0.0;
+    }
+    let c = pts.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / pts.len() as f64;
+    (pts.iter().map(|p| (p.coords - c).norm_squared()).sum::<f64>() / pts.len() as f64).sqrt()
+}
+
+fn coord_check(
+    file: &Path,
+    line: usize,
+    field: &str,
+    p: &[f64],
+    what: &str,
+) -> Result<(), DatasetError> {
+    for (k, x) in p.iter().enumerate() {
+        if !x.is_finite() || x.abs() > MAX_COORD_MM {
+            return Err(field_err(
+                file,
+                line,
+                format!("{field}[{k}]"),
+                format!(
+                    "{x:e} mm is not a plausible {what} (beyond ±{MAX_COORD_MM:e} mm = 100 m): \
+                     a corrupted or mistyped value"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn joints_check(
+    file: &Path,
+    line: usize,
+    field: &str,
+    q: &[f64],
+    limits_deg: &[(f64, f64)],
+) -> Result<(), DatasetError> {
+    for (k, (&x, &(lo, hi))) in q.iter().zip(limits_deg).enumerate() {
+        if !x.is_finite() || x < lo - JOINT_LIMIT_TOL_DEG || x > hi + JOINT_LIMIT_TOL_DEG {
+            let cause = if !x.is_finite() || x.abs() > 1.0e4 {
+                "not a plausible joint angle: a corrupted or mistyped value"
+            } else {
+                "the robot cannot reach it: a wrong robot model in the header, a joint offset, \
+                 or a mistyped value"
+            };
+            return Err(field_err(
+                file,
+                line,
+                format!("{field}[{k}]"),
+                format!(
+                    "joint {} = {x}° is outside its limits [{lo}°, {hi}°]: {cause}",
+                    k + 1
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks every record of `ds` (read from `file`) against the robot's nominal geometry, its
+/// joint limits and the sensors' ranges. See the module docs.
+pub fn check_dataset(ds: &Dataset, file: &Path) -> Result<(), DatasetError> {
+    let model = KinematicModel::from_robot_block(&ds.header.robot).ok();
+    let limits_deg: Vec<(f64, f64)> = model
+        .as_ref()
+        .map(|m| {
+            m.joint_limits()
+                .iter()
+                .map(|&(a, b)| (a.to_degrees(), b.to_degrees()))
+                .collect()
+        })
+        .unwrap_or_default();
+    let window = range_kind(ds).as_deref().and_then(sensor_window);
+    let first_pose_line = ds
+        .records
+        .iter()
+        .position(|r| matches!(r, Record::Pose(_)))
+        .map(line_of)
+        .unwrap_or(1);
+    for (i, rec) in ds.records.iter().enumerate() {
+        let line = line_of(i);
+        let t = match rec {
+            Record::Pose(p) => p.t,
+            Record::Pivot(p) => p.t,
+            Record::Event(e) => e.t,
+        };
+        if !t.is_finite() || t.abs() > MAX_T_S {
+            return Err(field_err(
+                file,
+                line,
+                "t",
+                format!("{t:e} s is not a plausible time since the header's `created` (more than ten years)"),
+            ));
+        }
+        match rec {
+            Record::Pose(p) => pose_values(file, line, p, &limits_deg, window)?,
+            Record::Pivot(p) => {
+                if let Some(pp) = &p.marker.p {
+                    coord_check(file, line, "marker.p", pp, "tracker coordinate")?;
+                }
+                rms_check(file, line, p.marker.rms)?;
+            }
+            Record::Event(_) => {}
+        }
+    }
+    units(ds, file, model.as_ref(), first_pose_line)
+}
+
+fn rms_check(file: &Path, line: usize, rms: Option<f64>) -> Result<(), DatasetError> {
+    if let Some(r) = rms {
+        if !(0.0..=MAX_RMS_MM).contains(&r) {
+            return Err(field_err(
+                file,
+                line,
+                "marker.rms",
+                format!("{r} mm is not a tracker fit RMS (it lies in 0..{MAX_RMS_MM} mm)"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn pose_values(
+    file: &Path,
+    line: usize,
+    p: &PoseRecord,
+    limits_deg: &[(f64, f64)],
+    window: Option<[f64; 2]>,
+) -> Result<(), DatasetError> {
+    if let Some(q) = &p.q {
+        joints_check(file, line, "q", q, limits_deg)?;
+    }
+    if let Some(q) = &p.q_cmd {
+        joints_check(file, line, "q_cmd", q, limits_deg)?;
+    }
+    if let Some(m) = &p.marker {
+        if let Some(pp) = &m.p {
+            coord_check(file, line, "marker.p", pp, "tracker coordinate")?;
+        }
+        rms_check(file, line, m.rms)?;
+    }
+    if let Some(f) = &p.flange {
+        coord_check(file, line, "flange.p", &f.p, "flange position")?;
+    }
+    if let Some(Some(r)) = p.range {
+        if !r.is_finite() || r < 0.0 {
+            return Err(field_err(
+                file,
+                line,
+                "range",
+                format!(
+                    "{r} mm: a laser range reading is a distance ≥ 0 mm (a reading relative to \
+                     the reference distance, or the wrong sign?); write null for no reading"
+                ),
+            ));
+        }
+        let (lo, hi, what) = match window {
+            Some([lo, hi]) => (0.5 * lo, 1.5 * hi, "the sensor's measuring window"),
+            None => (0.0, MAX_RANGE_MM, "any laser range sensor's reach"),
+        };
+        if r < lo || r > hi {
+            return Err(field_err(
+                file,
+                line,
+                "range",
+                format!(
+                    "{r} mm is far outside {what} ({lo:.0}..{hi:.0} mm): a corrupted value or \
+                     the wrong `range_sensor.kind`"
+                ),
+            ));
+        }
+    }
+    if let Some(tc) = p.temp_c {
+        if !(TEMP_RANGE_C[0]..=TEMP_RANGE_C[1]).contains(&tc) {
+            return Err(field_err(
+                file,
+                line,
+                "temp_c",
+                format!(
+                    "{tc} °C is not a plausible cell temperature ({}..{} °C): Kelvin or \
+                     Fahrenheit, or a corrupted value?",
+                    TEMP_RANGE_C[0], TEMP_RANGE_C[1]
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Whole-file unit checks: radians instead of degrees, metres instead of millimetres.
+fn units(
+    ds: &Dataset,
+    file: &Path,
+    model: Option<&KinematicModel>,
+    first_line: usize,
+) -> Result<(), DatasetError> {
+    let poses: Vec<&PoseRecord> = ds.poses().collect();
+    // Joint angles in radians: every |q| ≤ π over many poses while the joints move.
+    let qs: Vec<&Vec<f64>> = poses.iter().filter_map(|p| p.q.as_ref()).collect();
+    if qs.len() >= 5 {
+        let max = qs.iter().flat_map(|q| q.iter()).fold(0.0f64, |a, x| a.max(x.abs()));
+        let wide = model.is_some_and(|m| m.joint_limits().iter().any(|(lo, hi)| hi - lo > 0.5));
+        if max <= std::f64::consts::PI + 1e-6 && max > 0.0 && wide {
+            return Err(field_err(
+                file,
+                first_line,
+                "q",
+                format!(
+                    "every joint angle of the {} poses lies within ±π (largest |q| = {max:.4}): \
+                     the joint angles look like radians; files use degrees",
+                    qs.len()
+                ),
+            ));
+        }
+    }
+    // Marker positions: the tracker is never within 10 mm of every marker; and the marker
+    // moves with the flange, so its spread matches the nominal flange spread within ~×3.
+    let with_marker: Vec<(&PoseRecord, Point3<f64>)> = poses
+        .iter()
+        .filter_map(|p| {
+            let m = p.marker.as_ref().filter(|m| m.visible)?;
+            m.p.map(|x| (*p, Point3::from(x)))
+        })
+        .collect();
+    metres_abs(
+        file,
+        first_line,
+        "marker.p",
+        with_marker.iter().map(|(_, p)| p),
+        "marker positions",
+    )?;
+    let pivots: Vec<Point3<f64>> = ds
+        .records
+        .iter()
+        .filter_map(|r| match r {
+            Record::Pivot(p) if p.marker.visible => p.marker.p.map(Point3::from),
+            _ => None,
+        })
+        .collect();
+    let first_pivot = ds
+        .records
+        .iter()
+        .position(|r| matches!(r, Record::Pivot(_)))
+        .map(line_of)
+        .unwrap_or(1);
+    metres_abs(
+        file,
+        first_pivot,
+        "marker.p",
+        pivots.iter(),
+        "pivot marker positions",
+    )?;
+    if pivots.len() >= 3 {
+        let s = spread(&pivots);
+        if s < 1.0 {
+            return Err(field_err(
+                file,
+                first_pivot,
+                "marker.p",
+                format!(
+                    "the pivot marker positions spread over only {s:.4} mm around their centre \
+                     (a probe pivoting about its tip sweeps tens of mm): they look like metres; \
+                     files use mm"
+                ),
+            ));
+        }
+    }
+    if let Some(m) = model {
+        let pairs: Vec<(Point3<f64>, Point3<f64>)> = with_marker
+            .iter()
+            .filter_map(|(p, x)| {
+                let q = p.q.as_ref()?;
+                let qr: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
+                Some((*x, Point3::from(m.flange_pose(&qr).translation.vector)))
+            })
+            .collect();
+        if pairs.len() >= 4 {
+            let sm = spread(&pairs.iter().map(|p| p.0).collect::<Vec<_>>());
+            let sf = spread(&pairs.iter().map(|p| p.1).collect::<Vec<_>>());
+            if sf > 20.0 {
+                let ratio = sm / sf;
+                if ratio < 0.05 {
+                    return Err(field_err(
+                        file,
+                        first_line,
+                        "marker.p",
+                        format!(
+                            "marker positions look like metres: they spread over {sm:.4} around \
+                             their centre while the robot's nominal flange moves over {sf:.1} mm \
+                             for the same joint angles; files use mm"
+                        ),
+                    ));
+                }
+                if ratio > 20.0 {
+                    return Err(field_err(
+                        file,
+                        first_line,
+                        "marker.p",
+                        format!(
+                            "marker positions spread over {sm:.1} mm while the robot's nominal \
+                             flange moves over {sf:.1} mm for the same joint angles: the wrong \
+                             unit (µm?) or the wrong robot model in the header"
+                        ),
+                    ));
+                }
+            }
+        }
+        // Flange poses against the nominal forward kinematics of the same q.
+        let fl: Vec<(Point3<f64>, Point3<f64>)> = poses
+            .iter()
+            .filter_map(|p| {
+                let f = p.flange.as_ref()?;
+                let q = p.q.as_ref()?;
+                let qr: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
+                Some((
+                    Point3::from(f.p),
+                    Point3::from(m.flange_pose(&qr).translation.vector),
+                ))
+            })
+            .collect();
+        if fl.len() >= 4 {
+            let sm = spread(&fl.iter().map(|p| p.0).collect::<Vec<_>>());
+            let sf = spread(&fl.iter().map(|p| p.1).collect::<Vec<_>>());
+            if sf > 20.0 && sm / sf < 0.05 {
+                return Err(field_err(
+                    file,
+                    first_line,
+                    "flange.p",
+                    format!(
+                        "flange positions look like metres: they spread over {sm:.4} while the \
+                         nominal forward kinematics of the same q spreads over {sf:.1} mm; files \
+                         use mm"
+                    ),
+                ));
+            }
+        }
+    }
+    let flanges: Vec<Point3<f64>> = poses
+        .iter()
+        .filter_map(|p| p.flange.as_ref().map(|f| Point3::from(f.p)))
+        .collect();
+    if flanges.len() >= 3 && flanges.iter().all(|p| p.coords.norm() < 10.0) {
+        return Err(field_err(
+            file,
+            first_line,
+            "flange.p",
+            format!(
+                "every flange position lies within 10 mm of the robot base origin (largest |p| = \
+                 {:.4}): they look like metres; files use mm",
+                flanges.iter().fold(0.0f64, |a, p| a.max(p.coords.norm()))
+            ),
+        ));
+    }
+    let ranges: Vec<f64> = poses.iter().filter_map(|p| p.range.flatten()).collect();
+    if ranges.len() >= 3 && ranges.iter().all(|r| *r < 5.0) {
+        return Err(field_err(
+            file,
+            first_line,
+            "range",
+            format!(
+                "every laser range reading is below 5 mm (largest {:.4}): they look like metres; \
+                 files use mm",
+                ranges.iter().fold(0.0f64, |a, r| a.max(*r))
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// A tracker never sits within 10 mm of every marker it sees: all |p| < 10 means metres.
+fn metres_abs<'a>(
+    file: &Path,
+    line: usize,
+    field: &str,
+    pts: impl Iterator<Item = &'a Point3<f64>>,
+    what: &str,
+) -> Result<(), DatasetError> {
+    let v: Vec<f64> = pts.map(|p| p.coords.norm()).collect();
+    if v.len() >= 3 && v.iter().all(|n| *n < 10.0) {
+        return Err(field_err(
+            file,
+            line,
+            field,
+            format!(
+                "{what} look like metres: every one lies within 10 mm of the tracker (largest \
+                 |p| = {:.4}); files use mm",
+                v.iter().fold(0.0f64, |a, x| a.max(*x))
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Whether two robot blocks describe the same robot model: equal `model` names and, when
+/// both carry a chain, the same number of joints.
+pub fn same_robot(a: &crate::dataset::RobotBlock, b: &crate::dataset::RobotBlock) -> bool {
+    if a.model.trim() != b.model.trim() {
+        return false;
+    }
+    match (a.dof(), b.dof()) {
+        (Some(x), Some(y)) => x == y,
+        _ => true,
+    }
+}
+
+/// Refuses a second file (`what`: "held-out file", "calibration") made for another robot.
+pub fn check_same_robot(
+    main: &crate::dataset::RobotBlock,
+    main_file: &Path,
+    other: &crate::dataset::RobotBlock,
+    other_file: &Path,
+    what: &str,
+) -> Result<(), DatasetError> {
+    if same_robot(main, other) {
+        return Ok(());
+    }
+    Err(DatasetError::Field {
+        at: Location {
+            file: other_file.to_path_buf(),
+            line: None,
+        },
+        field: "robot.model".into(),
+        msg: format!(
+            "this {what} is for robot model \"{}\"{}, but {} is for \"{}\"{}: a file from another \
+             robot or cell",
+            other.model,
+            other.dof().map(|d| format!(" ({d} joints)")).unwrap_or_default(),
+            main_file.display(),
+            main.model,
+            main.dof().map(|d| format!(" ({d} joints)")).unwrap_or_default(),
+        ),
+    })
+}
+
+/// Reads a dataset with the strict reader and checks its plausibility (see the module docs).
+pub fn load_checked(path: &Path) -> Result<Dataset, DatasetError> {
+    let ds = Dataset::load(path)?;
+    check_dataset(&ds, path)?;
+    Ok(ds)
+}
