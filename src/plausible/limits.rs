@@ -26,7 +26,7 @@ pub fn motion_cap(
         ));
     }
     if let Some(c) = cell {
-        if c.value.is_finite() && c.value > 0.0 && value > c.value {
+        if c.value.is_finite() && c.value > 0.0 && value > c.value * (1.0 + 1e-9) {
             return Err(format!(
                 "{flag} {value} {unit} is above the cell's limit of {} {unit} ({}): give at most \
                  {}",

@@ -56,10 +56,21 @@ fn show(v: f64, unit: Unit) -> (f64, &'static str) {
 
 /// Run `robocal calibrate kinematics`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let ds =
-        Dataset::load(&args.data).with_context(|| format!("reading {}", args.data.display()))?;
+    let ds = crate::plausible::load_checked(&args.data)
+        .with_context(|| format!("reading {}", args.data.display()))?;
     let held = match &args.heldout {
-        Some(p) => Some(Dataset::load(p).with_context(|| format!("reading {}", p.display()))?),
+        Some(p) => {
+            let h = crate::plausible::load_checked(p)
+                .with_context(|| format!("reading {}", p.display()))?;
+            crate::plausible::check_same_robot(
+                &ds.header.robot,
+                &args.data,
+                &h.header.robot,
+                p,
+                "held-out file",
+            )?;
+            Some(h)
+        }
         None => None,
     };
     if let Some(c) = args.huber {
