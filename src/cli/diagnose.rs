@@ -44,17 +44,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 /// Run and return the short console summary.
 pub fn run(args: &Args) -> anyhow::Result<String> {
     // Bad input is refused at the boundary: strict reader + plausibility (issue 14 §5).
-    let ds = crate::plausible::load_checked(&args.data)?;
-    if let Some(h) = &args.heldout {
-        let hd = crate::plausible::load_checked(h)?;
-        crate::plausible::check_same_robot(
-            &ds.header.robot,
-            &args.data,
-            &hd.header.robot,
-            h,
-            "held-out file",
-        )?;
-    }
+    let (ds, _) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     // Laser (range sensor) datasets have their own effect library (seed 000 geometry).
     if super::calibrate::laser::is_laser_dataset(&ds) {
         return super::calibrate::laser::diagnose_laser(

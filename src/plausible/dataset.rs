@@ -506,3 +506,22 @@ pub fn load_checked(path: &Path) -> Result<Dataset, DatasetError> {
     check_dataset(&ds, path)?;
     Ok(ds)
 }
+
+/// Reads the main dataset and an optional held-out dataset: both strictly and checked for
+/// plausibility, the held-out file first checked to be for the same robot model.
+pub fn load_with_heldout(
+    data: &Path,
+    heldout: Option<&Path>,
+) -> Result<(Dataset, Option<Dataset>), DatasetError> {
+    let ds = load_checked(data)?;
+    let held = match heldout {
+        Some(h) => {
+            let hd = Dataset::load(h)?;
+            check_same_robot(&ds.header.robot, data, &hd.header.robot, h, "held-out file")?;
+            check_dataset(&hd, h)?;
+            Some(hd)
+        }
+        None => None,
+    };
+    Ok((ds, held))
+}

@@ -14,4 +14,4 @@ pub mod calibration;
 pub mod dataset;
 pub mod limits;
 
-pub use dataset::{check_dataset, check_same_robot, load_checked};
+pub use dataset::{check_dataset, check_same_robot, load_checked, load_with_heldout};

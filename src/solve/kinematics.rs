@@ -547,7 +547,7 @@ pub fn identify(ds: &Dataset, opts: &IdentOptions) -> Result<IdentResult, SolveE
             if o.is_empty() {
                 // Never silently replaced by cross-validation.
                 return Err(SolveError::Invalid(format!(
-                    "the held-out file has no usable poses ({} pose records skipped: {}): a \
+                    "no usable held-out poses in the --heldout file ({} pose records skipped: {}): a \
                      held-out file must hold poses with `q` and a visible marker `p`",
                     s.len(),
                     s.first().map_or("no pose records".into(), |x| x.reason.clone())

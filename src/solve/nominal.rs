@@ -166,7 +166,7 @@ pub fn fit_nominal(ds: &Dataset, opts: &NominalOptions) -> Result<NominalFit, So
     skipped.extend(s2);
     if opts.heldout.is_some() && held.is_empty() {
         return Err(SolveError::Invalid(format!(
-            "the held-out file has no usable poses ({} pose records skipped: {}): a held-out \
+            "no usable held-out poses in the --heldout file ({} pose records skipped: {}): a held-out \
              file must hold poses with `q` and a visible marker `p`",
             skipped.len(),
             skipped.first().map_or("no pose records".into(), |s| s.reason.clone())

@@ -1,0 +1,23 @@
+//! Dataset reader (`robocal-dataset/1` JSON Lines) and its plausibility checks: never panic,
+//! never hang, and a dataset the strict reader accepts re-encodes to a file that reads back
+//! to the same dataset. The diagnosis' own reader must not panic either.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use std::path::Path;
+
+fuzz_target!(|data: &[u8]| {
+    let file = Path::new("fuzz.jsonl");
+    if let Ok(loaded) = robocal::dataset::parse_dataset(data, file) {
+        let ds = &loaded.dataset;
+        let _ = robocal::plausible::check_dataset(ds, file);
+        let _ = robocal::dataset::Summary::of(ds, Vec::new());
+        let again = robocal::dataset::parse_dataset(ds.to_jsonl().as_bytes(), file)
+            .expect("a dataset robocal accepted re-encodes to a file robocal reads");
+        assert_eq!(&again.dataset, ds);
+        assert!(again.warnings.is_empty());
+    }
+    if let Ok(text) = std::str::from_utf8(data) {
+        let _ = robocal::diagnose::data::parse_jsonl(text, "fuzz.jsonl");
+    }
+});

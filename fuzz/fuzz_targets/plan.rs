@@ -1,0 +1,19 @@
+//! Plan file reader (`robocal-plan/1`) and the safety re-check of `plan --check` / `run`:
+//! never panic; an accepted plan re-encodes to a file that reads back equal.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use robocal::plan::PlanFile;
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    if let Ok(plan) = PlanFile::from_json_str(text) {
+        let _ = robocal::plan::recheck::recheck(&plan, None);
+        let json = serde_json::to_string(&plan).expect("a plan serialises");
+        let again = PlanFile::from_json_str(&json)
+            .expect("a plan robocal accepted re-encodes to a file robocal reads");
+        assert_eq!(again, plan);
+    }
+});
