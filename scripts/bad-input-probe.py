@@ -284,14 +284,15 @@ def main():
             return j(name + ".json")
         table = plan_variant("ptable", lambda pj: pj["spec"]["constraints"].update(table_z_mm=450.0))
         env = plan_variant("penv", lambda pj: pj["spec"]["constraints"]["envelope"].update(radius=300.0))
-        nolim = plan_variant("plimits", lambda pj: pj.update(robot={"model": "denso-vs060", "chain": [
-            dict(jt, limits=[-1000, 1000]) for jt in (pj["robot"].get("chain") or [])]}) if pj["robot"].get("chain") else None)
+        nolim = plan_variant("plimits", lambda pj: pj.update(robot=dict(hdr["robot"], chain=[
+            dict(jt, limits=[-1000, 1000]) for jt in hdr["robot"]["chain"]])))
         urplan = plan_variant("pur", lambda pj: pj["robot"].update(model="ur5e"))
         b("plan --check: poses below the edited table", ["plan", "--check", table], ["table"])
         b("plan --check: poses outside the edited envelope", ["plan", "--check", env], ["envelope"])
         b("run: plan whose table the poses violate", ["run", "--plan", table, "--sim", LAB, "--out", j("r-table"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["table"], timeout=60)
-        b("run: plan for ur5e on the vs060 cell", ["run", "--plan", urplan, "--sim", LAB, "--out", j("r-ur"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["ur5e", "robot"], timeout=60)
-        if nolim != j("plimits.json") or planj["robot"].get("chain"):
+        b("run: plan for ur5e on the vs060 cell", ["run", "--plan", urplan, "--sim", LAB, "--out", j("r-ur"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["ur5e", "robot", "forward kinematics"], timeout=60)
+        b("plan --check: widened joint limits", ["plan", "--check", nolim], ["limit"])
+        if True:
             b("run: plan with widened joint limits", ["run", "--plan", nolim, "--sim", LAB, "--out", j("r-lim"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["limit"], timeout=60)
 
         # ---- safety parameters of `run`
@@ -302,7 +303,7 @@ def main():
                                ("--frames", "0", ["frames"])]:
             for proc in (["--in-process"], []):
                 tag = "in-process" if proc else "wire"
-                b(f"run ({tag}): {flag} {val}", ["run", "--plan", j("plan.json"), "--sim", LAB, "--out", j(f"r{flag}{val}{tag}"), "--virtual-clock", "--max-poses", "2", flag, val] + proc, exp, timeout=60)
+                b(f"run ({tag}): {flag} {val}", ["run", "--plan", j("plan.json"), "--sim", LAB, "--out", j(f"r{flag}{val}{tag}"), "--virtual-clock", "--max-poses", "2", f"{flag}={val}"] + proc, exp, timeout=60)
         b("ctl run", ["run", "--plan", j("plan.json"), "--sim", LAB, "--out", j("r-good"), "--virtual-clock", "--in-process", "--max-poses", "2"], good=True, timeout=60)
 
     # ---- scenarios
@@ -336,7 +337,7 @@ def main():
     dev = j("dev.toml")
     open(dev, "w").write('[[device]]\nname = "arm"\nrole = "arm"\nvendor = "denso"\nprotocol = "bcap"\naddress = "127.0.0.1:9"\n')
     for v in ("NaN", "-1", "inf", "0"):
-        b(f"devices --probe --timeout-s {v}", ["devices", "--devices", dev, "--probe", "--timeout-s", v], ["timeout"])
+        b(f"devices --probe --timeout-s {v}", ["devices", "--devices", dev, "--probe", f"--timeout-s={v}"], ["timeout"])
     garbage = j("garbage.bin")
     open(garbage, "wb").write(bytes(range(256)) * 4)
     for cmd in (["inspect", garbage], ["devices", "--devices", garbage], ["sim", "serve", "--scenario", garbage],

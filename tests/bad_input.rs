@@ -261,7 +261,7 @@ fn bad_input_units_and_plausibility() {
     let f = write(dp, "lneg.jsonl", &rows);
     refused(
         &["calibrate", "laser", "--data", s(&f), "--out", s(&out)],
-        &["lneg.jsonl:4", "range", "distance ≥ 0"],
+        &["lneg.jsonl:4", "range", "a distance from 0"],
     );
     let mut rows = lines("tests/data/laser-planes/train.jsonl");
     for r in rows.iter_mut().skip(1) {
@@ -296,7 +296,7 @@ fn bad_input_under_determined_fits() {
     let f = write(d.path(), "three.jsonl", &geo(3));
     refused(
         &["calibrate", "nominal", "--data", s(&f), "--out", s(&out)],
-        &["3 usable training poses", "measure 3 more"],
+        &["3 usable training poses", "measure 3 more poses"],
     );
     let f = write(d.path(), "p3.jsonl", &pivot_rows(1.0, 3));
     refused(
@@ -417,7 +417,7 @@ fn bad_input_safety_parameters() {
     };
     for (i, (flag, val, needle)) in [
         ("--speed-deg-s", "0", "finite number > 0"),
-        ("--speed-deg-s", "-5", "finite number > 0"),
+        ("--speed-deg-s=-5", "", "finite number > 0"),
         ("--speed-deg-s", "NaN", "finite number > 0"),
         ("--speed-deg-s", "1000", "above the cell's limit of 180"),
         ("--accel-deg-s2", "0", "finite number > 0"),
@@ -428,11 +428,30 @@ fn bad_input_safety_parameters() {
         let out = dp.join(format!("run{i}"));
         let mut a = base(&out);
         a.push(flag.into());
-        a.push(val.into());
+        if !val.is_empty() {
+            a.push(val.into());
+        }
         let a: Vec<&str> = a.iter().map(String::as_str).collect();
-        refused(&a, &[flag, needle]);
+        refused(&a, &[flag.split('=').next().unwrap(), needle]);
         assert!(!out.exists(), "nothing may be created for a refused run");
     }
+    // A live cell's limit comes from its device file: refused before any device is opened.
+    let dev = dp.join("cell.toml");
+    std::fs::write(
+        &dev,
+        "[[device]]\nname = \"vs060\"\nrole = \"arm\"\nvendor = \"denso\"\nprotocol = \"bcap\"\n\
+         model = \"denso-vs060\"\naddress = \"127.0.0.1:9\"\nmax_speed_deg_s = 90.0\n",
+    )
+    .unwrap();
+    let out = dp.join("live");
+    refused(
+        &[
+            "run", "--plan", s(&plan), "--devices", s(&dev), "--live", "--yes", "--out",
+            s(&out), "--speed-deg-s", "120",
+        ],
+        &["above the cell's limit of 90", "max_speed_deg_s"],
+    );
+    assert!(!out.exists());
     // A plan whose table was edited after planning: `plan --check` and `run` re-check it.
     let mut pj: Value = serde_json::from_str(&std::fs::read_to_string(&plan).unwrap()).unwrap();
     pj["spec"]["constraints"]["table_z_mm"] = json!(450.0);
@@ -470,8 +489,9 @@ fn bad_input_devices_probe_timeout_nan_is_an_error_not_a_panic() {
     )
     .unwrap();
     for v in ["NaN", "-1", "inf", "0"] {
+        let t = format!("--timeout-s={v}");
         refused(
-            &["devices", "--devices", s(&dev), "--probe", "--timeout-s", v],
+            &["devices", "--devices", s(&dev), "--probe", &t],
             &["--timeout-s", "finite number of seconds"],
         );
     }
@@ -512,4 +532,156 @@ fn bad_input_mismatched_files() {
         a.extend(["--data", s(&good), "--heldout", s(&empty), "--out", s(&out)]);
         refused(&a, &["no usable held-out poses"]);
     }
+}
+
+/// Deterministic mutation of a seed: byte flips, insertions, deletions, truncation and
+/// numbers replaced with extreme values (what a corrupted or mistyped file holds).
+fn mutate(seed: &[u8], rng: &mut u64) -> Vec<u8> {
+    let mut next = || {
+        *rng = rng
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (*rng >> 33) as usize
+    };
+    let mut v = seed.to_vec();
+    let extremes: [&[u8]; 8] = [
+        b"1e308", b"-1e308", b"nan", b"inf", b"-0", b"1e-320", b"18446744073709551616", b"null",
+    ];
+    for _ in 0..1 + next() % 4 {
+        if v.is_empty() {
+            v.push(b'{');
+        }
+        let at = next() % v.len();
+        match next() % 6 {
+            0 => v[at] = (next() % 256) as u8,
+            1 => v.insert(at, b"{}[],:\"0-.e\n"[next() % 12]),
+            2 => {
+                v.remove(at);
+            }
+            3 => v.truncate(at),
+            _ => {
+                // Replace the number starting at/after `at` with an extreme value.
+                if let Some(s) = v[at..].iter().position(|b| b.is_ascii_digit()) {
+                    let s = at + s;
+                    let e = v[s..]
+                        .iter()
+                        .position(|b| !(b.is_ascii_digit() || *b == b'.'))
+                        .map_or(v.len(), |e| s + e);
+                    let x = extremes[next() % extremes.len()];
+                    v.splice(s..e, x.iter().copied()).for_each(drop);
+                }
+            }
+        }
+    }
+    v
+}
+
+#[test]
+fn bad_input_file_readers_survive_mutated_files() {
+    // A fast in-suite complement of the cargo-fuzz targets (fuzz/fuzz_targets/): every
+    // reader, fed mutated copies of the project's own files, returns Ok or a clear Err: no
+    // panic, no hang; what it accepts it writes back in a form it reads back the same.
+    use robocal::dataset::{parse_dataset, CalibrationFile};
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = Instant::now();
+    let n = 400;
+    let mut rng = 7u64;
+    let mut counts = std::collections::BTreeMap::new();
+    let mut note = |k: &str, ok: bool| {
+        let e = counts.entry(k.to_string()).or_insert((0usize, 0usize));
+        if ok {
+            e.0 += 1
+        } else {
+            e.1 += 1
+        }
+    };
+    let dataset: Vec<u8> = std::fs::read_to_string(root().join("tests/data/kin-geometric/heldout.jsonl"))
+        .unwrap()
+        .lines()
+        .take(12)
+        .flat_map(|l| format!("{l}\n").into_bytes())
+        .collect();
+    let fp = Path::new("m.jsonl");
+    for _ in 0..n {
+        let m = mutate(&dataset, &mut rng);
+        let r = parse_dataset(&m, fp);
+        if let Ok(l) = &r {
+            let _ = robocal::plausible::check_dataset(&l.dataset, fp);
+            let again = parse_dataset(l.dataset.to_jsonl().as_bytes(), fp).expect("re-read");
+            assert_eq!(again.dataset, l.dataset);
+        }
+        note("dataset", r.is_ok());
+    }
+    let header = &geo(0)[0];
+    let cal = json!({"format": "robocal-calibration/1", "robot": header["robot"],
+        "params": [{"name": "a3", "value": 305.1, "std": 0.01, "unit": "mm", "free": true},
+                   {"name": "base_x", "value": 1000.0, "unit": "mm", "free": true}],
+        "effects": [{"kind": "joint_compliance", "joint": 2, "params": {"k_deg_per_nm": 1e-4}}],
+        "metrics": {"train_rms_mm": 0.1}})
+    .to_string()
+    .into_bytes();
+    for _ in 0..n {
+        let m = mutate(&cal, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = CalibrationFile::parse(text, Path::new("m.json"));
+        if let Ok(c) = &r {
+            let _ = robocal::plausible::calibration::check_values(c, Path::new("m.json"));
+            let again = CalibrationFile::parse(&c.to_json_pretty(), Path::new("m.json"));
+            assert_eq!(again.as_ref().ok(), Some(c));
+        }
+        note("calibration", r.is_ok());
+    }
+    let plan = std::fs::read(small_plan(dir.path())).unwrap();
+    for _ in 0..n / 4 {
+        let m = mutate(&plan, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal::plan::PlanFile::from_json_str(text);
+        if let Ok(p) = &r {
+            let _ = robocal::plan::recheck::recheck(p, None);
+        }
+        note("plan", r.is_ok());
+    }
+    let spec = std::fs::read(root().join("plans/seed001-annulus.toml")).unwrap();
+    for _ in 0..n {
+        let m = mutate(&spec, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal::plan::PlanSpec::from_toml_str(text);
+        if let Ok(s) = &r {
+            assert!(s.target_count() <= robocal::plan::spec::MAX_TARGETS);
+        }
+        note("spec", r.is_ok());
+    }
+    let scen = std::fs::read(lab()).unwrap();
+    for _ in 0..n {
+        let m = mutate(&scen, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal_mocks::scenario::Scenario::from_toml(text);
+        if let Ok(s) = &r {
+            for a in &s.arms {
+                assert!(a.motion.settle_s.is_finite(), "{text}");
+            }
+        }
+        note("scenario", r.is_ok());
+    }
+    let dev = std::fs::read(root().join("fuzz/seeds/devices/cell.toml")).unwrap();
+    for _ in 0..n {
+        let m = mutate(&dev, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal::acquire::devices::DevicesFile::parse(text, "m.toml");
+        note("devices", r.is_ok());
+    }
+    for (k, (ok, err)) in &counts {
+        println!("mutated {k}: {ok} accepted, {err} refused");
+    }
+    println!("file readers: {:.1} s", t0.elapsed().as_secs_f64());
 }

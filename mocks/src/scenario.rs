@@ -597,7 +597,7 @@ impl Scenario {
             }
         }
         let within = |name: String, v: f64, lo: f64, hi: f64, open_lo: bool| {
-            let ok = if open_lo { v > lo } else { v >= lo } && v <= hi;
+            let ok = (if open_lo { v > lo } else { v >= lo }) && v <= hi;
             if ok {
                 Ok(())
             } else {

@@ -150,7 +150,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             PlanFile::read(path).with_context(|| format!("checking {}", path.display()))?;
         // Re-check every pose against the plan's constraints (table, envelope, joint
         // limits, self-collision): the file may have been edited since it was planned.
-        let n = plan::recheck::recheck(&plan, None)
+        let n = crate::plan::recheck::recheck(&plan, None)
             .with_context(|| format!("checking {}", path.display()))?;
         println!(
             "{}: {n} poses re-checked against the plan's constraints: all pass",

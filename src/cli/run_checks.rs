@@ -50,17 +50,20 @@ fn cell_arm(mode: &str, config: &Path) -> anyhow::Result<CellArm> {
     let model = arm
         .and_then(|d| d.model.clone())
         .filter(|m| crate::dataset::preset_dof(m.trim()).is_some());
+    let name = arm.map(|d| d.name.as_str()).unwrap_or("?");
+    let limit = |v: Option<f64>, k: &str| {
+        v.map(|value| CellLimit {
+            value,
+            source: format!("{}: device \"{name}\" {k}", config.display()),
+        })
+    };
     Ok(CellArm {
         robot: CellRobot {
-            source: format!(
-                "{}: device \"{}\"",
-                config.display(),
-                arm.map(|d| d.name.as_str()).unwrap_or("?")
-            ),
+            source: format!("{}: device \"{name}\"", config.display()),
             model,
         },
-        vel: None,
-        acc: None,
+        vel: limit(arm.and_then(|d| d.max_speed_deg_s), "max_speed_deg_s"),
+        acc: limit(arm.and_then(|d| d.max_accel_deg_s2), "max_accel_deg_s2"),
     })
 }
 

@@ -35,6 +35,15 @@ fn field_err(file: &Path, line: usize, field: impl Into<String>, msg: String) ->
     }
 }
 
+/// A number for a message: plain when moderate, scientific when huge or tiny.
+fn num(x: f64) -> String {
+    if x != 0.0 && (x.abs() >= 1e6 || x.abs() < 1e-4) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
 /// The 1-based line of record `i` (the strict reader allows no blank lines: header = 1).
 fn line_of(i: usize) -> usize {
     i + 2
@@ -102,9 +111,12 @@ fn joints_check(
     field: &str,
     q: &[f64],
     limits_deg: &[(f64, f64)],
+    pass: Pass,
 ) -> Result<(), DatasetError> {
     for (k, (&x, &(lo, hi))) in q.iter().zip(limits_deg).enumerate() {
-        if !x.is_finite() || x < lo - JOINT_LIMIT_TOL_DEG || x > hi + JOINT_LIMIT_TOL_DEG {
+        let absurd = !x.is_finite() || x.abs() > 1.0e4;
+        let outside = x < lo - JOINT_LIMIT_TOL_DEG || x > hi + JOINT_LIMIT_TOL_DEG;
+        if absurd || (pass == Pass::Ranges && outside) {
             let cause = if !x.is_finite() || x.abs() > 1.0e4 {
                 "not a plausible joint angle: a corrupted or mistyped value"
             } else {
@@ -116,13 +128,23 @@ fn joints_check(
                 line,
                 format!("{field}[{k}]"),
                 format!(
-                    "joint {} = {x}° is outside its limits [{lo}°, {hi}°]: {cause}",
-                    k + 1
+                    "joint {} = {}° is outside its limits [{lo:.1}°, {hi:.1}°]: {cause}",
+                    k + 1,
+                    num(x)
                 ),
             ));
         }
     }
     Ok(())
+}
+
+/// The passes over the records: absurd values first (so whole-file unit checks never see a
+/// 1e308), then the unit checks, then the limits and windows (so values in metres are
+/// named as such rather than as "outside the window").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Pass {
+    Absurd,
+    Ranges,
 }
 
 /// Checks every record of `ds` (read from `file`) against the robot's nominal geometry, its
@@ -145,6 +167,18 @@ pub fn check_dataset(ds: &Dataset, file: &Path) -> Result<(), DatasetError> {
         .position(|r| matches!(r, Record::Pose(_)))
         .map(line_of)
         .unwrap_or(1);
+    records(ds, file, &limits_deg, window, Pass::Absurd)?;
+    units(ds, file, model.as_ref(), first_pose_line)?;
+    records(ds, file, &limits_deg, window, Pass::Ranges)
+}
+
+fn records(
+    ds: &Dataset,
+    file: &Path,
+    limits_deg: &[(f64, f64)],
+    window: Option<[f64; 2]>,
+    pass: Pass,
+) -> Result<(), DatasetError> {
     for (i, rec) in ds.records.iter().enumerate() {
         let line = line_of(i);
         let t = match rec {
@@ -161,17 +195,19 @@ pub fn check_dataset(ds: &Dataset, file: &Path) -> Result<(), DatasetError> {
             ));
         }
         match rec {
-            Record::Pose(p) => pose_values(file, line, p, &limits_deg, window)?,
+            Record::Pose(p) => pose_values(file, line, p, limits_deg, window, pass)?,
             Record::Pivot(p) => {
                 if let Some(pp) = &p.marker.p {
                     coord_check(file, line, "marker.p", pp, "tracker coordinate")?;
                 }
-                rms_check(file, line, p.marker.rms)?;
+                if pass == Pass::Ranges {
+                    rms_check(file, line, p.marker.rms)?;
+                }
             }
             Record::Event(_) => {}
         }
     }
-    units(ds, file, model.as_ref(), first_pose_line)
+    Ok(())
 }
 
 fn rms_check(file: &Path, line: usize, rms: Option<f64>) -> Result<(), DatasetError> {
@@ -194,33 +230,41 @@ fn pose_values(
     p: &PoseRecord,
     limits_deg: &[(f64, f64)],
     window: Option<[f64; 2]>,
+    pass: Pass,
 ) -> Result<(), DatasetError> {
     if let Some(q) = &p.q {
-        joints_check(file, line, "q", q, limits_deg)?;
+        joints_check(file, line, "q", q, limits_deg, pass)?;
     }
     if let Some(q) = &p.q_cmd {
-        joints_check(file, line, "q_cmd", q, limits_deg)?;
+        joints_check(file, line, "q_cmd", q, limits_deg, pass)?;
     }
     if let Some(m) = &p.marker {
         if let Some(pp) = &m.p {
             coord_check(file, line, "marker.p", pp, "tracker coordinate")?;
         }
-        rms_check(file, line, m.rms)?;
+        if pass == Pass::Ranges {
+            rms_check(file, line, m.rms)?;
+        }
     }
     if let Some(f) = &p.flange {
         coord_check(file, line, "flange.p", &f.p, "flange position")?;
     }
     if let Some(Some(r)) = p.range {
-        if !r.is_finite() || r < 0.0 {
+        if !r.is_finite() || r < 0.0 || r > 1.0e6 {
             return Err(field_err(
                 file,
                 line,
                 "range",
                 format!(
-                    "{r} mm: a laser range reading is a distance ≥ 0 mm (a reading relative to \
-                     the reference distance, or the wrong sign?); write null for no reading"
+                    "{} mm: a laser range reading is a distance from 0 to 1e6 mm (a reading \
+                     relative to the reference distance, the wrong sign, or a corrupted value?); \
+                     write null for no reading",
+                    num(r)
                 ),
             ));
+        }
+        if pass == Pass::Absurd {
+            return Ok(());
         }
         let (lo, hi, what) = match window {
             Some([lo, hi]) => (0.5 * lo, 1.5 * hi, "the sensor's measuring window"),
@@ -232,22 +276,25 @@ fn pose_values(
                 line,
                 "range",
                 format!(
-                    "{r} mm is far outside {what} ({lo:.0}..{hi:.0} mm): a corrupted value or \
-                     the wrong `range_sensor.kind`"
+                    "{} mm is far outside {what} ({lo:.0}..{hi:.0} mm): a corrupted value or \
+                     the wrong `range_sensor.kind`",
+                    num(r)
                 ),
             ));
         }
     }
     if let Some(tc) = p.temp_c {
-        if !(TEMP_RANGE_C[0]..=TEMP_RANGE_C[1]).contains(&tc) {
+        if pass == Pass::Ranges && !(TEMP_RANGE_C[0]..=TEMP_RANGE_C[1]).contains(&tc) {
             return Err(field_err(
                 file,
                 line,
                 "temp_c",
                 format!(
-                    "{tc} °C is not a plausible cell temperature ({}..{} °C): Kelvin or \
+                    "{} °C is not a plausible cell temperature ({}..{} °C): Kelvin or \
                      Fahrenheit, or a corrupted value?",
-                    TEMP_RANGE_C[0], TEMP_RANGE_C[1]
+                    num(tc),
+                    TEMP_RANGE_C[0],
+                    TEMP_RANGE_C[1]
                 ),
             ));
         }
@@ -524,4 +571,77 @@ pub fn load_with_heldout(
         None => None,
     };
     Ok((ds, held))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::parse_dataset;
+
+    fn file(rel: &str) -> String {
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)).unwrap()
+    }
+
+    fn check(text: &str) -> Result<(), DatasetError> {
+        let p = Path::new("t.jsonl");
+        let ds = parse_dataset(text.as_bytes(), p).unwrap().dataset;
+        check_dataset(&ds, p)
+    }
+
+    /// Applies `f` to every pose record line (JSON values) of `text`.
+    fn map_poses(text: &str, f: impl Fn(&mut serde_json::Value)) -> String {
+        let mut out = String::new();
+        for (i, l) in text.lines().enumerate() {
+            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+            if i > 0 && v["kind"] == "pose" {
+                f(&mut v);
+            }
+            out.push_str(&v.to_string());
+            out.push('\n');
+        }
+        out
+    }
+
+    #[test]
+    fn the_project_datasets_are_plausible() {
+        for f in [
+            "tests/data/kin-geometric/train.jsonl",
+            "tests/data/kin-geometric/heldout.jsonl",
+            "tests/data/kin-compliance-j2/train.jsonl",
+            "tests/data/laser-planes/train.jsonl",
+            "tests/data/laser-planes/heldout.jsonl",
+        ] {
+            check(&file(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        }
+    }
+
+    #[test]
+    fn metres_radians_and_out_of_range_values_are_named() {
+        let geo = file("tests/data/kin-geometric/heldout.jsonl");
+        let scale = |v: &mut serde_json::Value, k: &str, s: f64| {
+            let p: Vec<f64> = v[k].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() * s).collect();
+            v[k] = serde_json::json!(p);
+        };
+        let m = map_poses(&geo, |v| {
+            let mut mk = v["marker"].clone();
+            scale(&mut mk, "p", 1e-3);
+            v["marker"] = mk;
+        });
+        let e = check(&m).unwrap_err().to_string();
+        assert!(e.contains("t.jsonl:2") && e.contains("look like metres"), "{e}");
+        let r = map_poses(&geo, |v| {
+            scale(v, "q", std::f64::consts::PI / 180.0);
+            scale(v, "q_cmd", std::f64::consts::PI / 180.0);
+        });
+        let e = check(&r).unwrap_err().to_string();
+        assert!(e.contains("look like radians"), "{e}");
+        let mut lines: Vec<String> = geo.lines().map(String::from).collect();
+        let mut v: serde_json::Value = serde_json::from_str(&lines[3]).unwrap();
+        v["q"][2] = serde_json::json!(160.0); // joint 3 limits [-125, 155]
+        lines[3] = v.to_string();
+        let e = check(&(lines.join("\n") + "\n")).unwrap_err();
+        assert_eq!(e.line(), Some(4));
+        assert_eq!(e.field(), Some("q[2]"));
+        assert!(e.to_string().contains("outside its limits [-125.0°, 155.0°]"), "{e}");
+    }
 }

@@ -178,7 +178,7 @@ pub fn fit_nominal(ds: &Dataset, opts: &NominalOptions) -> Result<NominalFit, So
         return Err(SolveError::Invalid(format!(
             "{} usable training poses give {} equations for the 9 parameters of the nominal fit \
              (tracker → base 6, marker 3): at least {need} poses are needed (twice as many \
-             equations as parameters); measure {} more",
+             equations as parameters); measure {} more poses",
             train.len(),
             3 * train.len(),
             need - train.len()
