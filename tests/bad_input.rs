@@ -72,7 +72,11 @@ fn refused(args: &[&str], needles: &[&str]) -> String {
             o.text
         );
     }
-    println!("refused {:?}: {}", &args[..args.len().min(2)], first_error(&o.text));
+    println!(
+        "refused {:?}: {}",
+        &args[..args.len().min(2)],
+        first_error(&o.text)
+    );
     o.text
 }
 
@@ -134,8 +138,10 @@ fn pivot_rows(scale: f64, n: usize) -> Vec<Value> {
         let r = UnitQuaternion::from_euler_angles(0.3 * a.sin(), 0.3 * a.cos(), 0.5 * a);
         let p = (pivot - r * Vector3::new(0.0, 0.0, -150.0)) * scale;
         let q = r.quaternion();
-        rows.push(json!({"kind": "pivot", "t": i as f64 * 0.1, "tool": "probe",
-            "marker": {"p": [p.x, p.y, p.z], "quat": [q.w, q.i, q.j, q.k], "rms": 0.05}}));
+        rows.push(
+            json!({"kind": "pivot", "t": i as f64 * 0.1, "tool": "probe",
+            "marker": {"p": [p.x, p.y, p.z], "quat": [q.w, q.i, q.j, q.k], "rms": 0.05}}),
+        );
     }
     rows
 }
@@ -316,7 +322,11 @@ fn bad_input_huge_and_non_finite_values_do_not_hang() {
     let f = write(dp, "p308.jsonl", &rows);
     refused(
         &["diagnose", "--data", s(&f), "--out", s(&out)],
-        &["p308.jsonl:6", "marker.p[2]", "not a plausible tracker coordinate"],
+        &[
+            "p308.jsonl:6",
+            "marker.p[2]",
+            "not a plausible tracker coordinate",
+        ],
     );
     let mut rows = pivot_rows(1.0, 40);
     rows[3]["marker"]["p"][0] = json!(1e308);
@@ -446,8 +456,17 @@ fn bad_input_safety_parameters() {
     let out = dp.join("live");
     refused(
         &[
-            "run", "--plan", s(&plan), "--devices", s(&dev), "--live", "--yes", "--out",
-            s(&out), "--speed-deg-s", "120",
+            "run",
+            "--plan",
+            s(&plan),
+            "--devices",
+            s(&dev),
+            "--live",
+            "--yes",
+            "--out",
+            s(&out),
+            "--speed-deg-s",
+            "120",
         ],
         &["above the cell's limit of 90", "max_speed_deg_s"],
     );
@@ -507,7 +526,11 @@ fn bad_input_mismatched_files() {
     let mut held = geo_held(20);
     held[0]["robot"] = json!({"model": "ur5e"});
     let ur = write(dp, "ur.jsonl", &held);
-    for cmd in [&["calibrate", "nominal"][..], &["calibrate", "kinematics"], &["diagnose"]] {
+    for cmd in [
+        &["calibrate", "nominal"][..],
+        &["calibrate", "kinematics"],
+        &["diagnose"],
+    ] {
         let mut a: Vec<&str> = cmd.to_vec();
         a.extend(["--data", s(&good), "--heldout", s(&ur), "--out", s(&out)]);
         refused(&a, &["ur.jsonl", "robot.model", "\"ur5e\"", "denso-vs060"]);
@@ -527,7 +550,11 @@ fn bad_input_mismatched_files() {
         r["marker"] = json!({"visible": false});
     }
     let empty = write(dp, "empty.jsonl", &held);
-    for cmd in [&["calibrate", "nominal"][..], &["calibrate", "kinematics"], &["diagnose"]] {
+    for cmd in [
+        &["calibrate", "nominal"][..],
+        &["calibrate", "kinematics"],
+        &["diagnose"],
+    ] {
         let mut a: Vec<&str> = cmd.to_vec();
         a.extend(["--data", s(&good), "--heldout", s(&empty), "--out", s(&out)]);
         refused(&a, &["no usable held-out poses"]);
@@ -545,7 +572,14 @@ fn mutate(seed: &[u8], rng: &mut u64) -> Vec<u8> {
     };
     let mut v = seed.to_vec();
     let extremes: [&[u8]; 8] = [
-        b"1e308", b"-1e308", b"nan", b"inf", b"-0", b"1e-320", b"18446744073709551616", b"null",
+        b"1e308",
+        b"-1e308",
+        b"nan",
+        b"inf",
+        b"-0",
+        b"1e-320",
+        b"18446744073709551616",
+        b"null",
     ];
     for _ in 0..1 + next() % 4 {
         if v.is_empty() {
@@ -595,12 +629,13 @@ fn bad_input_file_readers_survive_mutated_files() {
             e.1 += 1
         }
     };
-    let dataset: Vec<u8> = std::fs::read_to_string(root().join("tests/data/kin-geometric/heldout.jsonl"))
-        .unwrap()
-        .lines()
-        .take(12)
-        .flat_map(|l| format!("{l}\n").into_bytes())
-        .collect();
+    let dataset: Vec<u8> =
+        std::fs::read_to_string(root().join("tests/data/kin-geometric/heldout.jsonl"))
+            .unwrap()
+            .lines()
+            .take(12)
+            .flat_map(|l| format!("{l}\n").into_bytes())
+            .collect();
     let fp = Path::new("m.jsonl");
     for _ in 0..n {
         let m = mutate(&dataset, &mut rng);

@@ -609,8 +609,20 @@ impl Scenario {
         };
         for a in &self.arms {
             let n = |k: &str| format!("arm \"{}\" motion.{k}", a.name);
-            within(n("max_vel_deg_s"), a.motion.max_vel_deg_s, 0.0, 10_000.0, true)?;
-            within(n("max_acc_deg_s2"), a.motion.max_acc_deg_s2, 0.0, 100_000.0, true)?;
+            within(
+                n("max_vel_deg_s"),
+                a.motion.max_vel_deg_s,
+                0.0,
+                10_000.0,
+                true,
+            )?;
+            within(
+                n("max_acc_deg_s2"),
+                a.motion.max_acc_deg_s2,
+                0.0,
+                100_000.0,
+                true,
+            )?;
             within(n("settle_s"), a.motion.settle_s, 0.0, 600.0, false)?;
         }
         for t in &self.trackers {

@@ -146,8 +146,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         );
     }
     let plan = if let Some(path) = &a.check {
-        let plan =
-            PlanFile::read(path).with_context(|| format!("checking {}", path.display()))?;
+        let plan = PlanFile::read(path).with_context(|| format!("checking {}", path.display()))?;
         // Re-check every pose against the plan's constraints (table, envelope, joint
         // limits, self-collision): the file may have been edited since it was planned.
         let n = crate::plan::recheck::recheck(&plan, None)

@@ -87,6 +87,7 @@ pub fn check_run_inputs(
         (1..=10_000).contains(&frames),
         "--frames {frames}: average 1 to 10000 tracker frames per pose"
     );
-    recheck(plan, Some(&cell.robot)).with_context(|| format!("checking {}", plan_path.display()))?;
+    recheck(plan, Some(&cell.robot))
+        .with_context(|| format!("checking {}", plan_path.display()))?;
     Ok(())
 }

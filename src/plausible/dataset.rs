@@ -78,8 +78,15 @@ fn spread(pts: &[Point3<f64>]) -> f64 {
     if pts.is_empty() {
         return 0.0;
     }
-    let c = pts.iter().fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords) / pts.len() as f64;
-    (pts.iter().map(|p| (p.coords - c).norm_squared()).sum::<f64>() / pts.len() as f64).sqrt()
+    let c = pts
+        .iter()
+        .fold(nalgebra::Vector3::zeros(), |a, p| a + p.coords)
+        / pts.len() as f64;
+    (pts.iter()
+        .map(|p| (p.coords - c).norm_squared())
+        .sum::<f64>()
+        / pts.len() as f64)
+        .sqrt()
 }
 
 fn coord_check(
@@ -313,7 +320,10 @@ fn units(
     // Joint angles in radians: every |q| ≤ π over many poses while the joints move.
     let qs: Vec<&Vec<f64>> = poses.iter().filter_map(|p| p.q.as_ref()).collect();
     if qs.len() >= 5 {
-        let max = qs.iter().flat_map(|q| q.iter()).fold(0.0f64, |a, x| a.max(x.abs()));
+        let max = qs
+            .iter()
+            .flat_map(|q| q.iter())
+            .fold(0.0f64, |a, x| a.max(x.abs()));
         let wide = model.is_some_and(|m| m.joint_limits().iter().any(|(lo, hi)| hi - lo > 0.5));
         if max <= std::f64::consts::PI + 1e-6 && max > 0.0 && wide {
             return Err(field_err(
@@ -539,10 +549,15 @@ pub fn check_same_robot(
             "this {what} is for robot model \"{}\"{}, but {} is for \"{}\"{}: a file from another \
              robot or cell",
             other.model,
-            other.dof().map(|d| format!(" ({d} joints)")).unwrap_or_default(),
+            other
+                .dof()
+                .map(|d| format!(" ({d} joints)"))
+                .unwrap_or_default(),
             main_file.display(),
             main.model,
-            main.dof().map(|d| format!(" ({d} joints)")).unwrap_or_default(),
+            main.dof()
+                .map(|d| format!(" ({d} joints)"))
+                .unwrap_or_default(),
         ),
     })
 }
@@ -619,7 +634,12 @@ mod tests {
     fn metres_radians_and_out_of_range_values_are_named() {
         let geo = file("tests/data/kin-geometric/heldout.jsonl");
         let scale = |v: &mut serde_json::Value, k: &str, s: f64| {
-            let p: Vec<f64> = v[k].as_array().unwrap().iter().map(|x| x.as_f64().unwrap() * s).collect();
+            let p: Vec<f64> = v[k]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap() * s)
+                .collect();
             v[k] = serde_json::json!(p);
         };
         let m = map_poses(&geo, |v| {
@@ -628,7 +648,10 @@ mod tests {
             v["marker"] = mk;
         });
         let e = check(&m).unwrap_err().to_string();
-        assert!(e.contains("t.jsonl:2") && e.contains("look like metres"), "{e}");
+        assert!(
+            e.contains("t.jsonl:2") && e.contains("look like metres"),
+            "{e}"
+        );
         let r = map_poses(&geo, |v| {
             scale(v, "q", std::f64::consts::PI / 180.0);
             scale(v, "q_cmd", std::f64::consts::PI / 180.0);
@@ -642,6 +665,10 @@ mod tests {
         let e = check(&(lines.join("\n") + "\n")).unwrap_err();
         assert_eq!(e.line(), Some(4));
         assert_eq!(e.field(), Some("q[2]"));
-        assert!(e.to_string().contains("outside its limits [-125.0°, 155.0°]"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("outside its limits [-125.0°, 155.0°]"),
+            "{e}"
+        );
     }
 }

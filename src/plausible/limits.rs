@@ -63,7 +63,10 @@ mod tests {
         }
         let e = motion_cap("--speed-deg-s", 181.0, "deg/s", Some(&cell)).unwrap_err();
         assert!(e.contains("cell's limit of 180"), "{e}");
-        assert_eq!(motion_cap("--speed-deg-s", 60.0, "deg/s", Some(&cell)), Ok(60.0));
+        assert_eq!(
+            motion_cap("--speed-deg-s", 60.0, "deg/s", Some(&cell)),
+            Ok(60.0)
+        );
         assert!(seconds("--timeout-s", f64::NAN, 600.0).is_err());
         assert!(seconds("--timeout-s", 0.0, 600.0).is_err());
         assert!(seconds("--timeout-s", 5.0, 600.0).is_ok());

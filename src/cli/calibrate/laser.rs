@@ -154,7 +154,13 @@ pub fn read_points_csv(path: &Path) -> anyhow::Result<HashMap<u64, Point3<f64>>>
 /// dropped).
 fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<laser::LaserObs>> {
     let hd = Dataset::load(h)?;
-    crate::plausible::check_same_robot(&ds.header.robot, data, &hd.header.robot, h, "held-out file")?;
+    crate::plausible::check_same_robot(
+        &ds.header.robot,
+        data,
+        &hd.header.robot,
+        h,
+        "held-out file",
+    )?;
     crate::plausible::check_dataset(&hd, h)?;
     let v: Vec<laser::LaserObs> = laser::observations(&hd)
         .with_context(|| format!("reading laser poses of {}", h.display()))?
