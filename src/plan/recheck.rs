@@ -9,7 +9,7 @@
 //! planner applied, with the same code (`constraints::arm_check`).
 use super::constraints;
 use super::file::PlanFile;
-use super::spec::PlanSpec;
+use super::spec::{ConstraintSpec, PlanSpec};
 use super::PlanError;
 use crate::model::KinematicModel;
 
@@ -43,7 +43,14 @@ pub fn plan_spec(plan: &PlanFile) -> Result<PlanSpec, PlanError> {
 /// Returns the number of poses checked.
 pub fn recheck(plan: &PlanFile, cell: Option<&CellRobot>) -> Result<usize, PlanError> {
     plan.validate()?;
-    let spec = plan_spec(plan)?;
+    // `"spec": {}` (a hand-written plan) states no constraints: joint limits only (checked
+    // by `validate` and below). Any other spec must parse and validate.
+    let no_spec = plan.spec.as_object().is_some_and(|o| o.is_empty());
+    let spec = if no_spec {
+        None
+    } else {
+        Some(plan_spec(plan)?)
+    };
     let model = KinematicModel::from_robot_block(&plan.robot)
         .map_err(|e| bad(format!("field \"robot\": {e}")))?;
     if let Some(c) = cell {
@@ -83,9 +90,15 @@ pub fn recheck(plan: &PlanFile, cell: Option<&CellRobot>) -> Result<usize, PlanE
         .tool
         .to_iso()
         .ok_or_else(|| bad("field \"tool\": not finite / not a unit quaternion".into()))?;
+    let constraints = spec
+        .map(|s| s.constraints)
+        .unwrap_or_else(|| ConstraintSpec {
+            self_collision: false,
+            ..ConstraintSpec::default()
+        });
     for p in &plan.poses {
         let q: Vec<f64> = p.q_deg.iter().map(|x| x.to_radians()).collect();
-        if let Some(r) = constraints::arm_check(&spec.constraints, &model, &q, &tool) {
+        if let Some(r) = constraints::arm_check(&constraints, &model, &q, &tool) {
             return Err(bad(format!(
                 "pose {} ({}): {r} (constraint `{}` of the plan's spec); the file was edited \
                  after planning or its constraints changed: re-plan",
