@@ -257,7 +257,7 @@ fn pose_values(
         coord_check(file, line, "flange.p", &f.p, "flange position")?;
     }
     if let Some(Some(r)) = p.range {
-        if !r.is_finite() || r < 0.0 || r > 1.0e6 {
+        if !r.is_finite() || !(0.0..=1.0e6).contains(&r) {
             return Err(field_err(
                 file,
                 line,
