@@ -15,5 +15,6 @@ pub mod diagnose;
 pub mod model;
 pub mod plan;
 pub mod register;
+pub mod plausible;
 pub mod report;
 pub mod solve;

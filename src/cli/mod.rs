@@ -16,6 +16,7 @@ pub mod predict;
 pub mod register;
 pub mod report;
 pub mod run;
+pub mod run_checks;
 pub mod sim;
 pub mod wire_cell;
 
