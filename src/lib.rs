@@ -14,7 +14,7 @@ pub mod dataset;
 pub mod diagnose;
 pub mod model;
 pub mod plan;
-pub mod register;
 pub mod plausible;
+pub mod register;
 pub mod report;
 pub mod solve;
