@@ -11,6 +11,7 @@ pub mod acquire;
 pub mod cli;
 pub mod dataset;
 pub mod diagnose;
+pub mod fsio;
 pub mod model;
 pub mod plan;
 pub mod report;
