@@ -141,7 +141,7 @@ mod tests {
             path_step: 0.01,
         };
         // Points outside the envelope (z = 5) when inside the square |x|,|y| < 1.
-        let geom: Arc<dyn ArmGeometry> = Arc::new(|q: &[f64]| {
+        let geom: Arc<dyn ArmGeometry> = Arc::new(move |q: &[f64]| {
             let top = if wall { 2.5 } else { 1.0 };
             let bottom = if wall { f64::NEG_INFINITY } else { -1.0 };
             let z = if q[0].abs() < 1.0 && q[1] < top && q[1] > bottom {

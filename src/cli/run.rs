@@ -555,6 +555,12 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     }
     // Check the plan before creating anything.
     let plan = PlanFile::read(plan_path).with_context(|| format!("{}", plan_path.display()))?;
+    // An existing directory may be in use by another run: say so (with its PID) first.
+    let early_lock = if dir.is_dir() {
+        Some(crate::fsio::DirLock::acquire(dir)?)
+    } else {
+        None
+    };
     if dir.join(DATASET).exists() {
         bail!(
             "{} already holds a dataset: continue it with `robocal run --resume {}`",
@@ -618,7 +624,10 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     crate::fsio::create_dir_durable(dir)
         .with_context(|| format!("creating {}", dir.display()))?;
     // Exclusive for the whole run; a second process on this directory stops here.
-    let lock = crate::fsio::DirLock::acquire(dir)?;
+    let lock = match early_lock {
+        Some(l) => l,
+        None => crate::fsio::DirLock::acquire(dir)?,
+    };
     if dir.join(DATASET).exists() {
         bail!(
             "{} already holds a dataset: continue it with `robocal run --resume {}`",
