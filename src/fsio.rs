@@ -185,7 +185,9 @@ mod tests {
             LockError::Busy { pid, .. } => assert_eq!(*pid, Some(std::process::id())),
             other => panic!("{other}"),
         }
-        assert!(err.to_string().contains(&format!("pid {}", std::process::id())));
+        assert!(err
+            .to_string()
+            .contains(&format!("pid {}", std::process::id())));
         drop(first);
         DirLock::acquire(d.path()).unwrap();
     }

@@ -290,8 +290,14 @@ fn marker_not_visible_is_retried_then_skipped() {
     let skips = events(&ds, "skip");
     assert_eq!(skips.len(), 2);
     assert!(skips.iter().all(|e| e.id == Some(2)));
-    assert_eq!(skips[0].extra.get("transient"), Some(&serde_json::json!(true)));
-    assert_eq!(skips[1].extra.get("retried"), Some(&serde_json::json!(true)));
+    assert_eq!(
+        skips[0].extra.get("transient"),
+        Some(&serde_json::json!(true))
+    );
+    assert_eq!(
+        skips[1].extra.get("retried"),
+        Some(&serde_json::json!(true))
+    );
 }
 
 #[test]

@@ -263,7 +263,10 @@ fn live_resume_needs_live_and_confirmation() {
 fn wait_for(secs: f64, what: &str, mut cond: impl FnMut() -> bool) {
     let t = Instant::now();
     while !cond() {
-        assert!(t.elapsed().as_secs_f64() < secs, "timed out waiting for {what}");
+        assert!(
+            t.elapsed().as_secs_f64() < secs,
+            "timed out waiting for {what}"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
 }
@@ -317,7 +320,11 @@ fn concurrent_second_run_is_refused() {
         let o = out(&args);
         let err = String::from_utf8_lossy(&o.stderr).into_owned();
         let secs = t.elapsed().as_secs_f64();
-        eprintln!("second process: exit {:?} in {secs:.2} s: {}", o.status.code(), err.trim());
+        eprintln!(
+            "second process: exit {:?} in {secs:.2} s: {}",
+            o.status.code(),
+            err.trim()
+        );
         assert_eq!(o.status.code(), Some(1), "{err}");
         assert!(err.contains(&format!("pid {pid}")), "{err}");
         assert!(secs < 5.0);
@@ -327,11 +334,7 @@ fn concurrent_second_run_is_refused() {
         "the first run ended before the second process was refused: make it longer"
     );
     let o = first.wait_with_output().unwrap();
-    assert!(
-        o.status.success(),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (rec, skip) = ids(&run.join("dataset.jsonl"));
     assert_eq!(rec.len() + skip.len(), planned(&plan), "{rec:?} {skip:?}");
     // The lock dies with its process: a resume now works (nothing left to do).
@@ -540,7 +543,10 @@ fn plan_select_few_poses_loads_in_run() {
     let plan = make_plan(dir, &spec, &["--select", "2"]);
     let text = std::fs::read_to_string(&plan).unwrap();
     assert!(!text.contains(": null"), "plan file holds a null");
-    assert!(text.contains(r#""condition": "inf""#), "not an infinite condition: make it harder");
+    assert!(
+        text.contains(r#""condition": "inf""#),
+        "not an infinite condition: make it harder"
+    );
     robocal::plan::PlanFile::read(&plan).unwrap();
     let run = dir.join("run");
     ok(&[
@@ -629,8 +635,7 @@ fn ctrl_c_stops_after_a_durable_record() {
     eprintln!("after SIGINT: exit {:?}: {}", o.status.code(), err.trim());
     assert_eq!(o.status.code(), Some(130), "{err}");
     let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["interrupted"], true);
     let n = summary["stopped_at"].as_u64().expect("stopped_at");
     assert!(
@@ -641,7 +646,10 @@ fn ctrl_c_stops_after_a_durable_record() {
         "{err}"
     );
     let (rec, skip) = ids(&journal);
-    assert!(rec.contains(&n) || skip.contains(&n), "pose {n} not durable");
+    assert!(
+        rec.contains(&n) || skip.contains(&n),
+        "pose {n} not durable"
+    );
     assert!(rec.len() + skip.len() < planned(&plan), "it did not stop");
     ok(&["run", "--resume", p(&run), "--in-process"]);
     let (rec, skip) = ids(&journal);

@@ -987,7 +987,11 @@ pub async fn acquire(
     let mut main_left = todo.len();
     let mut retries_queued = false;
     loop {
-        if queue.is_empty() && !retries_queued && aborted.is_none() && !interrupted && handled < limit
+        if queue.is_empty()
+            && !retries_queued
+            && aborted.is_none()
+            && !interrupted
+            && handled < limit
         {
             retries_queued = true;
             if main_left == 0 {

@@ -30,7 +30,10 @@ pub enum NoTransfer {
 /// Joint-space distance used to rank transfers (rad, largest joint change: the time of a
 /// move with a per-joint speed cap).
 fn dist(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Most pair checks tried for a two-posture transfer.

@@ -40,6 +40,7 @@ use crate::plan::PlanFile;
 
 /// Arguments of `robocal run`.
 #[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("live_target").args(["devices", "resume"])))]
 pub struct Args {
     /// The plan (`robocal-plan/1`, written by `robocal plan --out`).
     #[arg(long, value_name = "PLAN.json", required_unless_present = "resume")]
@@ -53,7 +54,7 @@ pub struct Args {
     pub devices: Option<PathBuf>,
     /// Allow real motion. Nothing moves on hardware without it: a fresh live run needs it
     /// with `--devices`, and so does `--resume` of a live run.
-    #[arg(long)]
+    #[arg(long, requires = "live_target")]
     pub live: bool,
     /// Do not ask for confirmation before moving real hardware.
     #[arg(long)]
@@ -466,7 +467,7 @@ fn acquire_in(
                 cfg.camera,
                 consent,
             ))
-                .with_context(|| format!("connecting the devices of {}", config_path.display()))?
+            .with_context(|| format!("connecting the devices of {}", config_path.display()))?
         }
         other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
     };
@@ -621,8 +622,7 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     } else {
         None
     };
-    crate::fsio::create_dir_durable(dir)
-        .with_context(|| format!("creating {}", dir.display()))?;
+    crate::fsio::create_dir_durable(dir).with_context(|| format!("creating {}", dir.display()))?;
     // Exclusive for the whole run; a second process on this directory stops here.
     let lock = match early_lock {
         Some(l) => l,
@@ -805,9 +805,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         println!("dataset: {}", dir.join(DATASET).display());
     }
     if summary.interrupted {
-        let at = summary
-            .stopped_at
-            .map_or_else(|| "before the first pose".to_string(), |id| format!("at pose {id}"));
+        let at = summary.stopped_at.map_or_else(
+            || "before the first pose".to_string(),
+            |id| format!("at pose {id}"),
+        );
         drop(started);
         return Err(Interrupted(format!(
             "stopped {at}; continue with `robocal run --resume {}`",
@@ -881,7 +882,10 @@ mod tests {
         };
         let mut bad = plan.clone();
         bad.spec["constraints"]["envelope"] = json!({"shape": "sphere", "r": 5});
-        let e = safety_limits(&bad, speed).err().expect("refused").to_string();
+        let e = safety_limits(&bad, speed)
+            .err()
+            .expect("refused")
+            .to_string();
         assert!(e.contains("safety limits"), "{e}");
         let mut bad = plan.clone();
         bad.spec["constraints"]["table_z_mm"] = json!("low");

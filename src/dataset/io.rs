@@ -125,9 +125,7 @@ impl Validator {
             let prev = self.last_pose_id.unwrap_or(id);
             return Err(Problem::field(
                 "id",
-                format!(
-                    "pose id {id} is recorded twice (pose ids must be unique; last id {prev})"
-                ),
+                format!("pose id {id} is recorded twice (pose ids must be unique; last id {prev})"),
             ));
         }
         for (k, ty) in [
