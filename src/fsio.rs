@@ -53,7 +53,8 @@ pub fn write(path: impl AsRef<Path>, contents: impl AsRef<[u8]>) -> std::io::Res
 }
 
 /// [`write_atomic`] with the file named in the error (for `anyhow` callers).
-pub fn write_atomic_ctx(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+pub fn write_atomic_ctx(path: impl AsRef<Path>, bytes: &[u8]) -> anyhow::Result<()> {
+    let path = path.as_ref();
     write_atomic(path, bytes).map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
 }
 

@@ -528,7 +528,7 @@ fn acquire_in(
         s.abort();
     }
     write_atomic(
-        &dir.join("summary.json"),
+        dir.join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(summary)
@@ -642,7 +642,7 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     };
     let copy = |src: &Path, name: &str| -> anyhow::Result<()> {
         let bytes = std::fs::read(src).with_context(|| format!("reading {}", src.display()))?;
-        write_atomic(&dir.join(name), &bytes)
+        write_atomic(dir.join(name), &bytes)
     };
     copy(plan_path, "plan.json")?;
     copy(config_src, config_name)?;
@@ -669,7 +669,7 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     };
     // run.json last: a directory with run.json is complete enough to resume.
     write_atomic(
-        &dir.join("run.json"),
+        dir.join("run.json"),
         serde_json::to_string_pretty(&cfg)?.as_bytes(),
     )?;
     Ok(Started {
