@@ -14,5 +14,6 @@ pub mod diagnose;
 pub mod fsio;
 pub mod model;
 pub mod plan;
+pub mod plausible;
 pub mod report;
 pub mod solve;

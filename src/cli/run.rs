@@ -433,6 +433,15 @@ fn acquire_in(
     let plan_path = dir.join(&cfg.plan);
     let plan = PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
     let config_path = dir.join(&cfg.config);
+    super::run_checks::check_run_inputs(
+        &plan,
+        &plan_path,
+        &cfg.mode,
+        &config_path,
+        cfg.speed.max_vel.to_degrees(),
+        cfg.speed.max_acc.to_degrees(),
+        cfg.sample.frames,
+    )?;
     // One runtime for the whole run: the wire clients (and, in dry runs, the simulators'
     // servers) live on it.
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -556,6 +565,15 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     }
     // Check the plan before creating anything.
     let plan = PlanFile::read(plan_path).with_context(|| format!("{}", plan_path.display()))?;
+    super::run_checks::check_run_inputs(
+        &plan,
+        plan_path,
+        mode,
+        config_src,
+        args.speed_deg_s,
+        args.accel_deg_s2,
+        args.frames,
+    )?;
     // An existing directory may be in use by another run: say so (with its PID) first.
     let early_lock = if dir.is_dir() {
         Some(crate::fsio::DirLock::acquire(dir)?)
