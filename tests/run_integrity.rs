@@ -591,7 +591,10 @@ fn plan_with_unreadable_limits_is_refused() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains("safety limits"), "{err}");
+    assert!(
+        err.contains("safety limits") || err.contains("constraints (table, envelope"),
+        "{err}"
+    );
     assert!(!dir.join("run/dataset.jsonl").exists());
 }
 
