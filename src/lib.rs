@@ -12,6 +12,7 @@ pub mod chain;
 pub mod cli;
 pub mod dataset;
 pub mod diagnose;
+pub mod fsio;
 pub mod model;
 pub mod plan;
 pub mod plausible;

@@ -325,7 +325,7 @@ fn strict_field_checks() {
         (
             r#"{"kind": "pose", "id": 0, "t": 0, "q": [1, 2, 3, 4, 5, 6]}"#,
             "id",
-            "pose ids must increase: 0 follows 0",
+            "pose id 0 is recorded twice",
         ),
         (
             r#"{"kind": "pivot", "t": 0, "marker": {"quat": [1, 0, 0, 0]}}"#,

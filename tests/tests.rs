@@ -13,6 +13,7 @@ mod model;
 mod navchain;
 mod plan;
 mod report;
+mod run_integrity;
 mod solve;
 mod wire_cell;
 mod world_vs_model;

@@ -2,7 +2,6 @@
 //! docs of [`crate::acquire`]).
 use std::collections::{BTreeMap, HashSet};
 use std::future::Future;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Point3;
@@ -15,6 +14,7 @@ use serde_json::{json, Map, Value};
 use super::sample::{average_markers, average_range, MarkerAverage, MarkerSample};
 use super::settle::{SettleSample, Settler};
 use super::summary::{RunSummary, SkippedPose, TimeBreakdown};
+use super::transfer::NoTransfer;
 use super::{AcquireOptions, Devices, PlannedPose};
 use crate::dataset::{DatasetError, EventRecord, FilePose, Journal, MarkerObs, PoseRecord, Record};
 
@@ -71,10 +71,17 @@ pub fn done_pose_ids(records: &[Record]) -> HashSet<u64> {
         .collect()
 }
 
+/// Start of the reason of a pose skipped because the pose itself breaks a safety limit (a
+/// final skip: skips for a transient reason are retried once at the end of the run).
+pub const UNSAFE_POSE: &str = "unsafe pose";
+
 /// Why one pose ended without a record.
 enum Outcome {
     Recorded,
+    /// Skipped for a transient reason (retried once at the end of the run).
     Skipped(String),
+    /// Skipped for good: the pose itself breaks a safety limit.
+    Unsafe(String),
     Abort(String),
 }
 
@@ -102,31 +109,7 @@ pub fn image_file_name(id: u64) -> String {
     format!("pose-{id}.pgm")
 }
 
-/// Fsync a directory (so a rename or a new entry in it survives a power cut).
-fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    #[cfg(unix)]
-    std::fs::File::open(dir)?.sync_all()?;
-    #[cfg(not(unix))]
-    let _ = dir;
-    Ok(())
-}
-
-/// Writes `bytes` to `path` durably: a temp file in the same directory, fsync'd, renamed over
-/// `path` (an orphan from an earlier, killed run is replaced), then the directory fsync'd.
-fn write_durably(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-    let tmp = dir.join(format!(".{name}.tmp"));
-    {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-    }
-    std::fs::rename(&tmp, path)?;
-    sync_dir(dir)
-}
+use crate::fsio::{sync_dir, write_atomic as write_durably};
 
 struct Run<'a> {
     dev: &'a Devices,
@@ -143,6 +126,12 @@ struct Run<'a> {
     images_dir: PathBuf,
     /// Whether `images_dir` is known to exist (created and its parent fsync'd).
     images_dir_ready: bool,
+    /// The plan's poses (rad): candidate postures for safe transfers.
+    plan_q: Vec<Vec<f64>>,
+    /// Those of `plan_q` that are safe to stand at (computed on first need).
+    postures: Option<Vec<Vec<f64>>>,
+    /// Successful recoveries (protective stop) so far: a transfer re-plans after one.
+    recoveries: usize,
 }
 
 fn deg(v: &[f64]) -> Vec<f64> {
@@ -185,6 +174,17 @@ impl Run<'_> {
         id: Option<u64>,
         reason: impl Into<String>,
     ) -> Result<(), AcquireError> {
+        self.event_with(what, id, reason, Map::new())
+    }
+
+    /// An event record with extra fields.
+    fn event_with(
+        &mut self,
+        what: &str,
+        id: Option<u64>,
+        reason: impl Into<String>,
+        extra: Map<String, Value>,
+    ) -> Result<(), AcquireError> {
         let reason = reason.into();
         tracing::info!(what, ?id, %reason, "event");
         let rec = Record::Event(EventRecord {
@@ -192,7 +192,7 @@ impl Run<'_> {
             what: what.to_string(),
             id,
             reason: Some(reason),
-            extra: Map::new(),
+            extra,
         });
         self.journal.append(&rec)?;
         *self.events.entry(what.to_string()).or_insert(0) += 1;
@@ -307,6 +307,7 @@ impl Run<'_> {
                         Some(id),
                         format!("recovered from protective stop (attempt {attempt})"),
                     )?;
+                    self.recoveries += 1;
                     return Ok(Ok(()));
                 }
             }
@@ -317,8 +318,83 @@ impl Run<'_> {
         ))))
     }
 
-    /// Moves to `target` (rad). `Err(outcome)` = skip or abort.
+    /// Moves to `target` (rad) by a safe transfer ([`super::transfer`]): straight when the
+    /// safety check passes along the straight move, else through one or two safe postures of
+    /// the plan; re-planned from where the arm is after a recovery. Skips the pose for good
+    /// only when the pose itself is unsafe. `Err(outcome)` = skip or abort.
     async fn move_to(
+        &mut self,
+        id: u64,
+        target: &[f64],
+    ) -> Result<Result<(), Outcome>, AcquireError> {
+        let Some(safety) = self.opts.transfer.clone() else {
+            return self.move_direct(id, target).await;
+        };
+        const MAX_PLANS: usize = 4;
+        for _ in 0..MAX_PLANS {
+            let from = match self.joints(id).await? {
+                Ok(j) => j.q,
+                Err(o) => return Ok(Err(o)),
+            };
+            if self.postures.is_none() {
+                self.postures = Some(safety.safe_postures(&self.plan_q));
+            }
+            let postures = self.postures.as_deref().unwrap_or(&[]);
+            let legs = match safety.plan(postures, &from, target) {
+                Ok(l) => l,
+                Err(NoTransfer::UnsafeTarget(v)) => {
+                    return Ok(Err(Outcome::Unsafe(format!("{UNSAFE_POSE}: {v}"))))
+                }
+                Err(NoTransfer::UnsafeStart(v)) => {
+                    self.event(
+                        "pause",
+                        Some(id),
+                        format!("the arm stands at an unsafe posture: {v}"),
+                    )?;
+                    return Ok(Err(Outcome::Abort(format!(
+                        "the arm stands at an unsafe posture ({v}): bring it back inside the \
+                         envelope, above the table, then resume"
+                    ))));
+                }
+                Err(NoTransfer::NoPath) => {
+                    return Ok(Err(Outcome::Skipped(
+                        "unreachable: no safe transfer from the arm's position".into(),
+                    )))
+                }
+            };
+            if legs.len() > 1 {
+                self.event(
+                    "note",
+                    Some(id),
+                    format!(
+                        "safe transfer through {} intermediate posture(s)",
+                        legs.len() - 1
+                    ),
+                )?;
+            }
+            let recoveries = self.recoveries;
+            let n = legs.len();
+            let mut replan = false;
+            for (k, leg) in legs.iter().enumerate() {
+                if let Err(o) = self.move_direct(id, leg).await? {
+                    return Ok(Err(o));
+                }
+                if self.recoveries != recoveries && k + 1 < n {
+                    replan = true;
+                    break;
+                }
+            }
+            if !replan {
+                return Ok(Ok(()));
+            }
+        }
+        Ok(Err(Outcome::Skipped(format!(
+            "unreachable: transfer interrupted by recoveries {MAX_PLANS} times"
+        ))))
+    }
+
+    /// Moves straight (joint-interpolated) to `target` (rad). `Err(outcome)` = skip or abort.
+    async fn move_direct(
         &mut self,
         id: u64,
         target: &[f64],
@@ -386,6 +462,11 @@ impl Run<'_> {
                             return Ok(Err(o));
                         }
                     }
+                    // Refused by the safety wrappers: for good (the transfer planner only
+                    // sends moves the same check passes, so this is the pose itself).
+                    ErrorKind::SafetyViolation => {
+                        return Ok(Err(Outcome::Unsafe(format!("unreachable: {e}"))))
+                    }
                     _ => return Ok(Err(Outcome::Skipped(format!("unreachable: {e}")))),
                 },
             }
@@ -410,7 +491,7 @@ impl Run<'_> {
                         off.to_degrees()
                     ),
                 )?;
-                return Box::pin(self.move_to(id, target)).await;
+                return Box::pin(self.move_direct(id, target)).await;
             }
             self.event("note", Some(id), "position re-verified after link restore")?;
         }
@@ -860,6 +941,12 @@ pub async fn acquire(
         spreads: Vec::new(),
         images_dir: images,
         images_dir_ready: false,
+        plan_q: poses
+            .iter()
+            .map(|p| p.q_deg.iter().map(|d| d.to_radians()).collect())
+            .collect(),
+        postures: None,
+        recoveries: 0,
     };
     if !existing.is_empty() {
         run.event(
@@ -875,33 +962,100 @@ pub async fn acquire(
     let mut recorded_now = 0usize;
     let mut handled = 0usize;
     let mut aborted = None;
+    let mut interrupted = opts.stop.requested();
+    let mut stopped_at = None;
     let limit = opts.max_poses.unwrap_or(usize::MAX);
-    for p in &todo {
-        if handled >= limit {
+    // Pose ids recorded, and the skip history (transient skips are retried once at the end).
+    let mut recorded_ids: HashSet<u64> = HashSet::new();
+    let mut retry = RetryBook::default();
+    for r in existing {
+        match r {
+            Record::Pose(p) => {
+                recorded_ids.insert(p.id);
+            }
+            Record::Event(e) if e.what == "skip" => {
+                if let Some(id) = e.id {
+                    retry.note(id, &e.extra);
+                }
+            }
+            _ => {}
+        }
+    }
+    // The main pass over the plan, then the transient skips once more.
+    let main: Vec<(&PlannedPose, bool)> = todo.iter().map(|p| (*p, false)).collect();
+    let mut queue = main.into_iter().collect::<std::collections::VecDeque<_>>();
+    let mut main_left = todo.len();
+    let mut retries_queued = false;
+    loop {
+        if queue.is_empty()
+            && !retries_queued
+            && aborted.is_none()
+            && !interrupted
+            && handled < limit
+        {
+            retries_queued = true;
+            if main_left == 0 {
+                for p in poses {
+                    if !recorded_ids.contains(&p.id) && retry.pending(p.id) {
+                        queue.push_back((p, true));
+                    }
+                }
+                if !queue.is_empty() {
+                    run.event(
+                        "note",
+                        None,
+                        format!(
+                            "retrying {} pose(s) skipped for a transient reason",
+                            queue.len()
+                        ),
+                    )?;
+                }
+            }
+        }
+        let Some((p, is_retry)) = queue.pop_front() else {
+            break;
+        };
+        if interrupted || handled >= limit {
             break;
         }
-        match run.pose(p).await? {
-            Outcome::Recorded => recorded_now += 1,
-            Outcome::Skipped(reason) => {
-                run.event("skip", Some(p.id), reason.clone())?;
-                run.skipped.push(SkippedPose { id: p.id, reason });
+        let skip = match run.pose(p).await? {
+            Outcome::Recorded => {
+                recorded_now += 1;
+                recorded_ids.insert(p.id);
+                None
             }
+            Outcome::Skipped(reason) => Some((reason, true)),
+            Outcome::Unsafe(reason) => Some((reason, false)),
             Outcome::Abort(reason) => {
                 run.event("fault", Some(p.id), format!("run aborted: {reason}"))?;
                 aborted = Some(reason);
                 break;
             }
+        };
+        if let Some((reason, transient)) = skip {
+            let mut extra = Map::new();
+            if is_retry {
+                extra.insert("retried".into(), json!(true));
+            } else if transient {
+                extra.insert("transient".into(), json!(true));
+            }
+            run.event_with("skip", Some(p.id), reason.clone(), extra.clone())?;
+            retry.note(p.id, &extra);
+            run.skipped.push(SkippedPose { id: p.id, reason });
         }
         handled += 1;
+        if !is_retry {
+            main_left -= 1;
+        }
         let elapsed = run.now() - t0;
         let pph = if elapsed > 0.0 {
             handled as f64 * 3600.0 / elapsed
         } else {
             0.0
         };
-        let left = todo.len() - handled;
+        let left = main_left + queue.len();
         progress(&Progress {
-            done: poses.len() - todo.len() + handled,
+            done: poses.len() - todo.len() + (todo.len() - main_left),
             total: poses.len(),
             recorded: recorded_before + recorded_now,
             skipped: skipped_before.len() + run.skipped.len(),
@@ -911,6 +1065,12 @@ pub async fn acquire(
             poses_per_hour: pph,
             eta_s: (pph > 0.0).then(|| left as f64 * 3600.0 / pph),
         });
+        // Ctrl-C: the pose's record (or skip event) is durable; stop here.
+        if opts.stop.requested() {
+            interrupted = true;
+            stopped_at = Some(p.id);
+            break;
+        }
     }
     let elapsed = run.now() - t0;
     let mut time = run.time;
@@ -918,10 +1078,22 @@ pub async fn acquire(
     for (k, n) in &run.events {
         *events.entry(k.clone()).or_insert(0) += n;
     }
-    let mut skipped = skipped_before;
-    skipped.extend(run.skipped);
-    skipped.sort_by_key(|s| s.id);
-    let remaining = todo.len() - handled;
+    // Skipped for good: not recorded (a retried pose may have been recorded after all); the
+    // latest reason per id.
+    let mut last_reason: BTreeMap<u64, String> = BTreeMap::new();
+    for s in skipped_before.into_iter().chain(run.skipped) {
+        last_reason.insert(s.id, s.reason);
+    }
+    let skipped: Vec<SkippedPose> = last_reason
+        .into_iter()
+        .filter(|(id, _)| !recorded_ids.contains(id))
+        .map(|(id, reason)| SkippedPose { id, reason })
+        .collect();
+    let pending_retries = poses
+        .iter()
+        .filter(|p| !recorded_ids.contains(&p.id) && retry.pending(p.id))
+        .count();
+    let remaining = main_left + pending_retries;
     Ok(RunSummary {
         planned: poses.len(),
         recorded: recorded_before + recorded_now,
@@ -937,7 +1109,38 @@ pub async fn acquire(
             0.0
         },
         aborted,
+        stopped_at,
+        interrupted,
     })
+}
+
+/// The skip history of a run: which skipped poses are still to be retried once at the end.
+#[derive(Default)]
+struct RetryBook {
+    /// Skipped for a transient reason, not yet retried.
+    transient: HashSet<u64>,
+    /// Retried (and skipped again), or skipped for good.
+    settled: HashSet<u64>,
+}
+
+impl RetryBook {
+    /// Notes one `skip` event of pose `id` with the event's extra fields.
+    fn note(&mut self, id: u64, extra: &Map<String, Value>) {
+        let flag = |k: &str| extra.get(k).and_then(Value::as_bool).unwrap_or(false);
+        if flag("retried") {
+            self.settled.insert(id);
+        } else if flag("transient") {
+            self.transient.insert(id);
+        } else {
+            // A skip event without flags (final, or written before retries existed).
+            self.settled.insert(id);
+        }
+    }
+
+    /// Whether pose `id` still has its retry coming.
+    fn pending(&self, id: u64) -> bool {
+        self.transient.contains(&id) && !self.settled.contains(&id)
+    }
 }
 
 /// A JSON value for a progress line (`--json`).

@@ -32,9 +32,12 @@ pub mod engine;
 pub mod sample;
 pub mod settle;
 pub mod summary;
+pub mod transfer;
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+use robocal_drivers::safety::{ArmGeometry, SafetyLimits};
 use robocal_drivers::{Arm, Clock, ImageSource, MarkerTracker, MoveSpeed, RangeSensor};
 use serde::{Deserialize, Serialize};
 
@@ -263,6 +266,63 @@ pub struct AcquireOptions {
     pub max_poses: Option<usize>,
     /// Camera images and chessboard detection.
     pub capture: CaptureOptions,
+    /// The run's safety limits and arm geometry — the same the arm's safety wrappers check —
+    /// for planning safe transfers (see [`engine`]). `None`: every move goes straight to its
+    /// target (the wrappers still refuse unsafe paths).
+    pub transfer: Option<TransferSafety>,
+    /// Set it (Ctrl-C) to stop after the current pose's record is durable.
+    pub stop: StopFlag,
+}
+
+/// The safety limits and arm geometry transfers are planned against (pure checks with
+/// [`robocal_drivers::safety::check_move`], the function the safety wrappers call).
+#[derive(Clone)]
+pub struct TransferSafety {
+    /// Joint limits, envelope, table.
+    pub limits: Arc<SafetyLimits>,
+    /// Points on the arm to check, when the limits have an envelope or a table.
+    pub geometry: Option<Arc<dyn ArmGeometry>>,
+}
+
+impl std::fmt::Debug for TransferSafety {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TransferSafety")
+            .field("limits", &self.limits)
+            .field("geometry", &self.geometry.is_some())
+            .finish()
+    }
+}
+
+impl PartialEq for TransferSafety {
+    fn eq(&self, other: &Self) -> bool {
+        self.limits == other.limits
+            && match (&self.geometry, &other.geometry) {
+                (None, None) => true,
+                (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+                _ => false,
+            }
+    }
+}
+
+/// A request to stop a run between poses (set from a Ctrl-C handler).
+#[derive(Debug, Clone, Default)]
+pub struct StopFlag(Arc<AtomicBool>);
+
+impl StopFlag {
+    /// Asks the run to stop after the current pose.
+    pub fn request(&self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
+    /// Whether a stop was requested.
+    pub fn requested(&self) -> bool {
+        self.0.load(Ordering::SeqCst)
+    }
+}
+
+impl PartialEq for StopFlag {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 /// Serializable move speed (rad/s, rad/s²).

@@ -56,6 +56,13 @@ pub struct RunSummary {
     pub poses_per_hour: f64,
     /// Why the run stopped before the end, if it did.
     pub aborted: Option<String>,
+    /// Stopped on request (Ctrl-C) after the record of this pose was durable (`None`: the
+    /// pose loop was not interrupted, or no pose had been handled yet).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped_at: Option<u64>,
+    /// Stopped on request (Ctrl-C) before the end.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub interrupted: bool,
 }
 
 impl std::fmt::Display for RunSummary {

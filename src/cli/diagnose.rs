@@ -106,7 +106,7 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("{}", args.out.display()))?;
     let w = |name: &str, text: &str| -> anyhow::Result<()> {
         let p = args.out.join(name);
-        std::fs::write(&p, text).with_context(|| format!("{}", p.display()))
+        crate::fsio::write_atomic_ctx(&p, text.as_bytes())
     };
     w(
         "diagnosis.json",

@@ -82,10 +82,15 @@ fn open_camera(
 /// Connect the first arm, tracker and laser of the device file at `path` with the real
 /// drivers, and with `camera` its first camera. The arm is NOT wrapped in the safety
 /// decorators here (the caller does it).
+///
+/// `_consent` proves that this invocation has `--live` and the user's confirmation (or
+/// `--yes`): it can only be made by [`crate::cli::run::confirm_live`], so no code path opens
+/// the hardware for motion without them.
 pub async fn live_cell(
     path: &Path,
     dof: usize,
     camera: bool,
+    _consent: &crate::cli::run::LiveConsent,
 ) -> anyhow::Result<(Devices, CellInfo)> {
     let file = DevicesFile::read(path)?;
     let base = path.parent().unwrap_or(Path::new("."));

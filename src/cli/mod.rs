@@ -85,6 +85,11 @@ where
     };
     match result {
         Ok(()) => 0,
+        // `robocal run` stopped by Ctrl-C after a durable record: the shell's 128 + SIGINT.
+        Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => {
+            eprintln!("{e}");
+            130
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             1

@@ -131,7 +131,7 @@ fn robot_from_args(a: &Args) -> anyhow::Result<(RobotBlock, KinematicModel)> {
 }
 
 fn write(path: &PathBuf, text: &str) -> anyhow::Result<()> {
-    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+    crate::fsio::write_atomic_ctx(path, text.as_bytes())
 }
 
 /// Run `robocal plan`.

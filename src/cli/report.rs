@@ -30,7 +30,7 @@ fn write(path: &Path, text: &str) -> anyhow::Result<()> {
         std::fs::create_dir_all(parent)
             .with_context(|| format!("creating {}", parent.display()))?;
     }
-    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+    crate::fsio::write_atomic_ctx(path, text.as_bytes())
 }
 
 /// Run `robocal report`.

@@ -40,6 +40,7 @@ use crate::plan::PlanFile;
 
 /// Arguments of `robocal run`.
 #[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("live_target").args(["devices", "resume"])))]
 pub struct Args {
     /// The plan (`robocal-plan/1`, written by `robocal plan --out`).
     #[arg(long, value_name = "PLAN.json", required_unless_present = "resume")]
@@ -51,8 +52,9 @@ pub struct Args {
     /// Real hardware described by this device file (needs --live).
     #[arg(long, value_name = "DEVICES.toml")]
     pub devices: Option<PathBuf>,
-    /// Allow real motion. Nothing moves on hardware without it.
-    #[arg(long, requires = "devices")]
+    /// Allow real motion. Nothing moves on hardware without it: a fresh live run needs it
+    /// with `--devices`, and so does `--resume` of a live run.
+    #[arg(long, requires = "live_target")]
     pub live: bool,
     /// Do not ask for confirmation before moving real hardware.
     #[arg(long)]
@@ -226,15 +228,7 @@ fn sim_world(scenario_path: &Path, virtual_clock: bool) -> anyhow::Result<WorldH
 
 // ----------------------------------------------------------------- run directory
 
-fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::File::open(&tmp)
-        .and_then(|f| f.sync_all())
-        .with_context(|| format!("syncing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
-}
+use crate::fsio::write_atomic_ctx as write_atomic;
 
 fn header_for(plan: &PlanFile, info: &CellInfo) -> Header {
     let mut robot = plan.robot.clone();
@@ -262,6 +256,7 @@ fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
         faults: cfg.faults,
         max_poses,
         capture: cfg.capture,
+        ..AcquireOptions::default()
     }
 }
 
@@ -320,14 +315,47 @@ fn safety_limits(
 ) -> anyhow::Result<(SafetyLimits, Option<Arc<dyn ArmGeometry>>)> {
     let model = KinematicModel::from_robot_block(&plan.robot).context("the plan's robot")?;
     let (lower, upper) = model.joint_limits().into_iter().unzip();
-    let spec: Option<crate::plan::PlanSpec> = serde_json::from_value(plan.spec.clone()).ok();
-    let (envelope, table) = match &spec {
-        Some(sp) => (
-            sp.constraints.envelope.clone(),
-            crate::plan::constraints::table_plane(&sp.constraints),
+    // The table and envelope come from the plan's spec (`spec.constraints`): limits that do
+    // not read are an error, never a run with fewer checks. A plan without a spec or without
+    // constraints (made by hand) runs with the joint limits and speed caps only, and says so.
+    let constraints: crate::plan::spec::ConstraintSpec = match &plan.spec {
+        serde_json::Value::Null => Default::default(),
+        serde_json::Value::Object(m) => match m.get("constraints") {
+            None => Default::default(),
+            Some(c) => serde_json::from_value(c.clone()).map_err(|e| {
+                anyhow::anyhow!(
+                    "the plan's safety limits (`spec.constraints`: table plane, envelope) do \
+                     not read: {e}; refusing to run without them (fix them or re-make the plan \
+                     with `robocal plan`)"
+                )
+            })?,
+        },
+        other => bail!(
+            "the plan's `spec` is {other}, not an object: its safety limits (table plane, \
+             envelope) cannot be read; refusing to run without them"
         ),
-        None => (None, None),
     };
+    if let Some(sp) = plan.spec.as_object().filter(|m| !m.is_empty()) {
+        // A spec that is there must read whole: a typo elsewhere may hide a wrong limit.
+        serde_json::from_value::<crate::plan::PlanSpec>(serde_json::Value::Object(sp.clone()))
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "the plan's `spec` (which holds its safety limits: table plane, envelope) \
+                     does not read: {e}; refusing to run without them (re-make the plan with \
+                     `robocal plan`)"
+                )
+            })?;
+    }
+    if constraints.envelope.is_none() && constraints.table_z_mm.is_none() {
+        eprintln!(
+            "note: the plan sets no table plane or envelope: only the joint limits and speed \
+             caps are checked"
+        );
+    }
+    let (envelope, table) = (
+        constraints.envelope.clone(),
+        crate::plan::constraints::table_plane(&constraints),
+    );
     let geometry: Option<Arc<dyn ArmGeometry>> = match (&envelope, &table) {
         (None, None) => None,
         _ => {
@@ -396,7 +424,12 @@ impl Reporter {
 }
 
 /// Runs (or resumes) the acquisition in `dir` with the run configuration `cfg`.
-fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSummary> {
+fn acquire_in(
+    dir: &Path,
+    cfg: &RunConfig,
+    args: &Args,
+    consent: Option<&LiveConsent>,
+) -> anyhow::Result<RunSummary> {
     let plan_path = dir.join(&cfg.plan);
     let plan = PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
     let config_path = dir.join(&cfg.config);
@@ -433,9 +466,17 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
             (d, i)
         }
         "live" => {
+            let Some(consent) = consent else {
+                bail!("nothing moves without --live and confirmation");
+            };
             let dof = plan.poses.first().map_or(6, |p| p.q_deg.len());
-            rt.block_on(super::live_cell::live_cell(&config_path, dof, cfg.camera))
-                .with_context(|| format!("connecting the devices of {}", config_path.display()))?
+            rt.block_on(super::live_cell::live_cell(
+                &config_path,
+                dof,
+                cfg.camera,
+                consent,
+            ))
+            .with_context(|| format!("connecting the devices of {}", config_path.display()))?
         }
         other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
     };
@@ -449,6 +490,11 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
         );
     }
     let (limits, geometry) = safety_limits(&plan, cfg.speed)?;
+    // The transfers are planned against the very limits and geometry the guard checks.
+    let transfer = acquire::TransferSafety {
+        limits: Arc::new(limits.clone()),
+        geometry: geometry.clone(),
+    };
     devices.arm = guard(devices.arm.clone(), limits, geometry);
     let header = header_for(&plan, &info);
     let journal_path = dir.join(DATASET);
@@ -459,7 +505,24 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
     let poses: Vec<PlannedPose> = plan.poses.iter().map(PlannedPose::from).collect();
     let done = acquire::done_pose_ids(&existing).len();
     let reporter = Reporter::new(args.json, poses.len(), done);
-    let opts = options(cfg, args.max_poses);
+    let mut opts = options(cfg, args.max_poses);
+    opts.transfer = Some(transfer);
+    // Ctrl-C: finish the current pose (its record durable), then stop; a second Ctrl-C
+    // ends the process at once (the journal stays readable: records are whole lines).
+    let stop = opts.stop.clone();
+    let signals = rt.spawn(async move {
+        loop {
+            if tokio::signal::ctrl_c().await.is_err() {
+                return;
+            }
+            if stop.requested() {
+                eprintln!("second interrupt: stopping now");
+                std::process::exit(130);
+            }
+            eprintln!("interrupt: stopping after the current pose (Ctrl-C again to stop now)");
+            stop.request();
+        }
+    });
     let summary = rt.block_on(acquire::acquire(
         &devices,
         &poses,
@@ -469,20 +532,24 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
         &mut |p| reporter.report(p),
     ))?;
     reporter.finish();
+    signals.abort();
     if let Some(s) = served {
         s.abort();
     }
     write_atomic(
-        &dir.join("summary.json"),
+        dir.join("summary.json"),
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(summary)
 }
 
-fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
+fn new_run(args: &Args) -> anyhow::Result<Started> {
     let (Some(plan_path), Some(dir)) = (&args.plan, &args.out) else {
         bail!("--plan and --out are required (or --resume RUN_DIR)");
     };
+    if args.live && args.devices.is_none() {
+        bail!("--live drives the hardware of --devices DEVICES.toml: give the device file");
+    }
     let (mode, config_src) = match (&args.sim, &args.devices) {
         (Some(s), None) => ("sim", s),
         (None, Some(d)) => {
@@ -507,6 +574,12 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
         args.accel_deg_s2,
         args.frames,
     )?;
+    // An existing directory may be in use by another run: say so (with its PID) first.
+    let early_lock = if dir.is_dir() {
+        Some(crate::fsio::DirLock::acquire(dir)?)
+    } else {
+        None
+    };
     if dir.join(DATASET).exists() {
         bail!(
             "{} already holds a dataset: continue it with `robocal run --resume {}`",
@@ -554,28 +627,32 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
              `--features opencv`); images are saved without `corners`"
         );
     }
-    if mode == "live" {
-        println!(
-            "will move the arm through {} poses of plan {:?} at ≤ {} °/s",
-            plan.poses.len(),
-            plan.name,
-            args.speed_deg_s
+    let consent = if mode == "live" {
+        Some(confirm_live(
+            args,
+            &format!(
+                "will move the arm through {} poses of plan {:?} at ≤ {} °/s",
+                plan.poses.len(),
+                plan.name,
+                args.speed_deg_s
+            ),
+        )?)
+    } else {
+        None
+    };
+    crate::fsio::create_dir_durable(dir).with_context(|| format!("creating {}", dir.display()))?;
+    // Exclusive for the whole run; a second process on this directory stops here.
+    let lock = match early_lock {
+        Some(l) => l,
+        None => crate::fsio::DirLock::acquire(dir)?,
+    };
+    if dir.join(DATASET).exists() {
+        bail!(
+            "{} already holds a dataset: continue it with `robocal run --resume {}`",
+            dir.display(),
+            dir.display()
         );
-        if !args.yes {
-            use std::io::{BufRead as _, IsTerminal as _, Write as _};
-            if !std::io::stdin().is_terminal() {
-                bail!("confirmation needed: re-run with --yes to move the hardware");
-            }
-            print!("type `yes` to move the arm: ");
-            std::io::stdout().flush().ok();
-            let mut answer = String::new();
-            std::io::stdin().lock().read_line(&mut answer)?;
-            if answer.trim() != "yes" {
-                bail!("not confirmed: nothing moved");
-            }
-        }
     }
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let config_name = if mode == "sim" {
         "scenario.toml"
     } else {
@@ -583,7 +660,7 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
     };
     let copy = |src: &Path, name: &str| -> anyhow::Result<()> {
         let bytes = std::fs::read(src).with_context(|| format!("reading {}", src.display()))?;
-        write_atomic(&dir.join(name), &bytes)
+        write_atomic(dir.join(name), &bytes)
     };
     copy(plan_path, "plan.json")?;
     copy(config_src, config_name)?;
@@ -610,10 +687,15 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
     };
     // run.json last: a directory with run.json is complete enough to resume.
     write_atomic(
-        &dir.join("run.json"),
+        dir.join("run.json"),
         serde_json::to_string_pretty(&cfg)?.as_bytes(),
     )?;
-    Ok((dir.clone(), cfg))
+    Ok(Started {
+        dir: dir.clone(),
+        cfg,
+        consent,
+        _lock: lock,
+    })
 }
 
 fn load_run(dir: &Path) -> anyhow::Result<RunConfig> {
@@ -631,18 +713,126 @@ fn load_run(dir: &Path) -> anyhow::Result<RunConfig> {
     Ok(cfg)
 }
 
+/// Proof that this invocation may move real hardware: it has `--live` and the user
+/// confirmed (or gave `--yes`). Only [`confirm_live`] makes one; opening a live cell
+/// ([`super::live_cell::live_cell`]) needs it.
+#[derive(Debug)]
+pub struct LiveConsent(());
+
+/// Asks for consent to move real hardware: `--live` must be on this invocation, then the user
+/// types `yes` (or `--yes` was given). Fails without opening anything: stdin not a terminal and
+/// no `--yes`, or any other answer.
+pub fn confirm_live(args: &Args, what: &str) -> anyhow::Result<LiveConsent> {
+    if !args.live {
+        bail!(
+            "nothing moves without --live: add --live (and --yes, or confirm at the prompt) to \
+             drive the hardware"
+        );
+    }
+    println!("{what}");
+    if !args.yes {
+        use std::io::{BufRead as _, IsTerminal as _, Write as _};
+        if !std::io::stdin().is_terminal() {
+            bail!("confirmation needed: re-run with --yes to move the hardware");
+        }
+        print!("type `yes` to move the arm: ");
+        std::io::stdout().flush().ok();
+        let mut answer = String::new();
+        std::io::stdin().lock().read_line(&mut answer)?;
+        if answer.trim() != "yes" {
+            bail!("not confirmed: nothing moved");
+        }
+    }
+    Ok(LiveConsent(()))
+}
+
+/// A run ready to acquire: its directory (locked for as long as this lives), configuration
+/// and, for a live run, the consent to move.
+struct Started {
+    dir: PathBuf,
+    cfg: RunConfig,
+    consent: Option<LiveConsent>,
+    _lock: crate::fsio::DirLock,
+}
+
+/// `--resume DIR`: lock the directory, read its run.json and, for a live run, ask for the
+/// same consent as a fresh live run — all before any device is opened.
+fn resume_run(args: &Args, dir: &Path) -> anyhow::Result<Started> {
+    if !dir.join("run.json").is_file() {
+        bail!("{} is not a run directory (no run.json)", dir.display());
+    }
+    let lock = crate::fsio::DirLock::acquire(dir)?;
+    let cfg = load_run(dir)?;
+    let consent = match cfg.mode.as_str() {
+        "live" => {
+            let plan_path = dir.join(&cfg.plan);
+            let plan =
+                PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
+            let journal = dir.join(DATASET);
+            let done = crate::dataset::read_dataset(&journal)
+                .map(|l| acquire::done_pose_ids(&l.dataset.records).len())
+                .unwrap_or(0);
+            let left = plan.poses.len().saturating_sub(done);
+            Some(confirm_live(
+                args,
+                &format!(
+                    "resuming live run {}: will move the arm through the {left} remaining poses of \
+                     plan {:?} at ≤ {:.0} °/s",
+                    dir.display(),
+                    plan.name,
+                    cfg.speed.max_vel.to_degrees()
+                ),
+            )?)
+        }
+        _ => {
+            if args.live {
+                bail!(
+                    "--live: {} is a dry run ({}); resume it without --live",
+                    dir.display(),
+                    cfg.mode
+                );
+            }
+            None
+        }
+    };
+    Ok(Started {
+        dir: dir.to_path_buf(),
+        cfg,
+        consent,
+        _lock: lock,
+    })
+}
+
+/// `robocal run` stopped on Ctrl-C after the current pose's record was durable (exit 130).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Interrupted(pub String);
+
 /// Run `robocal run`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let (dir, cfg) = match &args.resume {
-        Some(dir) => (dir.clone(), load_run(dir)?),
+    let started = match &args.resume {
+        Some(dir) => resume_run(&args, dir)?,
         None => new_run(&args)?,
     };
-    let summary = acquire_in(&dir, &cfg, &args)?;
+    let (dir, cfg) = (started.dir.clone(), started.cfg.clone());
+    let summary = acquire_in(&dir, &cfg, &args, started.consent.as_ref())?;
     if args.json {
         println!("{}", json!({ "summary": summary }));
     } else {
         print!("{summary}");
         println!("dataset: {}", dir.join(DATASET).display());
+    }
+    if summary.interrupted {
+        let at = summary.stopped_at.map_or_else(
+            || "before the first pose".to_string(),
+            |id| format!("at pose {id}"),
+        );
+        drop(started);
+        return Err(Interrupted(format!(
+            "stopped {at}; continue with `robocal run --resume {}`",
+            dir.display()
+        ))
+        .into());
     }
     if let Some(reason) = &summary.aborted {
         bail!(
@@ -703,5 +893,31 @@ mod tests {
             .unwrap_err();
         assert_eq!(err.kind(), robocal_drivers::ErrorKind::SafetyViolation);
         assert!(fake.commands().is_empty());
+        // Limits that do not read are an error, never a run without them.
+        let speed = MoveSpeedOpt {
+            max_vel: 1.0,
+            max_acc: 2.0,
+        };
+        let mut bad = plan.clone();
+        bad.spec["constraints"]["envelope"] = json!({"shape": "sphere", "r": 5});
+        let e = safety_limits(&bad, speed)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains("safety limits"), "{e}");
+        let mut bad = plan.clone();
+        bad.spec["constraints"]["table_z_mm"] = json!("low");
+        assert!(safety_limits(&bad, speed).is_err());
+        let mut bad = plan.clone();
+        bad.spec["typo"] = json!(1);
+        assert!(safety_limits(&bad, speed).is_err());
+        let mut bad = plan.clone();
+        bad.spec = json!([1, 2]);
+        assert!(safety_limits(&bad, speed).is_err());
+        // A hand-made plan without a spec has joint limits and speed caps only.
+        let mut bare = plan.clone();
+        bare.spec = json!({});
+        let (l, g) = safety_limits(&bare, speed).unwrap();
+        assert!(l.table.is_none() && l.envelope.is_none() && g.is_none());
     }
 }

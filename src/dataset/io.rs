@@ -2,10 +2,9 @@
 //!
 //! The reader is strict: every line must be valid JSON, every known field must have its
 //! documented type, joint vectors must have the chain's dof, quaternions must be unit and
-//! pose ids must increase. The only tolerated damage is a **torn last line** (no trailing
+//! pose ids must be unique (they increase, except poses retried at the end of a run). The only tolerated damage is a **torn last line** (no trailing
 //! newline and not valid JSON), which is dropped with a [`LoadWarning`]. Unknown fields
 //! are kept (`extra`) and written back unchanged.
-use std::io::Write as _;
 use std::path::Path;
 
 use serde::Serialize;
@@ -54,6 +53,8 @@ pub struct Loaded {
 pub(crate) struct Validator {
     dof: usize,
     last_pose_id: Option<u64>,
+    /// Every pose id seen so far (ids are unique).
+    pose_ids: std::collections::HashSet<u64>,
 }
 
 impl Validator {
@@ -62,6 +63,7 @@ impl Validator {
             // A parsed header always has a dof (checked by `check_header`).
             dof: header.robot.dof().unwrap_or(0),
             last_pose_id: None,
+            pose_ids: Default::default(),
         }
     }
 
@@ -94,6 +96,7 @@ impl Validator {
                     check::unit_quat(q, "marker.quat")?;
                 }
                 self.last_pose_id = Some(p.id);
+                self.pose_ids.insert(p.id);
             }
             Record::Pivot(p) => {
                 if let Some(q) = &p.marker.quat {
@@ -109,19 +112,21 @@ impl Validator {
     pub(crate) fn note(&mut self, rec: &Record) {
         if let Record::Pose(p) = rec {
             self.last_pose_id = Some(p.id);
+            self.pose_ids.insert(p.id);
         }
     }
 
     fn check_pose(&self, obj: &Map<String, Value>) -> Result<(), Problem> {
         check::field(obj, "", "id", Ty::UInt, true)?;
         let id = obj.get("id").and_then(Value::as_u64).unwrap_or_default();
-        if let Some(prev) = self.last_pose_id {
-            if id <= prev {
-                return Err(Problem::field(
-                    "id",
-                    format!("pose ids must increase: {id} follows {prev}"),
-                ));
-            }
+        // Ids increase in acquisition order, except poses a run retries at its end (skipped
+        // for a transient reason first): an id may come after a larger one, never twice.
+        if self.pose_ids.contains(&id) {
+            let prev = self.last_pose_id.unwrap_or(id);
+            return Err(Problem::field(
+                "id",
+                format!("pose id {id} is recorded twice (pose ids must be unique; last id {prev})"),
+            ));
         }
         for (k, ty) in [
             ("point", Ty::UInt),
@@ -392,31 +397,9 @@ pub(crate) fn to_line<T: Serialize>(v: &T) -> String {
     s
 }
 
-/// Writes `bytes` to `path` via a temporary file in the same directory, fsyncs, renames.
+/// Writes `bytes` to `path` atomically and durably ([`crate::fsio::write_atomic`]).
 pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)?;
-        if let Ok(d) = std::fs::File::open(dir) {
-            let _ = d.sync_all();
-        }
-        Ok(())
-    })();
-    result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        DatasetError::io(path, e)
-    })
+    crate::fsio::write_atomic(path, bytes).map_err(|e| DatasetError::io(path, e))
 }
 
 /// Pose records with their `q` converted to radians (the library's internal unit).

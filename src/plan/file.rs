@@ -247,3 +247,97 @@ impl PlanFile {
         Ok(())
     }
 }
+
+/// Serde for an `f64` that may be non-finite (a condition number of an unobservable set is
+/// infinite): finite values are JSON numbers, `+∞`/`−∞`/NaN the strings `"inf"`, `"-inf"`,
+/// `"nan"` (JSON has no such numbers and `serde_json` would write `null`). Reading also
+/// accepts `null` as `+∞`, which is what plan files written before this fix hold.
+pub mod nonfinite_f64 {
+    use serde::{de, Deserializer, Serializer};
+
+    /// Writes `v`.
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() {
+            s.serialize_f64(*v)
+        } else if v.is_nan() {
+            s.serialize_str("nan")
+        } else if *v > 0.0 {
+            s.serialize_str("inf")
+        } else {
+            s.serialize_str("-inf")
+        }
+    }
+
+    struct V;
+
+    impl de::Visitor<'_> for V {
+        type Value = f64;
+        fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str(r#"a number, "inf", "-inf" or "nan""#)
+        }
+        fn visit_f64<E: de::Error>(self, v: f64) -> Result<f64, E> {
+            Ok(v)
+        }
+        fn visit_i64<E: de::Error>(self, v: i64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+        fn visit_u64<E: de::Error>(self, v: u64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+        fn visit_unit<E: de::Error>(self) -> Result<f64, E> {
+            Ok(f64::INFINITY)
+        }
+        fn visit_none<E: de::Error>(self) -> Result<f64, E> {
+            Ok(f64::INFINITY)
+        }
+        fn visit_str<E: de::Error>(self, v: &str) -> Result<f64, E> {
+            match v.trim().to_ascii_lowercase().as_str() {
+                "inf" | "+inf" | "infinity" => Ok(f64::INFINITY),
+                "-inf" | "-infinity" => Ok(f64::NEG_INFINITY),
+                "nan" => Ok(f64::NAN),
+                _ => Err(E::invalid_value(de::Unexpected::Str(v), &self)),
+            }
+        }
+    }
+
+    /// Reads a number, `"inf"`, `"-inf"`, `"nan"` or `null` (= `+∞`).
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        d.deserialize_any(V)
+    }
+}
+
+#[cfg(test)]
+mod nonfinite_tests {
+    use super::super::observe::Observability;
+
+    fn obs(condition: f64) -> Observability {
+        Observability {
+            poses: 2,
+            params: 3,
+            o1: 0.0,
+            condition,
+            sigma_max: 1.0,
+            sigma_min: 0.0,
+            unidentifiable: vec![],
+        }
+    }
+
+    /// An infinite condition number (too few poses) round-trips through JSON; `null` (what
+    /// older plan files hold) reads as infinite.
+    #[test]
+    fn infinite_condition_round_trips() {
+        let o = obs(f64::INFINITY);
+        let text = serde_json::to_string(&o).unwrap();
+        assert!(text.contains(r#""condition":"inf""#), "{text}");
+        let back: Observability = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, o);
+        let old = text.replace(r#""inf""#, "null");
+        let back: Observability = serde_json::from_str(&old).unwrap();
+        assert!(back.condition.is_infinite());
+        let fin = obs(12.5);
+        let back: Observability =
+            serde_json::from_str(&serde_json::to_string(&fin).unwrap()).unwrap();
+        assert_eq!(back, fin);
+        assert!(serde_json::from_str::<Observability>(&text.replace("inf", "big")).is_err());
+    }
+}

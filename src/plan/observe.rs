@@ -16,10 +16,14 @@ pub struct Observability {
     /// Number of free parameters (columns).
     pub params: usize,
     /// O1 (0 when any direction is unobservable).
+    #[serde(with = "super::file::nonfinite_f64")]
     pub o1: f64,
     /// σ_1/σ_L (infinite when σ_L = 0).
+    #[serde(with = "super::file::nonfinite_f64")]
     pub condition: f64,
+    #[serde(with = "super::file::nonfinite_f64")]
     pub sigma_max: f64,
+    #[serde(with = "super::file::nonfinite_f64")]
     pub sigma_min: f64,
     /// Free parameters that are unidentifiable with this pose set: each entry lists the
     /// parameters of one (near-)null direction of J, largest component first.

@@ -89,7 +89,7 @@ pub fn scan_report(
     for (a, b, deg) in &angles {
         s.push_str(&format!("  angle {a}/{b}: {deg:.3} deg\n"));
     }
-    std::fs::write(
+    crate::fsio::write(
         out_dir.join("scan_report.json"),
         serde_json::to_string_pretty(&serde_json::json!({
             "scan": scan.display().to_string(),
@@ -99,7 +99,7 @@ pub fn scan_report(
         }))?,
     )?;
     if let Some(p) = ply_path {
-        std::fs::write(
+        crate::fsio::write(
             p,
             laser::ply(&all, &format!("robocal laser scan of {}", scan.display())),
         )
@@ -230,7 +230,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     cal.save(args.out.join("calibration.json"))?;
     let report = serde_json::to_string_pretty(&cmp)?;
-    std::fs::write(args.out.join("laser_report.json"), report)
+    crate::fsio::write(args.out.join("laser_report.json"), report)
         .with_context(|| format!("writing {}", args.out.join("laser_report.json").display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&cmp)?);
@@ -303,7 +303,7 @@ pub fn diagnose_laser(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     cal.save(out.join("calibration.json"))?;
-    std::fs::write(
+    crate::fsio::write(
         out.join("diagnosis.json"),
         serde_json::to_string_pretty(&serde_json::json!({
             "format": "robocal-diagnosis/1",

@@ -75,7 +75,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         let path = dir.join("pivot.json");
         let v = json!({"format": "robocal-pivot/1", "tool": args.tool, "results": out});
-        std::fs::write(&path, serde_json::to_string_pretty(&v)? + "\n")
+        crate::fsio::write(&path, serde_json::to_string_pretty(&v)? + "\n")
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
     }
