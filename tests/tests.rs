@@ -10,6 +10,7 @@ mod laser;
 mod laser_world;
 mod model;
 mod plan;
+mod rcm;
 mod report;
 mod solve;
 mod wire_cell;

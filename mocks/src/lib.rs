@@ -8,6 +8,7 @@ pub mod bcap;
 pub mod camera;
 pub mod keyence;
 pub mod ndi;
+pub mod rcm;
 pub mod scenario;
 pub mod serve;
 pub mod sim;

@@ -4,6 +4,7 @@ pub mod kinematics;
 pub mod laser;
 pub mod nominal;
 pub mod pivot;
+pub mod rcm;
 
 /// Arguments of `robocal calibrate`.
 #[derive(Debug, clap::Args)]
@@ -23,6 +24,8 @@ pub enum What {
     Pivot(pivot::Args),
     /// Laser range sensor hand-eye calibration from planes (seed 000).
     Laser(laser::Args),
+    /// Endoscope camera hand-eye from the instrument shaft under a remote centre of motion (seed 002).
+    Rcm(rcm::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -32,5 +35,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Kinematics(a) => kinematics::exec(a),
         What::Pivot(a) => pivot::exec(a),
         What::Laser(a) => laser::exec(a),
+        What::Rcm(a) => rcm::exec(a),
     }
 }
