@@ -135,7 +135,7 @@ fn main() {
             print!("| {label} | {sigma} |");
             for k in 0..METHODS.len() {
                 if errs[k].is_empty() {
-                    print!(" failed ({}) |", fails[k]);
+                    print!(" failed ({}/{trials}) |", fails[k]);
                     continue;
                 }
                 let med = |f: fn(&(f64, f64)) -> f64| {
@@ -143,10 +143,12 @@ fn main() {
                     v.sort_by(f64::total_cmp);
                     v[v.len() / 2]
                 };
-                print!(" {} / {} |", fmt(med(|e| e.0)), fmt(med(|e| e.1)));
-                if fails[k] > 0 {
-                    print!(" ({} failed)", fails[k]);
-                }
+                let failed = if fails[k] > 0 {
+                    format!(" ({} failed)", fails[k])
+                } else {
+                    String::new()
+                };
+                print!(" {} / {}{failed} |", fmt(med(|e| e.0)), fmt(med(|e| e.1)));
             }
             println!();
         }
