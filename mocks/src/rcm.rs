@@ -112,7 +112,7 @@ impl RcmScenario {
     /// Parses scenario text.
     pub fn parse(text: &str) -> anyhow::Result<RcmScenario> {
         let s: RcmScenario = toml::from_str(text)?;
-        if !(s.instrument.shaft_radius_mm > 0.0) {
+        if s.instrument.shaft_radius_mm.is_nan() || s.instrument.shaft_radius_mm <= 0.0 {
             anyhow::bail!("instrument.shaft_radius_mm must be > 0");
         }
         Ok(s)

@@ -95,7 +95,7 @@ pub fn generate(
     model: Option<&KinematicModel>,
 ) -> Result<Vec<RcmPose>, RcmPlanError> {
     let z0 = v3(spec.insertion_dir);
-    if !(z0.norm() > 1e-9) {
+    if z0.norm().is_nan() || z0.norm() <= 1e-9 {
         return Err(RcmPlanError::Spec(
             "insertion_dir must be a non-zero vector".into(),
         ));

@@ -92,7 +92,7 @@ pub fn image_line(seg: &[f64; 4]) -> Vector3<f64> {
 pub fn axis_from_boundaries(k: &Pinhole, segs: &[[f64; 4]; 2], r: f64) -> Result<Line, RcmError> {
     for s in segs {
         let len = ((s[2] - s[0]).powi(2) + (s[3] - s[1]).powi(2)).sqrt();
-        if !(len >= 2.0) {
+        if len.is_nan() || len < 2.0 {
             return Err(RcmError::BadLines(format!(
                 "a boundary segment is {len:.2} px long (need ≥ 2 px between its end points)"
             )));
