@@ -17,3 +17,4 @@ mk urrtde ur-rtde==1.6.5
 mk ndi ndicapi==3.7.6 scikit-surgerynditracker==1.0.6
 mk pybotics "numpy<2" pybotics==3.1.2 scipy
 mk cv2 "opencv-python-headless<5" "numpy<2.3"
+mk sksurgery scikit-surgerycore==0.8.3

@@ -8,10 +8,13 @@
 //! only the CLI layer wires the simulators in for dry runs.
 
 pub mod acquire;
+pub mod chain;
 pub mod cli;
 pub mod dataset;
 pub mod diagnose;
 pub mod model;
 pub mod plan;
+pub mod plausible;
+pub mod register;
 pub mod report;
 pub mod solve;

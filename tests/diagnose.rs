@@ -182,7 +182,7 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
 
 #[allow(dead_code)]
 #[path = "../examples/diagnose_table.rs"]
-mod table;
+pub(crate) mod table;
 
 fn check_world(name: &str) {
     let w = table::worlds()

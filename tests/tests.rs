@@ -1,6 +1,7 @@
 //! The one integration-test binary (see `Cargo.toml`: `autotests = false`).
 //! Each area adds a module here.
 mod acquire;
+mod bad_input;
 mod camera_run;
 mod cli;
 mod dataset;
@@ -9,6 +10,7 @@ mod e2e;
 mod laser;
 mod laser_world;
 mod model;
+mod navchain;
 mod plan;
 mod rcm;
 mod report;

@@ -7,6 +7,7 @@
 pub mod bcap;
 pub mod camera;
 pub mod keyence;
+pub mod navchain;
 pub mod ndi;
 pub mod rcm;
 pub mod scenario;

@@ -5,6 +5,7 @@ pub mod laser;
 pub mod nominal;
 pub mod pivot;
 pub mod rcm;
+pub mod robot_world;
 
 /// Arguments of `robocal calibrate`.
 #[derive(Debug, clap::Args)]
@@ -26,6 +27,8 @@ pub enum What {
     Laser(laser::Args),
     /// Endoscope camera hand-eye from the instrument shaft under a remote centre of motion (seed 002).
     Rcm(rcm::Args),
+    /// Tracker ↔ robot base (AX = YB: Shah, Li, Tsai; LM refinement; on-site check).
+    RobotWorld(robot_world::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -36,5 +39,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Pivot(a) => pivot::exec(a),
         What::Laser(a) => laser::exec(a),
         What::Rcm(a) => rcm::exec(a),
+        What::RobotWorld(a) => robot_world::exec(a),
     }
 }

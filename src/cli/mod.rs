@@ -6,14 +6,17 @@ use clap::{Parser, Subcommand};
 use std::ffi::OsString;
 
 pub mod calibrate;
+pub mod chain;
 pub mod devices;
 pub mod diagnose;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;
 pub mod predict;
+pub mod register;
 pub mod report;
 pub mod run;
+pub mod run_checks;
 pub mod sim;
 pub mod wire_cell;
 
@@ -46,6 +49,10 @@ pub enum Command {
     Sim(sim::Args),
     /// List and probe configured devices.
     Devices(devices::Args),
+    /// CT ↔ tracker registration: paired fiducials or surface ICP.
+    Register(register::Args),
+    /// Predicted tool-tip error at CT targets and each link's share.
+    Chain(chain::Args),
 }
 
 /// Parse `args` and run; returns the process exit code.
@@ -73,6 +80,8 @@ where
         Command::Inspect(a) => inspect::exec(a),
         Command::Sim(a) => sim::exec(a),
         Command::Devices(a) => devices::exec(a),
+        Command::Register(a) => register::exec(a),
+        Command::Chain(a) => chain::exec(a),
     };
     match result {
         Ok(()) => 0,

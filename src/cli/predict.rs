@@ -25,8 +25,12 @@ pub struct Args {
     #[arg(long, value_name = "CAL.json")]
     pub calibration: PathBuf,
     /// Dataset (`robocal-dataset/1`) whose pose records are predicted.
-    #[arg(long, value_name = "DATA.jsonl")]
-    pub data: PathBuf,
+    #[arg(long, value_name = "DATA.jsonl", required_unless_present = "points")]
+    pub data: Option<PathBuf>,
+    /// CT points (CSV `name,x_mm,y_mm,z_mm`) mapped into the tracker frame by a
+    /// `robocal-registration/1` calibration; writes CSV `name,x_mm,y_mm,z_mm`.
+    #[arg(long, value_name = "P.csv", conflicts_with = "data")]
+    pub points: Option<PathBuf>,
     /// Write the CSV here instead of to stdout.
     #[arg(long, value_name = "FILE.csv")]
     pub out: Option<PathBuf>,
@@ -167,9 +171,10 @@ pub fn write_csv<W: Write>(mut w: W, rows: &[PredictedPoint]) -> std::io::Result
 
 /// `robocal predict` as a library call: reads both files and predicts.
 pub fn predict_files(cal: &Path, data: &Path) -> anyhow::Result<Vec<PredictedPoint>> {
-    let cal = CalibrationFile::load(cal)?;
+    // Strict reader + plausibility of both files, and one robot model (issue 14 §5).
+    let ds = crate::plausible::load_checked(data)?;
+    let cal = crate::plausible::calibration::load_for(cal, &ds.header.robot, data)?;
     let predictor = Predictor::new(&cal)?;
-    let ds = Dataset::load(data)?;
     predictor
         .predict_dataset(&ds)
         .with_context(|| format!("predicting {}", data.display()))
@@ -177,7 +182,23 @@ pub fn predict_files(cal: &Path, data: &Path) -> anyhow::Result<Vec<PredictedPoi
 
 /// Run `robocal predict`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let rows = predict_files(&args.calibration, &args.data)?;
+    if let Some(pts) = &args.points {
+        let rows = crate::cli::register::predict_points(&args.calibration, pts)?;
+        return match &args.out {
+            Some(path) => {
+                let f = std::fs::File::create(path)
+                    .with_context(|| format!("creating {}", path.display()))?;
+                crate::register::write_points_csv(std::io::BufWriter::new(f), &rows)
+                    .with_context(|| format!("writing {}", path.display()))
+            }
+            None => crate::register::write_points_csv(std::io::stdout().lock(), &rows)
+                .context("writing to stdout"),
+        };
+    }
+    let Some(data) = &args.data else {
+        bail!("give --data DATA.jsonl (pose records) or --points P.csv (with a registration)");
+    };
+    let rows = predict_files(&args.calibration, data)?;
     match &args.out {
         Some(path) => {
             let f = std::fs::File::create(path)

@@ -26,6 +26,7 @@ pub mod file;
 pub mod gen;
 pub mod observe;
 pub mod rcm;
+pub mod recheck;
 pub mod spec;
 pub mod timing;
 

@@ -1,0 +1,386 @@
+//! The error transfer of seed 003 ("误差传递模型"): how far from a point planned in CT the
+//! tool tip lands, and which link of the chain is to blame.
+//!
+//! The planned CT target `x` is sent to the robot base as `p = Y · T · x` (`T =
+//! T_tracker_ct` from [`crate::register`], `Y = T_base_tracker` from the robot-world
+//! registration); the robot (calibrated kinematics) then places the tool tip there. The tip
+//! error is the sum of
+//!
+//! - **registration, CT localisation**: fiducial localisation in the CT image → `T`,
+//! - **registration, tracker localisation**: the tracker's own stereo error (depth ∝ z²,
+//!   [`crate::register::StereoTrackerModel`]) at the fiducials → `T`,
+//! - **tracker → robot**: the covariance of `Y` (robot-world refinement),
+//! - **robot**: the calibrated robot's positioning covariance at the tip (from the
+//!   calibration's bootstrap / held-out error),
+//! - **tool**: the tip offset uncertainty (pivot calibration).
+//!
+//! [`chain_report`] propagates these to first order (`Σ = Σ_k J_k Σ_k J_kᵀ`) and by Monte
+//! Carlo through the exact transforms (they must agree), gives the 95 % ellipsoid and each
+//! link's share of the variance. It is the library entry `robocal chain` and a session's
+//! closing chain report call.
+pub mod nn;
+
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+use crate::register::file::ellipsoid95;
+use crate::register::paired::{perturb, point_jacobian};
+use crate::register::RegisterError;
+
+/// χ²₃ at 0.95.
+pub const CHI2_3_95: f64 = 7.814_727_903_251_178;
+
+/// The links of the chain (first-order inputs, internal units rad / mm).
+#[derive(Debug, Clone)]
+pub struct ChainInputs {
+    /// `T_tracker_ct`.
+    pub t_tracker_ct: Isometry3<f64>,
+    /// CT-localisation part of the registration covariance (left perturbation).
+    pub cov_reg_ct: Matrix6<f64>,
+    /// Tracker-localisation part of the registration covariance.
+    pub cov_reg_tracker: Matrix6<f64>,
+    /// `T_base_tracker`.
+    pub t_base_tracker: Isometry3<f64>,
+    /// Covariance of `Y` (left perturbation).
+    pub cov_y: Matrix6<f64>,
+    /// Robot tip positioning covariance in the base (mm²).
+    pub cov_robot: Matrix3<f64>,
+    /// Tool tip offset covariance (mm²; isotropic in practice, so frame-free).
+    pub cov_tool: Matrix3<f64>,
+}
+
+/// Link names in report order.
+pub const LINKS: [&str; 5] = [
+    "registration: CT localisation",
+    "registration: tracker localisation",
+    "tracker -> robot (Y)",
+    "robot kinematics",
+    "tool tip",
+];
+
+/// One link's contribution at a target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinkShare {
+    pub link: String,
+    /// RMS (3-D) error of this link alone (mm).
+    pub rms_mm: f64,
+    /// Share of the total variance (0–1).
+    pub share: f64,
+}
+
+/// The predicted tool-tip error at one CT target.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetReport {
+    pub name: String,
+    pub ct: [f64; 3],
+    /// Planned point in the robot base (mm).
+    pub base: [f64; 3],
+    /// First-order RMS (3-D) tip error (mm).
+    pub rms_mm: f64,
+    /// 95 % ellipsoid half-axes (mm), largest first, and the axes (unit, base frame).
+    pub ellipsoid95_mm: [f64; 3],
+    pub ellipsoid_axes: [[f64; 3]; 3],
+    /// First-order covariance (mm², base frame, row-major).
+    pub covariance: [f64; 9],
+    pub links: Vec<LinkShare>,
+    /// Monte Carlo: mean error (mm), RMS (mm), samples, relative difference of the MC
+    /// covariance from the first-order one (Frobenius), and the fraction of MC samples
+    /// inside the first-order 95 % ellipsoid.
+    pub mc_mean_mm: [f64; 3],
+    pub mc_rms_mm: f64,
+    pub mc_samples: usize,
+    pub mc_cov_rel_diff: f64,
+    pub mc_inside95: f64,
+}
+
+/// `chain.json` (`robocal-chain/1`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChainReport {
+    pub format: String,
+    pub targets: Vec<TargetReport>,
+    /// Mean share of each link over the targets.
+    pub mean_shares: Vec<LinkShare>,
+}
+
+/// Format tag of `chain.json`.
+pub const CHAIN_FORMAT: &str = "robocal-chain/1";
+
+/// The five link covariances (base frame, mm²) at CT target `x`.
+pub fn link_covariances(inp: &ChainInputs, x: &Point3<f64>) -> [Matrix3<f64>; 5] {
+    let q = inp.t_tracker_ct * x;
+    let ry = inp
+        .t_base_tracker
+        .rotation
+        .to_rotation_matrix()
+        .into_inner();
+    let jt = ry * point_jacobian(&inp.t_tracker_ct, x);
+    let jy = point_jacobian(&inp.t_base_tracker, &q);
+    [
+        jt * inp.cov_reg_ct * jt.transpose(),
+        jt * inp.cov_reg_tracker * jt.transpose(),
+        jy * inp.cov_y * jy.transpose(),
+        inp.cov_robot,
+        inp.cov_tool,
+    ]
+}
+
+fn sampler6(c: &Matrix6<f64>) -> Matrix6<f64> {
+    // Symmetric square root (works for semi-definite covariances).
+    let e = SymmetricEigen::new(*c);
+    let d = Matrix6::from_diagonal(&e.eigenvalues.map(|v| v.max(0.0).sqrt()));
+    e.eigenvectors * d * e.eigenvectors.transpose()
+}
+
+fn sampler3(c: &Matrix3<f64>) -> Matrix3<f64> {
+    let e = SymmetricEigen::new(*c);
+    let d = Matrix3::from_diagonal(&e.eigenvalues.map(|v| v.max(0.0).sqrt()));
+    e.eigenvectors * d * e.eigenvectors.transpose()
+}
+
+fn n6<R: rand::Rng>(rng: &mut R) -> Vector6<f64> {
+    Vector6::from_fn(|_, _| StandardNormal.sample(rng))
+}
+fn n3<R: rand::Rng>(rng: &mut R) -> Vector3<f64> {
+    Vector3::from_fn(|_, _| StandardNormal.sample(rng))
+}
+
+/// Checks the inputs (finite, covariances symmetric PSD).
+pub fn validate(inp: &ChainInputs) -> Result<(), RegisterError> {
+    let psd6 = |c: &Matrix6<f64>, w: &str| -> Result<(), RegisterError> {
+        if !c.iter().all(|x| x.is_finite())
+            || (c - c.transpose()).norm() > 1e-9 * c.norm().max(1e-300)
+            || c.symmetric_eigenvalues().min() < -1e-9 * c.norm()
+        {
+            return Err(RegisterError::Invalid(format!(
+                "chain: {w} covariance is not symmetric positive semi-definite"
+            )));
+        }
+        Ok(())
+    };
+    let psd3 = |c: &Matrix3<f64>, w: &str| -> Result<(), RegisterError> {
+        if !c.iter().all(|x| x.is_finite())
+            || (c - c.transpose()).norm() > 1e-9 * c.norm().max(1e-300)
+            || c.symmetric_eigenvalues().min() < -1e-9 * c.norm()
+        {
+            return Err(RegisterError::Invalid(format!(
+                "chain: {w} covariance is not symmetric positive semi-definite"
+            )));
+        }
+        Ok(())
+    };
+    psd6(&inp.cov_reg_ct, "registration (CT)")?;
+    psd6(&inp.cov_reg_tracker, "registration (tracker)")?;
+    psd6(&inp.cov_y, "tracker -> robot")?;
+    psd3(&inp.cov_robot, "robot")?;
+    psd3(&inp.cov_tool, "tool")?;
+    Ok(())
+}
+
+/// The chain report for CT targets (name, point): first order and Monte Carlo
+/// (`mc_samples`, deterministic `seed`).
+pub fn chain_report(
+    inp: &ChainInputs,
+    targets: &[(String, Point3<f64>)],
+    mc_samples: usize,
+    seed: u64,
+) -> Result<ChainReport, RegisterError> {
+    validate(inp)?;
+    if targets.is_empty() {
+        return Err(RegisterError::Invalid("chain: no targets".into()));
+    }
+    let s_ct = sampler6(&inp.cov_reg_ct);
+    let s_trk = sampler6(&inp.cov_reg_tracker);
+    let s_y = sampler6(&inp.cov_y);
+    let s_rob = sampler3(&inp.cov_robot);
+    let s_tool = sampler3(&inp.cov_tool);
+    let mut out = Vec::new();
+    let mut share_acc = [0.0; 5];
+    for (ti, (name, x)) in targets.iter().enumerate() {
+        let parts = link_covariances(inp, x);
+        let total: Matrix3<f64> = parts.iter().sum();
+        let tr = total.trace();
+        let links: Vec<LinkShare> = parts
+            .iter()
+            .enumerate()
+            .map(|(k, c)| LinkShare {
+                link: LINKS[k].into(),
+                rms_mm: c.trace().max(0.0).sqrt(),
+                share: if tr > 0.0 { c.trace() / tr } else { 0.0 },
+            })
+            .collect();
+        for (k, l) in links.iter().enumerate() {
+            share_acc[k] += l.share;
+        }
+        let planned = inp.t_base_tracker * (inp.t_tracker_ct * x);
+        // Monte Carlo through the exact transforms.
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (ti as u64).wrapping_mul(0x9E37_79B9));
+        let mut sum = Vector3::zeros();
+        let mut sq = Matrix3::zeros();
+        let mut errs = Vec::with_capacity(mc_samples);
+        for _ in 0..mc_samples {
+            let dt = s_ct * n6(&mut rng) + s_trk * n6(&mut rng);
+            let dy = s_y * n6(&mut rng);
+            let t = perturb(&inp.t_tracker_ct, dt.as_slice());
+            let y = perturb(&inp.t_base_tracker, dy.as_slice());
+            let e = y * (t * x) - planned + s_rob * n3(&mut rng) + s_tool * n3(&mut rng);
+            sum += e;
+            sq += e * e.transpose();
+            errs.push(e);
+        }
+        let m = mc_samples.max(1) as f64;
+        let mean = sum / m;
+        let mc_cov = sq / m - mean * mean.transpose();
+        let inv = total.try_inverse();
+        let inside = match inv {
+            Some(inv) => {
+                errs.iter()
+                    .filter(|e| (e.transpose() * inv * *e)[(0, 0)] <= CHI2_3_95)
+                    .count() as f64
+                    / m
+            }
+            None => f64::NAN,
+        };
+        let eig = SymmetricEigen::new(total);
+        let mut order: Vec<usize> = (0..3).collect();
+        order.sort_by(|a, b| eig.eigenvalues[*b].total_cmp(&eig.eigenvalues[*a]));
+        let axes = [0, 1, 2].map(|k| {
+            let v = eig.eigenvectors.column(order[k]);
+            [v[0], v[1], v[2]]
+        });
+        let mut cov9 = [0.0; 9];
+        for r in 0..3 {
+            for c in 0..3 {
+                cov9[3 * r + c] = total[(r, c)];
+            }
+        }
+        out.push(TargetReport {
+            name: name.clone(),
+            ct: [x.x, x.y, x.z],
+            base: [planned.x, planned.y, planned.z],
+            rms_mm: tr.max(0.0).sqrt(),
+            ellipsoid95_mm: ellipsoid95(&total),
+            ellipsoid_axes: axes,
+            covariance: cov9,
+            links,
+            mc_mean_mm: [mean.x, mean.y, mean.z],
+            mc_rms_mm: (sq.trace() / m).sqrt(),
+            mc_samples,
+            mc_cov_rel_diff: (mc_cov - total).norm() / total.norm().max(1e-300),
+            mc_inside95: inside,
+        });
+    }
+    let nt = targets.len() as f64;
+    let mean_shares = (0..5)
+        .map(|k| LinkShare {
+            link: LINKS[k].into(),
+            rms_mm: (out.iter().map(|t| t.links[k].rms_mm.powi(2)).sum::<f64>() / nt).sqrt(),
+            share: share_acc[k] / nt,
+        })
+        .collect();
+    Ok(ChainReport {
+        format: CHAIN_FORMAT.into(),
+        targets: out,
+        mean_shares,
+    })
+}
+
+/// Robot tip positioning covariance from a calibrated model and per-parameter standard
+/// deviations (e.g. the bootstrap's), at joint configuration `q` (rad): `J diag(σ²) Jᵀ`
+/// with `J` the tip's derivative w.r.t. the model parameters (independent parameters).
+pub fn robot_tip_covariance(
+    model: &crate::model::KinematicModel,
+    param_std: &[f64],
+    q: &[f64],
+) -> Result<Matrix3<f64>, RegisterError> {
+    let (_, j) = model.point_param_jacobian(q);
+    if param_std.len() != j.ncols() {
+        return Err(RegisterError::Invalid(format!(
+            "robot link: {} parameter sigmas for {} parameters",
+            param_std.len(),
+            j.ncols()
+        )));
+    }
+    let mut c = Matrix3::zeros();
+    for (k, s) in param_std.iter().enumerate() {
+        let col = j.column(k);
+        c += col * col.transpose() * (s * s);
+    }
+    Ok(c)
+}
+
+impl ChainReport {
+    /// Writes `chain.json`.
+    pub fn save(&self, path: &std::path::Path) -> Result<(), RegisterError> {
+        let s = serde_json::to_string_pretty(self)
+            .map_err(|e| RegisterError::Invalid(format!("serialising: {e}")))?;
+        std::fs::write(path, s + "\n").map_err(|e| RegisterError::Io {
+            path: path.display().to_string(),
+            source: e,
+        })
+    }
+    /// Reads `chain.json`.
+    pub fn load(path: &std::path::Path) -> Result<Self, RegisterError> {
+        let text = std::fs::read_to_string(path).map_err(|e| RegisterError::Io {
+            path: path.display().to_string(),
+            source: e,
+        })?;
+        let r: ChainReport = serde_json::from_str(&text).map_err(|e| RegisterError::Input {
+            file: path.display().to_string(),
+            line: e.line(),
+            msg: e.to_string(),
+        })?;
+        if r.format != CHAIN_FORMAT {
+            return Err(RegisterError::Input {
+                file: path.display().to_string(),
+                line: 1,
+                msg: format!("`format` is not `{CHAIN_FORMAT}`"),
+            });
+        }
+        Ok(r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_order_and_monte_carlo_agree() {
+        let d6 = |r: f64, t: f64| {
+            Matrix6::from_diagonal(&Vector6::new(r * r, r * r, r * r, t * t, t * t, t * t))
+        };
+        let inp = ChainInputs {
+            t_tracker_ct: Isometry3::new(
+                Vector3::new(0.0, 0.0, -1600.0),
+                Vector3::new(0.3, 0.1, 2.0),
+            ),
+            cov_reg_ct: d6(3e-4, 0.1),
+            cov_reg_tracker: d6(2e-4, 0.08),
+            t_base_tracker: Isometry3::new(
+                Vector3::new(1500.0, 0.0, 500.0),
+                Vector3::new(0.0, -1.5, 0.0),
+            ),
+            cov_y: d6(1e-4, 0.1),
+            cov_robot: Matrix3::identity() * 0.04,
+            cov_tool: Matrix3::identity() * 0.01,
+        };
+        let r = chain_report(
+            &inp,
+            &[("t".into(), Point3::new(20.0, -30.0, 50.0))],
+            20_000,
+            1,
+        )
+        .unwrap();
+        let t = &r.targets[0];
+        assert!(t.mc_cov_rel_diff < 0.05, "{}", t.mc_cov_rel_diff);
+        assert!((t.mc_inside95 - 0.95).abs() < 0.01, "{}", t.mc_inside95);
+        let s: f64 = t.links.iter().map(|l| l.share).sum();
+        assert!((s - 1.0).abs() < 1e-12);
+    }
+}

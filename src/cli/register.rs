@@ -1,0 +1,225 @@
+//! `robocal register`: CT ↔ tracker registration (thin adapter over [`crate::register`]).
+//!
+//! - paired fiducials: `--ct CT.csv --tracker TRK.csv` (or `--tracker-data D.jsonl`: probe-tip
+//!   records with a `target` label), optional `--tracker-model M.json` / `--ct-sigma-mm`;
+//! - surface: `--ct-mesh MESH.ply|.stl --tracker TRK.csv [--init INIT.json]`.
+//!
+//! Writes `registration.json` (`robocal-registration/1`) and prints FRE, FLE and TRE.
+use std::path::PathBuf;
+
+use anyhow::{bail, Context as _};
+
+use crate::register::{self as reg, file, icp, mesh, points, RegistrationFile};
+
+/// Arguments of `robocal register`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// CT fiducials, CSV `name,x_mm,y_mm,z_mm` (paired mode).
+    #[arg(long, value_name = "CT.csv", conflicts_with = "ct_mesh")]
+    pub ct: Option<PathBuf>,
+    /// CT surface mesh, STL or PLY (surface mode).
+    #[arg(long, value_name = "MESH")]
+    pub ct_mesh: Option<PathBuf>,
+    /// Tracker points, CSV `name,x_mm,y_mm,z_mm` (fiducials paired by name, or surface points).
+    #[arg(long, value_name = "TRK.csv")]
+    pub tracker: Option<PathBuf>,
+    /// Tracker fiducials from a dataset's probe-tip records (`tip` + `target` label).
+    #[arg(long, value_name = "D.jsonl", conflicts_with = "tracker")]
+    pub tracker_data: Option<PathBuf>,
+    /// Stereo tracker noise model (JSON: baseline_mm, focal_px, disparity_sigma_px,
+    /// pixel_sigma_px[, floor_mm]): weights and the tracker share of the covariance.
+    #[arg(long, value_name = "M.json")]
+    pub tracker_model: Option<PathBuf>,
+    /// CT fiducial localisation, 1σ per axis (mm).
+    #[arg(long, value_name = "MM")]
+    pub ct_sigma_mm: Option<f64>,
+    /// Initial guess of T_tracker_ct for ICP (registration.json or any JSON with
+    /// `T_tracker_ct.matrix`).
+    #[arg(long, value_name = "INIT.json")]
+    pub init: Option<PathBuf>,
+    /// ICP: fraction of closest points kept each iteration.
+    #[arg(long, default_value_t = 0.9)]
+    pub trim: f64,
+    /// CT targets (CSV `name,x_mm,y_mm,z_mm`) to predict the TRE at.
+    #[arg(long, value_name = "T.csv")]
+    pub targets: Option<PathBuf>,
+    /// Output file.
+    #[arg(long, value_name = "registration.json")]
+    pub out: PathBuf,
+}
+
+/// Reads a tracker model file.
+pub fn load_model(path: &std::path::Path) -> anyhow::Result<reg::StereoTrackerModel> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let m: reg::StereoTrackerModel = serde_json::from_str(&text).with_context(|| {
+        format!(
+            "{}: not a tracker model (baseline_mm, focal_px, disparity_sigma_px, pixel_sigma_px)",
+            path.display()
+        )
+    })?;
+    m.validate()?;
+    Ok(m)
+}
+
+/// Run `robocal register`.
+pub fn exec(a: Args) -> anyhow::Result<()> {
+    let targets: Vec<(String, nalgebra::Point3<f64>)> = match &a.targets {
+        Some(p) => points::read_points_csv(p)?
+            .into_iter()
+            .map(|n| (n.name, n.p))
+            .collect(),
+        None => Vec::new(),
+    };
+    let file = if let Some(ct) = &a.ct {
+        let ct_pts = points::read_points_csv(ct)?;
+        let trk = match (&a.tracker, &a.tracker_data) {
+            (Some(t), None) => points::read_points_csv(t)?,
+            (None, Some(d)) => {
+                let ds = crate::dataset::Dataset::load(d)?;
+                points::tip_points_from_dataset(&ds, &d.display().to_string())?
+            }
+            _ => bail!("paired mode needs --tracker TRK.csv or --tracker-data D.jsonl"),
+        };
+        let opts = reg::PairedOptions {
+            tracker_model: a.tracker_model.as_deref().map(load_model).transpose()?,
+            ct_sigma_mm: a.ct_sigma_mm,
+        };
+        let r = reg::register_paired(&ct_pts, &trk, &opts)?;
+        for u in &r.unpaired {
+            eprintln!("warning: unpaired fiducial {u}");
+        }
+        println!(
+            "paired registration: {} fiducials, FRE {:.3} mm, FLE (est.) {:.3} mm{}",
+            r.names.len(),
+            r.fre_mm,
+            r.fle_mm,
+            if r.weighted {
+                ", weighted by the noise model"
+            } else {
+                ""
+            }
+        );
+        RegistrationFile::from_paired(&r, &targets)
+    } else if let Some(mp) = &a.ct_mesh {
+        let Some(tp) = &a.tracker else {
+            bail!("surface mode needs --tracker TRK.csv (digitised surface points)")
+        };
+        let m = mesh::read_mesh(mp)?;
+        let pts: Vec<_> = points::read_points_csv(tp)?.into_iter().collect();
+        let xyz: Vec<_> = pts.iter().map(|p| p.p).collect();
+        let init = a.init.as_deref().map(file::load_init).transpose()?;
+        let o = icp::IcpOptions {
+            trim_fraction: a.trim,
+            ..icp::IcpOptions::default()
+        };
+        let r = icp::register_surface(&m, &xyz, init.as_ref(), &o)?;
+        println!(
+            "surface registration: {} points ({} inliers), RMS {:.3} mm, {} starts{}",
+            xyz.len(),
+            r.inliers,
+            r.rms_mm,
+            r.starts,
+            match (r.runner_up_rms_mm, r.runner_up_angle_deg) {
+                (Some(rr), Some(ang)) => format!(", runner-up RMS {rr:.3} mm at {ang:.1}°"),
+                _ => String::new(),
+            }
+        );
+        surface_file(
+            &r,
+            &pts,
+            &targets,
+            &mp.display().to_string(),
+            o.trim_fraction,
+        )
+    } else {
+        bail!("give --ct CT.csv (paired fiducials) or --ct-mesh MESH (surface)")
+    };
+    for t in &file.targets {
+        println!(
+            "target {}: predicted TRE {:.3} mm RMS, 95 % ellipsoid {:.3} x {:.3} x {:.3} mm",
+            t.name, t.tre_rms_mm, t.ellipsoid95_mm[0], t.ellipsoid95_mm[1], t.ellipsoid95_mm[2]
+        );
+    }
+    file.save(&a.out)?;
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+/// The registration file of a surface registration.
+pub fn surface_file(
+    r: &icp::IcpResult,
+    pts: &[points::NamedPoint],
+    targets: &[(String, nalgebra::Point3<f64>)],
+    mesh_name: &str,
+    trim: f64,
+) -> RegistrationFile {
+    let arr = |p: &nalgebra::Point3<f64>| [p.x, p.y, p.z];
+    let n = pts.len();
+    RegistrationFile {
+        format: reg::REGISTRATION_FORMAT.into(),
+        kind: "surface".into(),
+        t_tracker_ct: file::TransformWithCov {
+            matrix: reg::paired::iso_to_rows(&r.t_tracker_ct).to_vec(),
+            covariance: Some(file::cov_to_file(&r.cov)),
+            covariance_order: Some(file::COV_ORDER.into()),
+            covariance_ct: None,
+            covariance_tracker: None,
+        },
+        fre_mm: r.rms_mm,
+        fle_mm: r.rms_mm * (n as f64 / (n as f64 - 6.0).max(1.0)).sqrt(),
+        n_points: n,
+        points: pts
+            .iter()
+            .zip(&r.residuals)
+            .map(|(p, res)| file::PointResidual {
+                name: p.name.clone(),
+                ct: arr(&res.ct),
+                tracker: arr(&p.p),
+                residual_mm: res.distance_mm.abs(),
+                inlier: Some(res.inlier),
+            })
+            .collect(),
+        targets: targets
+            .iter()
+            .map(|(name, x)| {
+                let j = reg::paired::point_jacobian(&r.t_tracker_ct, x);
+                let c = j * r.cov * j.transpose();
+                file::TargetTre {
+                    name: name.clone(),
+                    ct: arr(x),
+                    tracker: arr(&(r.t_tracker_ct * x)),
+                    tre_rms_mm: c.trace().sqrt(),
+                    ellipsoid95_mm: file::ellipsoid95(&c),
+                }
+            })
+            .collect(),
+        unpaired: Vec::new(),
+        icp: Some(file::IcpSummary {
+            mesh: mesh_name.into(),
+            points: n,
+            inliers: r.inliers,
+            trim_fraction: trim,
+            starts: r.starts,
+            iterations: r.iterations,
+            rms_mm: r.rms_mm,
+            runner_up_rms_mm: r.runner_up_rms_mm,
+            runner_up_angle_deg: r.runner_up_angle_deg,
+        }),
+        notes: None,
+    }
+}
+
+/// `robocal predict --calibration registration.json --points P.csv`: CT points into the
+/// tracker frame.
+pub fn predict_points(
+    cal: &std::path::Path,
+    pts: &std::path::Path,
+) -> anyhow::Result<Vec<points::NamedPoint>> {
+    let f = RegistrationFile::load(cal)?;
+    let t = f.transform()?;
+    Ok(points::read_points_csv(pts)?
+        .into_iter()
+        .map(|p| points::NamedPoint { p: t * p.p, ..p })
+        .collect())
+}

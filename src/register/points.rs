@@ -1,0 +1,191 @@
+//! Named 3-D points: CSV `name,x_mm,y_mm,z_mm` (fiducials, targets, surface points) and the
+//! probe-tip records of a dataset (`pose` records with `tip.p` and a `target` label).
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::Path;
+
+use nalgebra::Point3;
+
+use super::{io_err, RegisterError};
+use crate::dataset::Dataset;
+
+/// One named point (mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedPoint {
+    pub name: String,
+    pub p: Point3<f64>,
+    /// 1-based line of the source file (0 when not from a file).
+    pub line: usize,
+}
+
+/// Parses CSV text `name,x_mm,y_mm,z_mm` (header required; `#` comments and blank lines
+/// skipped). Refuses other units in the header (`x_m`, `x_in`, ...), non-finite numbers,
+/// empty and duplicate names.
+pub fn parse_points_csv(text: &str, file: &str) -> Result<Vec<NamedPoint>, RegisterError> {
+    let err = |line: usize, msg: String| RegisterError::Input {
+        file: file.to_string(),
+        line,
+        msg,
+    };
+    let mut out: Vec<NamedPoint> = Vec::new();
+    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+    let mut header_done = false;
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let s = raw.trim().trim_start_matches('\u{feff}');
+        if s.is_empty() || s.starts_with('#') {
+            continue;
+        }
+        let cols: Vec<&str> = s.split(',').map(|c| c.trim()).collect();
+        if !header_done {
+            let want = ["name", "x_mm", "y_mm", "z_mm"];
+            if cols.len() >= 4 && cols[..4] == want {
+                header_done = true;
+                continue;
+            }
+            let hint = if cols
+                .iter()
+                .any(|c| c.starts_with("x_") || c.starts_with("y_") || c.starts_with("z_"))
+            {
+                " (a unit other than mm: convert the file to mm)"
+            } else {
+                ""
+            };
+            return Err(err(
+                line,
+                format!("header must be `name,x_mm,y_mm,z_mm`, got `{s}`{hint}"),
+            ));
+        }
+        if cols.len() < 4 {
+            return Err(err(
+                line,
+                format!("expected 4 fields name,x_mm,y_mm,z_mm, got {}", cols.len()),
+            ));
+        }
+        let name = cols[0].to_string();
+        if name.is_empty() {
+            return Err(err(line, "field `name` is empty".into()));
+        }
+        let mut v = [0.0; 3];
+        for (k, field) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
+            let x: f64 = cols[k + 1].parse().map_err(|_| {
+                err(
+                    line,
+                    format!("field `{field}`: `{}` is not a number", cols[k + 1]),
+                )
+            })?;
+            if !x.is_finite() {
+                return Err(err(line, format!("field `{field}` is not finite ({x})")));
+            }
+            v[k] = x;
+        }
+        if let Some(prev) = seen.insert(name.clone(), line) {
+            return Err(err(
+                line,
+                format!("duplicate name `{name}` (first on line {prev}): names pair the points"),
+            ));
+        }
+        out.push(NamedPoint {
+            name,
+            p: Point3::new(v[0], v[1], v[2]),
+            line,
+        });
+    }
+    if !header_done {
+        return Err(err(0, "empty file: no `name,x_mm,y_mm,z_mm` header".into()));
+    }
+    Ok(out)
+}
+
+/// Reads a points CSV file.
+pub fn read_points_csv(path: &Path) -> Result<Vec<NamedPoint>, RegisterError> {
+    let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
+    parse_points_csv(&text, &path.display().to_string())
+}
+
+/// Writes named points as CSV `name,x_mm,y_mm,z_mm` (µm resolution… to 1e-6 mm).
+pub fn write_points_csv<W: Write>(mut w: W, pts: &[NamedPoint]) -> std::io::Result<()> {
+    writeln!(w, "name,x_mm,y_mm,z_mm")?;
+    for p in pts {
+        writeln!(w, "{},{:.6},{:.6},{:.6}", p.name, p.p.x, p.p.y, p.p.z)?;
+    }
+    w.flush()
+}
+
+/// Probe-tip points of a dataset: every `pose` record with a `tip` (`{"p": [x, y, z]}` in
+/// the tracker frame) and a `target` label; several records of one label are averaged.
+pub fn tip_points_from_dataset(ds: &Dataset, file: &str) -> Result<Vec<NamedPoint>, RegisterError> {
+    let mut acc: BTreeMap<String, (nalgebra::Vector3<f64>, usize, usize)> = BTreeMap::new();
+    for (k, rec) in ds.poses().enumerate() {
+        let (Some(tip), Some(label)) = (&rec.tip, &rec.target) else {
+            continue;
+        };
+        let p = tip
+            .get("p")
+            .and_then(|v| v.as_array())
+            .filter(|a| a.len() == 3)
+            .and_then(|a| {
+                let v: Option<Vec<f64>> = a.iter().map(|x| x.as_f64()).collect();
+                v
+            })
+            .filter(|v| v.iter().all(|x| x.is_finite()))
+            .ok_or_else(|| RegisterError::Input {
+                file: file.to_string(),
+                line: 0,
+                msg: format!(
+                    "pose record {} (#{k}): field `tip.p` must be 3 finite numbers (mm)",
+                    rec.id
+                ),
+            })?;
+        let e =
+            acc.entry(label.clone())
+                .or_insert((nalgebra::Vector3::zeros(), 0, rec.id as usize));
+        e.0 += nalgebra::Vector3::new(p[0], p[1], p[2]);
+        e.1 += 1;
+    }
+    if acc.is_empty() {
+        return Err(RegisterError::Input {
+            file: file.to_string(),
+            line: 0,
+            msg: "no pose record carries both `tip` and `target`: no probe-tip fiducials".into(),
+        });
+    }
+    Ok(acc
+        .into_iter()
+        .map(|(name, (s, n, _))| NamedPoint {
+            name,
+            p: Point3::from(s / n as f64),
+            line: 0,
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_and_refuses_with_line_numbers() {
+        let ok =
+            parse_points_csv("name,x_mm,y_mm,z_mm\n# c\nF1,1,2,3\nF2, 4 ,5,6\n", "a.csv").unwrap();
+        assert_eq!(ok.len(), 2);
+        assert_eq!(ok[1].p, Point3::new(4.0, 5.0, 6.0));
+        assert_eq!(ok[1].line, 4);
+        let e = parse_points_csv("name,x_mm,y_mm,z_mm\nF1,1,2,3\nF1,1,2,3\n", "a.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a.csv:3") && e.contains("duplicate"), "{e}");
+        let e = parse_points_csv("name,x_m,y_m,z_m\nF1,1,2,3\n", "b.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("b.csv:1") && e.contains("unit"), "{e}");
+        let e = parse_points_csv("name,x_mm,y_mm,z_mm\nF1,1,NaN,3\n", "c.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("c.csv:2") && e.contains("y_mm"), "{e}");
+        let e = parse_points_csv("name,x_mm,y_mm,z_mm\nF1,1,x,3\n", "c.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a number"), "{e}");
+    }
+}
