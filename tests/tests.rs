@@ -12,6 +12,7 @@ mod laser_world;
 mod model;
 mod navchain;
 mod plan;
+mod rcm;
 mod report;
 mod run_integrity;
 mod solve;

@@ -9,6 +9,7 @@ pub mod camera;
 pub mod keyence;
 pub mod navchain;
 pub mod ndi;
+pub mod rcm;
 pub mod scenario;
 pub mod serve;
 pub mod sim;

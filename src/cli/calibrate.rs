@@ -4,6 +4,7 @@ pub mod kinematics;
 pub mod laser;
 pub mod nominal;
 pub mod pivot;
+pub mod rcm;
 pub mod robot_world;
 
 /// Arguments of `robocal calibrate`.
@@ -24,6 +25,8 @@ pub enum What {
     Pivot(pivot::Args),
     /// Laser range sensor hand-eye calibration from planes (seed 000).
     Laser(laser::Args),
+    /// Endoscope camera hand-eye from the instrument shaft under a remote centre of motion (seed 002).
+    Rcm(rcm::Args),
     /// Tracker ↔ robot base (AX = YB: Shah, Li, Tsai; LM refinement; on-site check).
     RobotWorld(robot_world::Args),
 }
@@ -35,6 +38,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Kinematics(a) => kinematics::exec(a),
         What::Pivot(a) => pivot::exec(a),
         What::Laser(a) => laser::exec(a),
+        What::Rcm(a) => rcm::exec(a),
         What::RobotWorld(a) => robot_world::exec(a),
     }
 }

@@ -13,6 +13,7 @@
 
 pub mod calibration;
 mod check;
+pub mod endoscope;
 pub mod error;
 pub mod io;
 pub mod journal;

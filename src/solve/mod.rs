@@ -18,6 +18,7 @@ pub mod lm;
 pub mod metrics;
 pub mod nominal;
 pub mod obs;
+pub mod rcm;
 pub mod rigid;
 pub mod stats;
 pub mod tool;
