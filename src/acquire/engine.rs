@@ -143,6 +143,9 @@ struct Run<'a> {
     images_dir: PathBuf,
     /// Whether `images_dir` is known to exist (created and its parent fsync'd).
     images_dir_ready: bool,
+    /// Where the arm was when the next move starts (deg): the last measured joints, or the
+    /// last target reached when nothing was measured there (the record's `q_prev`).
+    last_q_deg: Option<Vec<f64>>,
 }
 
 fn deg(v: &[f64]) -> Vec<f64> {
@@ -688,9 +691,11 @@ impl Run<'_> {
 
     async fn pose(&mut self, p: &PlannedPose) -> Result<Outcome, AcquireError> {
         let target: Vec<f64> = p.q_deg.iter().map(|d| d.to_radians()).collect();
+        let q_prev = self.last_q_deg.take();
         if let Err(o) = self.move_to(p.id, &target).await? {
             return Ok(o);
         }
+        self.last_q_deg = Some(p.q_deg.clone());
         if let Err(o) = self.settle(p.id).await? {
             return Ok(o);
         }
@@ -712,6 +717,7 @@ impl Run<'_> {
             Ok(j) => j,
             Err(o) => return Ok(o),
         };
+        self.last_q_deg = Some(deg(&js.q));
         let arm = self.dev.arm.clone();
         let flange = match self
             .link(p.id, "flange pose", || {
@@ -767,6 +773,7 @@ impl Run<'_> {
             group: p.group.clone(),
             q_cmd: Some(p.q_deg.clone()),
             q: Some(deg(&js.q)),
+            q_prev,
             flange,
             marker: marker_obs,
             range,
@@ -860,6 +867,7 @@ pub async fn acquire(
         spreads: Vec::new(),
         images_dir: images,
         images_dir_ready: false,
+        last_q_deg: None,
     };
     if !existing.is_empty() {
         run.event(

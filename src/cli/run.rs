@@ -465,7 +465,8 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
     }
     write_atomic(
         &dir.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
+        serde_json::to_string_pretty(&crate::schema::RunSummaryFile::from(summary.clone()))?
+            .as_bytes(),
     )?;
     Ok(summary)
 }

@@ -12,12 +12,14 @@
 pub mod bootstrap;
 pub mod calfile;
 pub mod identifiability;
+pub mod inference;
 pub mod kinematics;
 pub mod laser;
 pub mod lm;
 pub mod metrics;
 pub mod nominal;
 pub mod obs;
+pub mod predict;
 pub mod rigid;
 pub mod stats;
 pub mod tool;
