@@ -317,8 +317,9 @@ pub fn refine_tau(state: &mut State, train: &[Obs], k: usize) {
     let Some(tau0) = state.effects.get(k).and_then(warm_up_tau) else {
         return;
     };
+    let base = state.clone();
     let eval = |tau: f64| -> (f64, State) {
-        let mut st = state.clone();
+        let mut st = base.clone();
         set_tau(&mut st.effects[k], tau);
         let rep = fit(&mut st, train, 30);
         (rep.rss, st)
