@@ -18,4 +18,5 @@ pub mod plan;
 pub mod plausible;
 pub mod register;
 pub mod report;
+pub mod schema;
 pub mod solve;

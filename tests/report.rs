@@ -91,8 +91,9 @@ fn report_of_diagnose_and_laser_on_test_data() {
         &std::fs::read_to_string(dir.join("diagnose/diagnosis.json")).unwrap(),
     )
     .unwrap();
-    let nominal = diag["heldout_rms_mm"]["nominal"].as_f64().unwrap();
-    let fin = diag["heldout_rms_mm"]["final"].as_f64().unwrap();
+    assert_eq!(diag["format"], "robocal-diagnosis/2");
+    let nominal = diag["heldout_rms"]["nominal_mm"].as_f64().unwrap();
+    let fin = diag["heldout_rms"]["final_mm"].as_f64().unwrap();
     let (b, a) = headline_numbers(&headline);
     assert!((b - nominal).abs() < 1e-3, "{headline} vs {nominal}");
     assert!((a - fin).abs() < 1e-3, "{headline} vs {fin}");
@@ -109,6 +110,7 @@ fn report_of_diagnose_and_laser_on_test_data() {
     assert!(md.contains("## Laser hand-eye methods (`laser/laser_report.json`)"));
     assert!(md.contains("| orthogonal-planes LM |"));
     assert!(md.contains("| direct ML |"));
+    assert!(md.contains("Sensor: kinematic"));
     assert_eq!(
         md.matches("## Calibration `").count(),
         2,
@@ -167,16 +169,28 @@ fn report_tolerates_broken_and_unknown_files() {
     std::fs::write(dir.join("a/b/diagnosis.json"), "[1, 2]").unwrap();
     std::fs::write(dir.join("x.jsonl"), "{\"hello\": 1}\n").unwrap();
     std::fs::write(dir.join("plot.svg"), "no svg here").unwrap();
-    // A run summary with extra, unknown fields and odd types.
+    // A run summary without its format tag (an older robocal): a warning naming the file.
+    std::fs::write(dir.join("a/summary.json"), r#"{"planned": 5}"#).unwrap();
+    // A run summary with extra, unknown fields (kept readable) and a typed summary.
     std::fs::write(
         dir.join("summary.json"),
-        r#"{"planned": 5, "recorded": 3, "skipped": [{"id": 1, "reason": "marker not visible"},
-            {"id": 4, "reason": "marker not visible"}], "poses_per_hour": "fast",
-            "events": {"skip": 2}, "future_field": {"x": [1]}}"#,
+        r#"{"format": "robocal-run-summary/1", "planned": 5, "recorded": 3, "recorded_now": 3,
+            "already_done": 0, "skipped": [{"id": 1, "reason": "marker not visible"},
+            {"id": 4, "reason": "marker not visible"}], "remaining": 0,
+            "poses_per_hour": 120.0, "events": {"skip": 2},
+            "time": {"move_s": 1.0, "settle_s": 2.0, "sample_s": 3.0, "overhead_s": 4.0},
+            "aborted": null, "future_field": {"x": [1]}}"#,
     )
     .unwrap();
     let s = gather(dir).unwrap();
-    assert_eq!(s.warnings.len(), 3, "{:?}", s.warnings);
+    assert_eq!(s.warnings.len(), 4, "{:?}", s.warnings);
+    assert!(
+        s.warnings
+            .iter()
+            .any(|w| w.contains("a/summary.json") && w.contains("robocal-run-summary/1")),
+        "{:?}",
+        s.warnings
+    );
     assert!(s.calibrations.is_empty() && s.diagnoses.is_empty() && s.datasets.is_empty());
     let h = s.headline_text();
     assert_eq!(
@@ -185,7 +199,7 @@ fn report_tolerates_broken_and_unknown_files() {
     );
     let md = s.markdown();
     assert!(md.contains("| marker not visible | 2 | 1 4 |"), "{md}");
-    assert!(md.contains("poses/hour —"));
+    assert!(md.contains("poses/hour 120"));
     assert!(s.html().contains("plot.svg: not an SVG image"));
     // The CLI refuses a missing directory and a bad --out extension (exit 1, no panic).
     let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
@@ -198,4 +212,61 @@ fn report_tolerates_broken_and_unknown_files() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
+}
+
+/// A laser diagnosis (the same `diagnosis.json` shape as the kinematic one) shows its
+/// effects in the report: the headline lists exactly the labels the file holds.
+#[test]
+fn report_shows_laser_diagnosis_effects() {
+    use robocal::schema::{self, DiagnosisFile};
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let laser = data("laser-planes");
+    robocal(&[
+        "diagnose",
+        "--data",
+        p(&laser.join("train.jsonl")),
+        "--heldout",
+        p(&laser.join("heldout.jsonl")),
+        "--out",
+        p(&dir.join("laser-diag")),
+    ]);
+    let d: DiagnosisFile = schema::read(&dir.join("laser-diag/diagnosis.json")).unwrap();
+    assert_eq!(d.sensor, schema::DiagnosisSensor::Laser);
+    assert!(d.train_rms.base_model_mm.is_some());
+    let s = gather(dir).unwrap();
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let h = s.headline();
+    let mut labels: Vec<String> = d.effects.iter().map(|e| e.label.clone()).collect();
+    labels.sort();
+    assert_eq!(h.effects, labels);
+    // A laser diagnosis that found an effect: the headline names it (not "none").
+    let mut with = d.clone();
+    with.effects.push(schema::DiagnosedEffect {
+        kind: "laser_scale".into(),
+        joint: None,
+        label: "laser_scale".into(),
+        parameters: vec![schema::EffectParameter::new("scale", "ppm", 300.0, 10.0)],
+        evidence: schema::Evidence::default(),
+        train_rms_mm_before: Some(0.05),
+        train_rms_mm_after: Some(0.02),
+        heldout_rms_mm_before: None,
+        heldout_rms_mm_after: None,
+        calibration: robocal::dataset::CalEffect {
+            kind: "laser_scale".into(),
+            joint: None,
+            params: Default::default(),
+            extra: Default::default(),
+        },
+    });
+    schema::write(&dir.join("laser-diag/diagnosis.json"), &with).unwrap();
+    let s = gather(dir).unwrap();
+    assert!(
+        s.headline_text().contains("effects found: laser_scale"),
+        "{}",
+        s.headline_text()
+    );
+    assert!(s
+        .markdown()
+        .contains("scale = 300.0000 ppm (95 %: 280.4000 … 319.6000)"));
 }

@@ -364,6 +364,8 @@ pub fn synthesize(world: &WorldHandle, cfg: &SynthConfig) -> Result<SynthOutput,
         let slot_start = world.now();
         let every = cfg.heldout_every.max(1);
         let validation = n_ho < cfg.n_heldout && (id % every == every - 1 || n_tr >= cfg.n_train);
+        // Where the move into this pose starts (the record's `q_prev`).
+        let q_from = world.arm_joint_state(arm).q;
         world.arm_start_move(arm, q_cmd, cfg.speed)?;
         let end = world.arm_motion_end(arm);
         world.advance(end - world.now());
@@ -376,7 +378,7 @@ pub fn synthesize(world: &WorldHandle, cfg: &SynthConfig) -> Result<SynthOutput,
         let mut rec = json!({
             "kind": "pose", "id": id, "t": t, "point": id, "branch": 0,
             "group": if validation { "validation" } else { "train" },
-            "q_cmd": deg(q_cmd), "q": deg(&js.q),
+            "q_cmd": deg(q_cmd), "q": deg(&js.q), "q_prev": deg(&q_from),
             "flange": {"p": [flange.translation.x, flange.translation.y, flange.translation.z],
                        "quat": quat_wxyz(&flange.rotation)},
         });

@@ -132,6 +132,9 @@ struct Run<'a> {
     postures: Option<Vec<Vec<f64>>>,
     /// Successful recoveries (protective stop) so far: a transfer re-plans after one.
     recoveries: usize,
+    /// Where the arm was when the next move starts (deg): the last measured joints, or the
+    /// last target reached when nothing was measured there (the record's `q_prev`).
+    last_q_deg: Option<Vec<f64>>,
 }
 
 fn deg(v: &[f64]) -> Vec<f64> {
@@ -769,9 +772,11 @@ impl Run<'_> {
 
     async fn pose(&mut self, p: &PlannedPose) -> Result<Outcome, AcquireError> {
         let target: Vec<f64> = p.q_deg.iter().map(|d| d.to_radians()).collect();
+        let q_prev = self.last_q_deg.take();
         if let Err(o) = self.move_to(p.id, &target).await? {
             return Ok(o);
         }
+        self.last_q_deg = Some(p.q_deg.clone());
         if let Err(o) = self.settle(p.id).await? {
             return Ok(o);
         }
@@ -793,6 +798,7 @@ impl Run<'_> {
             Ok(j) => j,
             Err(o) => return Ok(o),
         };
+        self.last_q_deg = Some(deg(&js.q));
         let arm = self.dev.arm.clone();
         let flange = match self
             .link(p.id, "flange pose", || {
@@ -848,6 +854,7 @@ impl Run<'_> {
             group: p.group.clone(),
             q_cmd: Some(p.q_deg.clone()),
             q: Some(deg(&js.q)),
+            q_prev,
             flange,
             marker: marker_obs,
             range,
@@ -947,6 +954,7 @@ pub async fn acquire(
             .collect(),
         postures: None,
         recoveries: 0,
+        last_q_deg: None,
     };
     if !existing.is_empty() {
         run.event(

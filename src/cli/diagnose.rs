@@ -54,9 +54,6 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
         );
     }
     let main = data::load_jsonl(&args.data)?;
-    for w in &main.warnings {
-        tracing::warn!("{w}");
-    }
     let extra = match &args.heldout {
         Some(p) => Some(data::load_jsonl(p)?),
         None => None,
@@ -102,16 +99,22 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
         allow_nonparametric: !args.no_nonparametric,
         ..Options::default()
     };
-    let d = diagnose::diagnose(&model, &train, &held, &opt)?;
+    let mut d = diagnose::diagnose(&model, &train, &held, &opt)?;
+    d.warnings.extend(main.warnings.iter().cloned());
+    let (_, inferred) = data::contexts_counted(&session, dof);
+    if inferred > 0 {
+        d.warnings
+            .push(data::q_prev_warning(inferred, "the backlash candidates"));
+    }
+    for w in &d.warnings {
+        eprintln!("warning: {w}");
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("{}", args.out.display()))?;
     let w = |name: &str, text: &str| -> anyhow::Result<()> {
         let p = args.out.join(name);
         crate::fsio::write_atomic_ctx(&p, text.as_bytes())
     };
-    w(
-        "diagnosis.json",
-        &serde_json::to_string_pretty(&d.to_json())?,
-    )?;
+    crate::schema::write(&args.out.join("diagnosis.json"), &d.to_file())?;
     w("report.md", &d.report_md())?;
     let mut metrics = Map::new();
     let num = |v: Option<f64>| {

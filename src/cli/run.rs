@@ -538,7 +538,8 @@ fn acquire_in(
     }
     write_atomic(
         dir.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
+        serde_json::to_string_pretty(&crate::schema::RunSummaryFile::from(summary.clone()))?
+            .as_bytes(),
     )?;
     Ok(summary)
 }

@@ -134,6 +134,7 @@ impl Validator {
             ("group", Ty::Str),
             ("q_cmd", Ty::Nums(self.dof)),
             ("q", Ty::Nums(self.dof)),
+            ("q_prev", Ty::Nums(self.dof)),
             ("range", Ty::NumOrNull),
             ("temp_c", Ty::Num),
             ("plane", Ty::Str),

@@ -111,6 +111,10 @@ pub struct PoseRecord {
     /// Measured joints (deg). Absent only for records that carry a `flange` pose instead.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub q: Option<Vec<f64>>,
+    /// Joints (deg) the move into this pose started from (its approach direction per joint
+    /// is `sign(q − q_prev)`; backlash needs it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub q_prev: Option<Vec<f64>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flange: Option<FilePose>,
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -31,7 +31,8 @@ pub struct Obs {
     pub y: Point3<f64>,
 }
 
-/// A loaded dataset: header and pose records in file order.
+/// A loaded dataset: header and pose records in file order, read through the strict
+/// dataset reader ([`crate::dataset::read_dataset`], torn-line rule included).
 #[derive(Debug, Clone)]
 pub struct Loaded {
     pub header: Header,
@@ -40,56 +41,32 @@ pub struct Loaded {
     pub warnings: Vec<String>,
 }
 
-/// Read a `robocal-dataset/1` JSON Lines file. A torn last line (no newline, not JSON) is
-/// dropped with a warning; any other bad line is an error naming the line.
+impl From<crate::dataset::Loaded> for Loaded {
+    fn from(l: crate::dataset::Loaded) -> Self {
+        Loaded {
+            poses: l
+                .dataset
+                .records
+                .into_iter()
+                .filter_map(|r| match r {
+                    Record::Pose(p) => Some(p),
+                    _ => None,
+                })
+                .collect(),
+            header: l.dataset.header,
+            warnings: l.warnings.iter().map(ToString::to_string).collect(),
+        }
+    }
+}
+
+/// Read a `robocal-dataset/1` file with the strict reader (errors name file, line, field).
 pub fn load_jsonl(path: &Path) -> anyhow::Result<Loaded> {
-    let text =
-        std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    parse_jsonl(&text, &path.display().to_string())
+    Ok(crate::dataset::read_dataset(path)?.into())
 }
 
 /// Parse the text of a dataset (see [`load_jsonl`]); `label` names it in errors.
 pub fn parse_jsonl(text: &str, label: &str) -> anyhow::Result<Loaded> {
-    let ends_with_newline = text.ends_with('\n');
-    let lines: Vec<&str> = text.lines().collect();
-    let mut warnings = Vec::new();
-    let first = lines
-        .first()
-        .ok_or_else(|| anyhow::anyhow!("{label}: empty file"))?;
-    let header: Header =
-        serde_json::from_str(first).map_err(|e| anyhow::anyhow!("{label}:1: bad header: {e}"))?;
-    if header.format != "robocal-dataset/1" {
-        anyhow::bail!(
-            "{label}:1: field \"format\": expected robocal-dataset/1, got {}",
-            header.format
-        );
-    }
-    let mut poses = Vec::new();
-    for (i, line) in lines.iter().enumerate().skip(1) {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let is_last = i + 1 == lines.len();
-        match serde_json::from_str::<Record>(line) {
-            Ok(Record::Pose(p)) => poses.push(p),
-            Ok(_) => {}
-            Err(e) => {
-                let torn = is_last
-                    && !ends_with_newline
-                    && serde_json::from_str::<serde_json::Value>(line).is_err();
-                if torn {
-                    warnings.push(format!("{label}:{}: torn last line dropped", i + 1));
-                } else {
-                    anyhow::bail!("{label}:{}: {e}", i + 1);
-                }
-            }
-        }
-    }
-    Ok(Loaded {
-        header,
-        poses,
-        warnings,
-    })
+    Ok(crate::dataset::parse_dataset(text.as_bytes(), Path::new(label))?.into())
 }
 
 /// Whether a pose record carries a usable marker measurement.
@@ -118,13 +95,16 @@ fn qd_rad(p: &PoseRecord, dof: usize) -> Option<Vec<f64>> {
 }
 
 /// Contexts of every record that has joint angles, in acquisition order (sorted by `t`,
-/// then `id`), with the approach direction computed from that order. Pass the records of
-/// all files of one session together (train and held-out interleave in time), so that the
-/// approach direction of a held-out pose is taken from the pose measured just before it.
-/// An explicit `approach` array on a record (signs per joint) overrides the computed one.
+/// then `id`). The approach direction of joint `i` is `sign(q_i − q_prev_i)` from the
+/// record's own `q_prev` (the joints the move into the pose started from); where a record
+/// has no `q_prev` (or joint `i` did not move), it is taken from the pose measured just
+/// before it in time, which is right only if nothing moved the arm in between — pass the
+/// records of all files of one session together (train and held-out interleave in time).
+/// An explicit `approach` array on a record (signs per joint) overrides both.
 /// Each context is keyed by the record's address ([`record_key`]), not its `id`: ids of two
 /// files of one session (e.g. two `robocal run` directories) may overlap.
-pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(usize, ObsCtx)> {
+/// Returns the contexts and how many records had neither `q_prev` nor `approach`.
+pub fn contexts_counted(records: &[&PoseRecord], dof: usize) -> (Vec<(usize, ObsCtx)>, usize) {
     let mut v: Vec<(&PoseRecord, Vec<f64>)> = records
         .iter()
         .filter_map(|p| joint_rad(p, dof).map(|q| (*p, q)))
@@ -133,11 +113,18 @@ pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(usize, ObsCtx)> {
     v.sort_by(|a, b| a.0.t.total_cmp(&b.0.t).then(a.0.id.cmp(&b.0.id)));
     let mut out = Vec::with_capacity(v.len());
     let mut prev: Option<Vec<f64>> = None;
+    let mut inferred = 0;
     // Motions smaller than this (rad) do not change the approach direction.
     const MOVE_EPS: f64 = 1e-6;
     let mut last_sign = vec![0.0; dof];
     for (p, q) in v {
-        if let Some(pq) = &prev {
+        let q_prev = p
+            .q_prev
+            .as_ref()
+            .filter(|x| x.len() == dof && x.iter().all(|v| v.is_finite()))
+            .map(|x| x.iter().map(|d| d.to_radians()).collect::<Vec<f64>>());
+        let from = q_prev.as_ref().or(prev.as_ref());
+        if let Some(pq) = from {
             for i in 0..dof {
                 let dq = q[i] - pq[i];
                 if dq.abs() > MOVE_EPS {
@@ -146,11 +133,16 @@ pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(usize, ObsCtx)> {
             }
         }
         let mut approach = last_sign.clone();
+        let mut explicit = false;
         if let Some(a) = p.extra.get("approach").and_then(|a| a.as_array()) {
             let s: Vec<f64> = a.iter().filter_map(|x| x.as_f64()).collect();
             if s.len() == dof {
                 approach = s.iter().map(|x| x.signum()).collect();
+                explicit = true;
             }
+        }
+        if q_prev.is_none() && !explicit {
+            inferred += 1;
         }
         prev = Some(q.clone());
         out.push((
@@ -165,7 +157,20 @@ pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(usize, ObsCtx)> {
             },
         ));
     }
-    out
+    (out, inferred)
+}
+
+/// [`contexts_counted`] without the count.
+pub fn contexts(records: &[&PoseRecord], dof: usize) -> Vec<(usize, ObsCtx)> {
+    contexts_counted(records, dof).0
+}
+
+/// The warning printed when an effect needs the approach direction and `n` records carry
+/// no `q_prev`.
+pub fn q_prev_warning(n: usize, what: &str) -> String {
+    format!(
+        "{n} pose record(s) have no q_prev: {what} takes their approach direction from the previous record of the session in time (right only if the arm moved straight from that pose)"
+    )
 }
 
 /// The identity of a record in memory (its address), unique across the files of a session.
@@ -205,32 +210,39 @@ mod tests {
     }
 
     #[test]
-    fn approach_from_session_order_and_torn_line() {
-        let header = r#"{"format":"robocal-dataset/1","robot":{"model":"x"}}"#;
+    fn approach_from_q_prev_or_session_order_and_torn_line() {
+        let header = r#"{"format":"robocal-dataset/1","robot":{"model":"x","chain":[{"name":"j1","origin_xyz":[0,0,0],"origin_rpy":[0,0,0],"axis":[0,0,1]},{"name":"j2","origin_xyz":[0,0,100],"origin_rpy":[0,0,0],"axis":[0,1,0]}]}}"#;
         let text = format!(
-            "{header}\n{}\n{}\n{}\n{{\"kind\":\"po",
+            "{header}\n{}\n{}\n{}\n{}\n{{\"kind\":\"po",
             rec(0, 0.0, [0.0, 10.0]),
-            rec(2, 2.0, [5.0, 5.0]),
             rec(1, 1.0, [10.0, 5.0]),
+            rec(2, 2.0, [5.0, 5.0]),
+            // q_prev says joint 2 came from below although the previous pose is above.
+            rec(3, 3.0, [4.0, 6.0]).replace("\"q\":", "\"q_prev\":[9,0],\"q\":"),
         );
         let l = parse_jsonl(&text, "mem").unwrap();
-        assert_eq!(l.poses.len(), 3);
-        assert_eq!(l.warnings.len(), 1);
+        assert_eq!(l.poses.len(), 4);
+        assert_eq!(l.warnings.len(), 1, "torn last line dropped with a warning");
         let refs: Vec<&PoseRecord> = l.poses.iter().collect();
+        let (ctx, inferred) = contexts_counted(&refs, 2);
+        assert_eq!(inferred, 3, "three records without q_prev");
         let obs = observations(&refs, &refs, 2);
         assert_eq!(
             obs.iter().map(|o| o.ctx.id).collect::<Vec<_>>(),
-            vec![0, 1, 2]
+            vec![0, 1, 2, 3]
         );
+        assert_eq!(ctx.len(), 4);
         assert_eq!(obs[1].ctx.approach, vec![1.0, -1.0]);
         // joint 2 did not move from id 1 to id 2: keeps its last direction
         assert_eq!(obs[2].ctx.approach, vec![-1.0, -1.0]);
-        // a bad line that is not the last is an error naming the line
+        // q_prev [9, 0] → [4, 6]: joint 1 from above (−), joint 2 from below (+)
+        assert_eq!(obs[3].ctx.approach, vec![-1.0, 1.0]);
+        // a bad line that is not the last is an error naming the line (strict reader)
         let bad = format!(
             "{header}\n{{\"kind\":\"pose\"}}\n{}\n",
             rec(0, 0.0, [0.0, 0.0])
         );
-        let e = parse_jsonl(&bad, "mem").unwrap_err().to_string();
+        let e = format!("{:#}", parse_jsonl(&bad, "mem").unwrap_err());
         assert!(e.contains("mem:2"), "{e}");
     }
 }

@@ -58,24 +58,49 @@ impl MassPoint {
 /// What drives a thermal effect.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Driver {
-    /// Hours since `t0_s` (s).
+    /// Hours since `t0_s` (s): a linear drift.
     Time { t0_s: f64 },
-    /// Temperature rise (°C) above `t0_c`.
+    /// Temperature rise (°C) above `t0_c` (records carry `temp_c`).
     Temp { t0_c: f64 },
+    /// Exponential warm-up by time: `x = 1 − e^{−(t − t0)/τ}` (0 at `t0_s`, 1 when warm).
+    /// A warm-up that began before `t0_s` has the same shape up to its amplitude and a
+    /// constant (absorbed by the geometric offsets), so the power-on time is not needed.
+    WarmUp { t0_s: f64, tau_s: f64 },
 }
 
 impl Driver {
-    /// The driver value for one pose (hours or K).
+    /// The driver value for one pose (hours, K or the warm-up fraction).
     pub fn value(&self, ctx: &ObsCtx) -> f64 {
         match self {
             Driver::Time { t0_s } => (ctx.t - t0_s) / 3600.0,
             Driver::Temp { t0_c } => ctx.temp_c.map(|t| t - t0_c).unwrap_or(0.0),
+            Driver::WarmUp { t0_s, tau_s } => 1.0 - (-(ctx.t - t0_s) / tau_s.max(1e-9)).exp(),
         }
     }
-    fn unit(&self) -> &'static str {
+    /// Unit of the driver (in coefficient names `deg_per_<unit>`).
+    pub fn unit(&self) -> &'static str {
         match self {
             Driver::Time { .. } => "hour",
             Driver::Temp { .. } => "K",
+            Driver::WarmUp { .. } => "full_warm_up",
+        }
+    }
+    /// Short label (`time`, `temperature`, `warm-up τ=1800 s`).
+    pub fn label(&self) -> String {
+        match self {
+            Driver::Time { .. } => "time".into(),
+            Driver::Temp { .. } => "temperature".into(),
+            Driver::WarmUp { tau_s, .. } => format!("warm-up τ={tau_s:.0} s"),
+        }
+    }
+    /// The same driver with another time constant (warm-up only).
+    pub fn with_tau(&self, tau: f64) -> Driver {
+        match self {
+            Driver::WarmUp { t0_s, .. } => Driver::WarmUp {
+                t0_s: *t0_s,
+                tau_s: tau,
+            },
+            d => *d,
         }
     }
 }
@@ -149,10 +174,9 @@ impl Block {
     /// A short human label, e.g. `joint_compliance(j2)`.
     pub fn label(&self) -> String {
         let extra = match self {
-            Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => match driver {
-                Driver::Time { .. } => ", time".to_string(),
-                Driver::Temp { .. } => ", temperature".to_string(),
-            },
+            Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => {
+                format!(", {}", driver.label())
+            }
             Block::BaseShift { t_change } => format!("t≥{t_change:.1}s"),
             _ => String::new(),
         };
@@ -251,6 +275,12 @@ impl Block {
     }
 }
 
+/// Whether a model parameter is a link length (`a_i`, `d_i`), which thermal growth scales.
+fn is_length(p: &crate::model::Param) -> bool {
+    matches!(p.group, ParamGroup::Joint(_))
+        && (p.name.starts_with('a') && !p.name.starts_with("alpha") || p.name.starts_with('d'))
+}
+
 /// Gravity torque (N·m) about joint `joint` (1-based) of 1 kg at each mass point, at `q`.
 pub fn gravity_torques(
     model: &KinematicModel,
@@ -312,6 +342,18 @@ pub struct Effect {
     pub block: Block,
     pub coefs: Vec<f64>,
     pub std: Vec<f64>,
+    /// Standard deviation of a warm-up time constant τ (s), from the profile of the fit
+    /// over τ (NaN when not estimated).
+    pub tau_std: f64,
+}
+
+fn tau_param(d: &Driver, tau_std: f64) -> Option<crate::schema::EffectParameter> {
+    match d {
+        Driver::WarmUp { tau_s, .. } => Some(crate::schema::EffectParameter::new(
+            "tau", "s", *tau_s, tau_std,
+        )),
+        _ => None,
+    }
 }
 
 impl Effect {
@@ -322,6 +364,7 @@ impl Effect {
             block,
             coefs: vec![0.0; n],
             std: vec![f64::NAN; n],
+            tau_std: f64::NAN,
         }
     }
 }
@@ -416,14 +459,37 @@ pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Po
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
-    let (p, jm) = m.point_param_jacobian(&th);
+    let (p, jm_pose) = m.point_param_jacobian(&th);
+    // Link growth scales the length parameters: pred = P(a·(1 + g·x)), so
+    // d pred / d a_i = (1 + g·x) ∂P/∂a'_i and d pred / d g = Σ ∂P/∂a'_i a_i x.
+    let growth: f64 = effects
+        .iter()
+        .filter_map(|e| match (&e.block, e.coefs.first()) {
+            (Block::LengthDrift { driver }, Some(g)) => Some(1.0 + g * driver.value(ctx)),
+            _ => None,
+        })
+        .product();
+    let mut jm = jm_pose.clone();
+    if growth != 1.0 {
+        for (i, pr) in model.params().iter().enumerate() {
+            if is_length(pr) {
+                jm.column_mut(i).scale_mut(growth);
+            }
+        }
+    }
     let s = 1.0 + tracker_scale(effects);
     let mut pred = p.coords * s;
     let ncol: usize = effects.iter().map(|e| e.block.n_coefs()).sum();
     let mut je = Matrix3xX::zeros(ncol);
     let mut off = 0;
     for e in effects {
-        let cols = block_columns(&e.block, &m, &jm, &p, ctx);
+        let mut cols = block_columns(&e.block, &m, &jm_pose, &p, ctx);
+        if matches!(e.block, Block::LengthDrift { .. }) {
+            // `m` holds the grown lengths a'_i = a_i·growth; the column needs a_i.
+            for c in &mut cols {
+                *c /= growth;
+            }
+        }
         for (k, c) in cols.iter().enumerate() {
             je.set_column(off + k, &(c * s));
         }
@@ -495,6 +561,71 @@ fn num(v: f64) -> Value {
 }
 
 impl Effect {
+    /// The coefficients in file units (degrees for angles, ppm for ratios), each with its
+    /// standard deviation and 95 % interval (`diagnosis.json`).
+    pub fn parameters(&self) -> Vec<crate::schema::EffectParameter> {
+        use crate::schema::EffectParameter as P;
+        let c = &self.coefs;
+        let s = |k: usize| self.std.get(k).copied().unwrap_or(f64::NAN);
+        let deg = |v: f64| v.to_degrees();
+        match &self.block {
+            Block::Compliance { points, .. } => points
+                .iter()
+                .enumerate()
+                .map(|(k, pt)| {
+                    P::new(
+                        &format!("c_times_mass@{}", pt.label()),
+                        "deg*kg/(N*m)",
+                        deg(c[k]),
+                        deg(s(k)),
+                    )
+                })
+                .collect(),
+            Block::Backlash { .. } => vec![P::new("half_lost_motion", "deg", deg(c[0]), deg(s(0)))],
+            Block::Eccentricity { .. } => ["sin1", "cos1", "sin2", "cos2"]
+                .iter()
+                .enumerate()
+                .map(|(k, n)| P::new(n, "deg", deg(c[k]), deg(s(k))))
+                .collect(),
+            Block::JointDrift { driver, .. } => {
+                let mut v = vec![P::new(
+                    "rate",
+                    &format!("deg/{}", driver.unit()),
+                    deg(c[0]),
+                    deg(s(0)),
+                )];
+                v.extend(tau_param(driver, self.tau_std));
+                v
+            }
+            Block::LengthDrift { driver } => {
+                let mut v = vec![P::new(
+                    "growth",
+                    &format!("ppm/{}", driver.unit()),
+                    c[0] * 1e6,
+                    s(0) * 1e6,
+                )];
+                v.extend(tau_param(driver, self.tau_std));
+                v
+            }
+            Block::TrackerScale => vec![P::new("scale", "ppm", c[0] * 1e6, s(0) * 1e6)],
+            Block::BaseShift { t_change } => {
+                let mut v = vec![P::new("t_change", "s", *t_change, f64::NAN)];
+                for (k, n) in ["dx", "dy", "dz"].iter().enumerate() {
+                    v.push(P::new(n, "mm", c[k], s(k)));
+                }
+                for (k, n) in ["drx", "dry", "drz"].iter().enumerate() {
+                    v.push(P::new(n, "deg", deg(c[3 + k]), deg(s(3 + k))));
+                }
+                v
+            }
+            Block::Latency => vec![P::new("latency", "s", c[0], s(0))],
+            Block::Transmission { .. } => {
+                vec![P::new("ratio_error", "ppm", c[0] * 1e6, s(0) * 1e6)]
+            }
+            Block::Nonparametric(_) => vec![],
+        }
+    }
+
     /// The calibration-file form (degrees where the internal unit is rad).
     pub fn to_cal(&self) -> CalEffect {
         let mut p = Map::new();
@@ -543,6 +674,11 @@ impl Effect {
                     Driver::Time { t0_s } => {
                         p.insert("driver".into(), json!("time"));
                         p.insert("t0_s".into(), num(*t0_s));
+                    }
+                    Driver::WarmUp { t0_s, tau_s } => {
+                        p.insert("driver".into(), json!("warm_up"));
+                        p.insert("t0_s".into(), num(*t0_s));
+                        p.insert("tau_s".into(), num(*tau_s));
                     }
                     Driver::Temp { t0_c } => {
                         p.insert("driver".into(), json!("temp_c"));
@@ -629,6 +765,10 @@ impl Effect {
         let driver = || -> anyhow::Result<Driver> {
             match p.get("driver").and_then(|v| v.as_str()) {
                 Some("temp_c") => Ok(Driver::Temp { t0_c: f("t0_c")? }),
+                Some("warm_up") => Ok(Driver::WarmUp {
+                    t0_s: f("t0_s")?,
+                    tau_s: f("tau_s")?.max(1e-9),
+                }),
                 _ => Ok(Driver::Time { t0_s: f("t0_s")? }),
             }
         };
@@ -723,6 +863,7 @@ impl Effect {
             block,
             coefs,
             std: vec![f64::NAN; n],
+            tau_std: f64::NAN,
         })
     }
 }

@@ -1,14 +1,13 @@
 //! Joint least-squares fit of the free geometric parameters and the effect coefficients
-//! (damped Gauss–Newton on the column-scaled stacked Jacobian), plus the initial
-//! registration of the tracker–base transform.
-use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
-};
+//! on the one LM solver ([`crate::solve::lm`]), plus the nominal fit (tracker–base
+//! registration by [`crate::solve::rigid::register_points`], then base + tool position).
+use nalgebra::{DMatrix, DVector, Isometry3, Point3};
 
 use super::data::Obs;
 use super::effects::{eval_pose, Effect};
 use super::stats::{lstsq, normal_inverse};
 use crate::model::{KinematicModel, ParamGroup};
+use crate::solve::lm::{minimize, LmOptions, LsqProblem};
 
 /// A model and its effects: what is fitted and what predicts.
 #[derive(Debug, Clone)]
@@ -62,19 +61,61 @@ pub fn rms3(r: &DVector<f64>) -> f64 {
     (r.norm_squared() / (r.len() / 3) as f64).sqrt()
 }
 
-fn apply_step(state: &mut State, dx: &DVector<f64>) {
+/// The free parameters of `state` as one vector: free model parameters (internal units)
+/// then every effect coefficient in `effects` order (the columns of [`stack`]).
+pub fn params_of(state: &State) -> DVector<f64> {
+    let v = state.model.param_values();
     let free = state.model.free_indices();
-    let mut v = state.model.param_values();
-    for (c, &fi) in free.iter().enumerate() {
-        v[fi] += dx[c];
+    let mut x: Vec<f64> = free.iter().map(|&i| v[i]).collect();
+    for e in &state.effects {
+        x.extend_from_slice(&e.coefs);
     }
-    state.model.set_param_values(&v);
+    DVector::from_vec(x)
+}
+
+/// `state` with its free parameters set to `x` (see [`params_of`]).
+pub fn with_params(state: &State, x: &DVector<f64>) -> State {
+    let mut st = state.clone();
+    let free = st.model.free_indices();
+    let mut v = st.model.param_values();
+    for (c, &fi) in free.iter().enumerate() {
+        v[fi] = x[c];
+    }
+    st.model.set_param_values(&v);
     let mut off = free.len();
-    for e in &mut state.effects {
+    for e in &mut st.effects {
         for c in e.coefs.iter_mut() {
-            *c += dx[off];
+            *c = x[off];
             off += 1;
         }
+    }
+    st
+}
+
+/// The joint fit of geometry and effects as a problem of the one LM solver
+/// ([`crate::solve::lm`]): residual `pred − y` (3 rows per observation, mm), Jacobian the
+/// analytic one of [`stack`].
+pub struct DiagnoseProblem<'a> {
+    pub state: &'a State,
+    pub obs: &'a [Obs],
+}
+
+impl LsqProblem for DiagnoseProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.state.model.free_count()
+            + self
+                .state
+                .effects
+                .iter()
+                .map(|e| e.block.n_coefs())
+                .sum::<usize>()
+    }
+    fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
+        -residuals(&with_params(self.state, x), self.obs)
+    }
+    fn residuals_jacobian(&self, x: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>) {
+        let (r, j) = stack(&with_params(self.state, x), self.obs);
+        (-r, j)
     }
 }
 
@@ -88,40 +129,31 @@ pub struct FitReport {
     pub iterations: usize,
 }
 
-/// Damped Gauss–Newton: minimise the residual over free model params and effect coefs.
-/// Effect standard deviations are set from the final Jacobian.
+/// Minimise the residual over free model params and effect coefs with the LM solver
+/// ([`crate::solve::lm::minimize`]). Effect standard deviations are set from the final
+/// Jacobian.
 pub fn fit(state: &mut State, obs: &[Obs], max_iter: usize) -> FitReport {
-    let (mut r, mut j) = stack(state, obs);
-    let mut rss = r.norm_squared();
-    let mut iterations = 0;
-    let mut rank = j.ncols();
-    for it in 0..max_iter {
-        iterations = it + 1;
-        let (dx, rk) = lstsq(&j, &r);
-        rank = rk;
-        let mut step = 1.0;
-        let mut improved = false;
-        for _ in 0..8 {
-            let mut trial = state.clone();
-            apply_step(&mut trial, &(&dx * step));
-            let rt = residuals(&trial, obs);
-            let rss_t = rt.norm_squared();
-            if rss_t.is_finite() && rss_t <= rss {
-                let rel = (rss - rss_t) / rss.max(1e-300);
-                *state = trial;
-                rss = rss_t;
-                improved = rel > 1e-10;
-                break;
-            }
-            step *= 0.5;
-        }
-        if !improved {
-            break;
-        }
-        let s = stack(state, obs);
-        r = s.0;
-        j = s.1;
+    let x0 = params_of(state);
+    let rep = {
+        let prob = DiagnoseProblem { state, obs };
+        minimize(
+            &prob,
+            x0,
+            &LmOptions {
+                max_iter,
+                ftol: 1e-10,
+                xtol: 1e-12,
+                gtol: 1e-12,
+                lambda0: 1e-3,
+            },
+        )
+    };
+    if rep.cost.is_finite() && rep.cost <= rep.initial_cost {
+        *state = with_params(state, &rep.x);
     }
+    let (r, j) = stack(state, obs);
+    let rss = r.norm_squared();
+    let (_, rank) = lstsq(&j, &r);
     // Parameter uncertainty for the effects.
     let n = r.len();
     let p = j.ncols();
@@ -139,32 +171,8 @@ pub fn fit(state: &mut State, obs: &[Obs], max_iter: usize) -> FitReport {
         n_rows: n,
         n_params: p,
         rank,
-        iterations,
+        iterations: rep.iterations,
     }
-}
-
-/// Best rigid transform `T` with `T·a_k ≈ b_k` (Kabsch / Horn).
-pub fn kabsch(a: &[Point3<f64>], b: &[Point3<f64>]) -> Option<Isometry3<f64>> {
-    if a.len() < 3 || a.len() != b.len() {
-        return None;
-    }
-    let n = a.len() as f64;
-    let ca = a.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
-    let cb = b.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / n;
-    let mut h = Matrix3::zeros();
-    for (p, q) in a.iter().zip(b) {
-        h += (p.coords - ca) * (q.coords - cb).transpose();
-    }
-    let svd = h.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let mut d = Matrix3::identity();
-    if (vt.transpose() * u.transpose()).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    let r = vt.transpose() * d * u.transpose();
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    let t = cb - rot * ca;
-    Some(Isometry3::from_parts(Translation3::from(t), rot))
 }
 
 /// Nominal fit: register the base (tracker ← robot base) from flange positions, then fit
@@ -179,8 +187,8 @@ pub fn fit_nominal(model: &mut KinematicModel, obs: &[Obs]) -> anyhow::Result<Fi
         .map(|o| Point3::from(model.flange_pose(&o.ctx.q).translation.vector))
         .collect();
     let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.y).collect();
-    let b = kabsch(&flange, &ys)
-        .ok_or_else(|| anyhow::anyhow!("cannot register the tracker to the robot base"))?;
+    let b = crate::solve::rigid::register_points(&flange, &ys)
+        .map_err(|e| anyhow::anyhow!("cannot register the tracker to the robot base: {e}"))?;
     model.set_base(&b);
     model.set_tool(&Isometry3::identity());
     let saved: Vec<bool> = model.params().iter().map(|p| p.free).collect();
@@ -209,4 +217,138 @@ pub fn fit_nominal(model: &mut KinematicModel, obs: &[Obs]) -> anyhow::Result<Fi
         model.set_free(&p.0, f)?;
     }
     Ok(rep)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::data::ObsCtx;
+    use crate::diagnose::effects::{mass_points, Block, Driver, Effect};
+
+    fn obs(model: &KinematicModel, n: usize) -> Vec<Obs> {
+        (0..n)
+            .map(|k| {
+                let f = k as f64;
+                let q: Vec<f64> = (0..model.dof())
+                    .map(|i| 0.3 * ((f + 1.0) * (i as f64 + 1.3)).sin() + 0.1 * i as f64)
+                    .collect();
+                let ctx = ObsCtx {
+                    id: k as u64,
+                    t: 400.0 * f,
+                    approach: (0..model.dof())
+                        .map(|i| if (k + i) % 2 == 0 { 1.0 } else { -1.0 })
+                        .collect(),
+                    temp_c: Some(22.0 + 0.4 * f),
+                    qd: Some(vec![0.1; model.dof()]),
+                    q: q.clone(),
+                };
+                let y = model.measured_point(&q) + nalgebra::Vector3::new(0.1, -0.2, 0.05);
+                Obs { ctx, y }
+            })
+            .collect()
+    }
+
+    fn effect(block: Block, coefs: Vec<f64>) -> Effect {
+        let mut e = Effect::zero(block);
+        e.coefs = coefs;
+        e
+    }
+
+    /// The analytic Jacobian of the joint geometry + effect problem (every effect of the
+    /// library with nonzero coefficients) against central finite differences of its
+    /// residual. `joint_compliance`'s regressor (gravity torque) depends on the geometry;
+    /// that second-order cross term is left out of the model columns, so the state with
+    /// compliance is checked on its effect columns exactly and on the model columns to 1 %.
+    #[test]
+    fn jacobian_matches_finite_differences_for_every_effect() {
+        let mut model = KinematicModel::preset("denso-vs060").unwrap();
+        model.fix_point_redundancies();
+        let o = obs(&model, 8);
+        let tw = Driver::WarmUp {
+            t0_s: 0.0,
+            tau_s: 1500.0,
+        };
+        let exact = vec![
+            effect(Block::Backlash { joint: 2 }, vec![3e-4]),
+            effect(
+                Block::Eccentricity { joint: 3 },
+                vec![2e-4, -1e-4, 5e-5, 1e-4],
+            ),
+            effect(Block::Transmission { joint: 4 }, vec![4e-4]),
+            effect(
+                Block::JointDrift {
+                    joint: 2,
+                    driver: Driver::Time { t0_s: 0.0 },
+                },
+                vec![2e-4],
+            ),
+            effect(
+                Block::JointDrift {
+                    joint: 3,
+                    driver: tw,
+                },
+                vec![3e-4],
+            ),
+            effect(
+                Block::JointDrift {
+                    joint: 1,
+                    driver: Driver::Temp { t0_c: 22.0 },
+                },
+                vec![1e-4],
+            ),
+            effect(Block::LengthDrift { driver: tw }, vec![2e-4]),
+            effect(Block::TrackerScale, vec![3e-4]),
+            effect(
+                Block::BaseShift { t_change: 1000.0 },
+                vec![0.2, -0.1, 0.3, 1e-4, -2e-4, 5e-5],
+            ),
+            effect(Block::Latency, vec![0.004]),
+        ];
+        let compliance = vec![effect(
+            Block::Compliance {
+                joint: 2,
+                points: mass_points(&model, 2),
+            },
+            vec![6e-4; mass_points(&model, 2).len()],
+        )];
+        // Model columns of the exact set agree to 1.6e-5 (not yet explained: FD step or a
+        // neglected cross term); effect columns to 4e-6 (FD round-off at tiny steps).
+        for (effects, model_tol) in [(exact, 1e-4), (compliance, 1e-2)] {
+            let st = State {
+                model: model.clone(),
+                effects,
+            };
+            let prob = DiagnoseProblem {
+                state: &st,
+                obs: &o,
+            };
+            let x = params_of(&st);
+            let (_, j) = prob.residuals_jacobian(&x);
+            let n_model = st.model.free_count();
+            let mut worst = (0.0f64, 0usize);
+            for c in 0..x.len() {
+                let h = 1e-6 * x[c].abs().max(1e-3);
+                let (mut xp, mut xm) = (x.clone(), x.clone());
+                xp[c] += h;
+                xm[c] -= h;
+                let fd = (prob.residuals(&xp) - prob.residuals(&xm)) / (2.0 * h);
+                let err = (&fd - j.column(c)).norm() / fd.norm().max(1e-9);
+                let tol = if c < n_model { model_tol } else { 1e-5 };
+                assert!(
+                    err < tol,
+                    "column {c} ({}): relative error {err:.2e} > {tol:.0e}",
+                    if c < n_model { "model" } else { "effect" }
+                );
+                if err > worst.0 {
+                    worst = (err, c);
+                }
+            }
+            println!(
+                "FD Jacobian: {} columns, worst relative error {:.2e} (column {})",
+                x.len(),
+                worst.0,
+                worst.1
+            );
+        }
+    }
 }

@@ -15,15 +15,15 @@
 //! effect of the library explained that part.
 //!
 //! Units inside: mm, rad, s. Files: mm, degrees, seconds.
+use crate::schema::{self, fin};
 use nalgebra::{DMatrix, DVector, Vector3};
-use serde_json::{json, Value};
 
 pub mod data;
 pub mod effects;
 pub mod fit;
 pub mod nonparam;
 pub mod plot;
-pub mod stats;
+pub use crate::solve::inference as stats;
 
 use data::Obs;
 use effects::{block_columns, eval_pose, mass_points, Block, Driver, Effect};
@@ -133,6 +133,10 @@ pub struct Diagnosis {
     pub n_heldout: usize,
     /// Effects considered but not testable on this data, with the reason.
     pub untestable: Vec<(String, String)>,
+    /// Held-out poses inside the uncertainty window of an accepted change point.
+    pub ambiguous_heldout: Vec<schema::AmbiguousPose>,
+    /// Warnings of the diagnosis (for `diagnosis.json`).
+    pub warnings: Vec<String>,
 }
 
 impl Diagnosis {
@@ -220,14 +224,34 @@ pub fn candidates(
             drivers.push(Driver::Temp { t0_c: lo });
         }
     }
+    // A time-driven drift is either linear or an exponential warm-up with an unknown time
+    // constant: one group per (kind, joint) holding the linear drift and a log grid of τ
+    // (every grid point counts as a test); the accepted τ is refined by [`refine_tau`].
+    let taus = tau_grid(t1 - t0);
     for d in &drivers {
+        let variants: Vec<Driver> = match d {
+            Driver::Time { t0_s } => std::iter::once(*d)
+                .chain(
+                    taus.iter()
+                        .map(|&tau_s| Driver::WarmUp { t0_s: *t0_s, tau_s }),
+                )
+                .collect(),
+            _ => vec![*d],
+        };
         for j in 1..=n {
-            out.push(vec![Block::JointDrift {
-                joint: j,
-                driver: *d,
-            }]);
+            out.push(
+                variants
+                    .iter()
+                    .map(|&driver| Block::JointDrift { joint: j, driver })
+                    .collect(),
+            );
         }
-        out.push(vec![Block::LengthDrift { driver: *d }]);
+        out.push(
+            variants
+                .iter()
+                .map(|&driver| Block::LengthDrift { driver })
+                .collect(),
+        );
     }
     out.push(vec![Block::TrackerScale]);
     if train.len() >= 20 && t1 > t0 {
@@ -253,6 +277,93 @@ pub fn candidates(
         ));
     }
     (out, untestable)
+}
+
+/// Warm-up time constants tried (s): a log grid from a twentieth of the session span to
+/// twice the span (12 points).
+pub fn tau_grid(span_s: f64) -> Vec<f64> {
+    let (lo, hi) = ((span_s / 20.0).max(60.0), (2.0 * span_s).max(120.0));
+    (0..12)
+        .map(|k| lo * (hi / lo).powf(k as f64 / 11.0))
+        .collect()
+}
+
+fn set_tau(e: &mut Effect, tau: f64) {
+    match &mut e.block {
+        Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => {
+            *driver = driver.with_tau(tau)
+        }
+        _ => {}
+    }
+}
+
+fn warm_up_tau(e: &Effect) -> Option<f64> {
+    match &e.block {
+        Block::JointDrift {
+            driver: Driver::WarmUp { tau_s, .. },
+            ..
+        }
+        | Block::LengthDrift {
+            driver: Driver::WarmUp { tau_s, .. },
+        } => Some(*tau_s),
+        _ => None,
+    }
+}
+
+/// Refine the time constant of the warm-up effect `k` of `state` (golden-section search on
+/// ln τ within a factor 2 of the grid value, every evaluation a joint refit) and set its
+/// standard deviation from the curvature of the residual sum of squares over τ.
+pub fn refine_tau(state: &mut State, train: &[Obs], k: usize) {
+    let Some(tau0) = state.effects.get(k).and_then(warm_up_tau) else {
+        return;
+    };
+    let base = state.clone();
+    let eval = |tau: f64| -> (f64, State) {
+        let mut st = base.clone();
+        set_tau(&mut st.effects[k], tau);
+        let rep = fit(&mut st, train, 30);
+        (rep.rss, st)
+    };
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut b) = ((tau0 / 2.0).ln(), (tau0 * 2.0).ln());
+    let mut c = b - g * (b - a);
+    let mut d = a + g * (b - a);
+    let (mut fc, mut fd) = (eval(c.exp()).0, eval(d.exp()).0);
+    for _ in 0..14 {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - g * (b - a);
+            fc = eval(c.exp()).0;
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + g * (b - a);
+            fd = eval(d.exp()).0;
+        }
+    }
+    let tau = (0.5 * (a + b)).exp();
+    let (rss, best) = eval(tau);
+    let rss_here = residuals(state, train).norm_squared();
+    if rss <= rss_here {
+        *state = best;
+    }
+    // Profile standard deviation: var(τ) = 2 σ² / RSS''(τ).
+    let tau = warm_up_tau(&state.effects[k]).unwrap_or(tau);
+    let h = 0.05 * tau;
+    let (rp, rm) = (eval(tau + h).0, eval(tau - h).0);
+    let curv = (rp - 2.0 * rss.min(rss_here) + rm) / (h * h);
+    let dof = (3 * train.len())
+        .saturating_sub(state.model.free_count() + 1)
+        .max(1) as f64;
+    let sigma2 = rss.min(rss_here) / dof;
+    state.effects[k].tau_std = if curv > 0.0 {
+        (2.0 * sigma2 / curv).sqrt()
+    } else {
+        f64::NAN
+    };
 }
 
 /// Score every candidate against the residual of `state` on `train`.
@@ -434,6 +545,43 @@ fn heldout_rms(state: &State, heldout: &[Obs]) -> Option<f64> {
     (!heldout.is_empty()).then(|| rms3(&residuals(state, heldout)))
 }
 
+/// Held-out poses inside the uncertainty window of an accepted change point: strictly
+/// between the last training pose before the step and the first one after it.
+fn ambiguous(
+    steps: &[Step],
+    train: &[Obs],
+    heldout: &[Obs],
+) -> (Vec<schema::AmbiguousPose>, Vec<String>) {
+    let mut out = Vec::new();
+    for st in steps {
+        let Block::BaseShift { t_change } = st.effect.block else {
+            continue;
+        };
+        let lo = train
+            .iter()
+            .map(|o| o.ctx.t)
+            .filter(|t| *t < t_change)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let hi = train
+            .iter()
+            .map(|o| o.ctx.t)
+            .filter(|t| *t >= t_change)
+            .fold(f64::INFINITY, f64::min);
+        for o in heldout {
+            if o.ctx.t > lo && o.ctx.t < hi {
+                out.push(schema::AmbiguousPose {
+                    id: o.ctx.id,
+                    t_s: o.ctx.t,
+                    effect: st.evidence.label.clone(),
+                    after_s: lo,
+                    before_s: hi,
+                });
+            }
+        }
+    }
+    (out, Vec::new())
+}
+
 /// Run the whole diagnosis. `model` is the nominal model (its free flags are used for the
 /// geometric fit after [`KinematicModel::fix_point_redundancies`]).
 pub fn diagnose(
@@ -538,6 +686,8 @@ pub fn diagnose(
             rep.iterations,
             t_fit.elapsed()
         );
+        let k_new = state.effects.len() - 1;
+        refine_tau(&mut state, train, k_new);
         let effect = state.effects.last().cloned().expect("just pushed");
         steps.push(Step {
             effect,
@@ -572,6 +722,7 @@ pub fn diagnose(
                         block: Block::Nonparametric(Box::new(rbf)),
                         coefs: vec![],
                         std: vec![],
+                        tau_std: f64::NAN,
                     };
                     state.effects.push(e.clone());
                     let ev = Score {
@@ -599,7 +750,16 @@ pub fn diagnose(
             }
         }
     }
+    let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
+    if !ambiguous_heldout.is_empty() {
+        warnings.push(format!(
+            "{} held-out pose(s) lie between the last training pose before and the first after a base shift: which side of the step they are on is unknown (listed in ambiguous_heldout, predicted with the step placed half-way)",
+            ambiguous_heldout.len()
+        ));
+    }
     Ok(Diagnosis {
+        ambiguous_heldout,
+        warnings,
         heldout_rms_nominal: heldout_rms(&nominal, heldout),
         heldout_rms_geometric: heldout_rms(&geometric, heldout),
         heldout_rms_final: heldout_rms(&state, heldout),
@@ -619,71 +779,81 @@ pub fn diagnose(
     })
 }
 
-fn fnum(v: f64) -> Value {
-    if v.is_finite() {
-        json!(v)
-    } else {
-        Value::Null
+/// The evidence of one score in file form.
+pub fn evidence(s: &Score) -> schema::Evidence {
+    schema::Evidence {
+        candidate: s.label.clone(),
+        kind: s.block.kind().into(),
+        joint: s.block.joint(),
+        df: Some(s.df),
+        f: fin(s.f),
+        p_value: fin(s.p_value),
+        tests: Some(s.tests),
+        delta_bic: fin(s.delta_bic),
+        cv_gain: fin(s.cv_gain),
+        independence: fin(s.independence),
+        np_ratio: fin(s.np_ratio),
     }
 }
 
-fn onum(v: Option<f64>) -> Value {
-    v.map(fnum).unwrap_or(Value::Null)
-}
-
-fn score_json(s: &Score) -> Value {
-    json!({
-        "candidate": s.label, "kind": s.block.kind(), "joint": s.block.joint(),
-        "df": s.df, "F": fnum(s.f), "p_value": fnum(s.p_value), "delta_bic": fnum(s.delta_bic),
-        "cv_gain": fnum(s.cv_gain), "independence": fnum(s.independence), "tests": s.tests,
-        "np_ratio": fnum(s.np_ratio),
-    })
+fn ofin(v: Option<f64>) -> Option<f64> {
+    v.and_then(fin)
 }
 
 impl Diagnosis {
-    /// `diagnosis.json` content.
-    pub fn to_json(&self) -> Value {
-        let chain: Vec<Value> = self
+    /// `diagnosis.json` content ([`schema::DiagnosisFile`]).
+    pub fn to_file(&self) -> schema::DiagnosisFile {
+        let effects = self
             .steps
             .iter()
-            .map(|s| {
-                let coefs: Vec<Value> = s
-                    .effect
-                    .block
-                    .coef_names()
-                    .iter()
-                    .zip(&s.effect.coefs)
-                    .zip(&s.effect.std)
-                    .map(|((n, v), sd)| {
-                        json!({"name": n, "value": fnum(*v), "std": fnum(*sd),
-                               "ci95": [fnum(v - 1.96 * sd), fnum(v + 1.96 * sd)]})
-                    })
-                    .collect();
-                json!({
-                    "effect": s.effect.to_cal(),
-                    "label": s.evidence.label,
-                    "evidence": score_json(&s.evidence),
-                    "coefficients": coefs,
-                    "train_rms_mm_before": fnum(s.train_rms_before),
-                    "train_rms_mm_after": fnum(s.train_rms_after),
-                    "heldout_rms_mm_before": onum(s.heldout_rms_before),
-                    "heldout_rms_mm_after": onum(s.heldout_rms_after),
-                })
+            .map(|s| schema::DiagnosedEffect {
+                kind: s.effect.block.kind().into(),
+                joint: s.effect.block.joint(),
+                label: s.evidence.label.clone(),
+                parameters: s.effect.parameters(),
+                evidence: evidence(&s.evidence),
+                train_rms_mm_before: fin(s.train_rms_before),
+                train_rms_mm_after: fin(s.train_rms_after),
+                heldout_rms_mm_before: ofin(s.heldout_rms_before),
+                heldout_rms_mm_after: ofin(s.heldout_rms_after),
+                calibration: s.effect.to_cal(),
             })
             .collect();
-        json!({
-            "format": "robocal-diagnosis/1",
-            "n_train": self.n_train,
-            "n_heldout": self.n_heldout,
-            "physical_effect_found": self.found_physical(),
-            "nonparametric_used": self.nonparametric.is_some(),
-            "train_rms_mm": {"nominal": fnum(self.train_rms_nominal), "geometric": fnum(self.train_rms_geometric), "final": fnum(self.train_rms_final)},
-            "heldout_rms_mm": {"nominal": onum(self.heldout_rms_nominal), "geometric": onum(self.heldout_rms_geometric), "final": onum(self.heldout_rms_final)},
-            "chain": chain,
-            "rounds": self.rounds.iter().map(|r| r.iter().map(score_json).collect::<Vec<_>>()).collect::<Vec<_>>(),
-            "not_identifiable": self.not_identifiable.iter().map(score_json).collect::<Vec<_>>(),
-            "untestable": self.untestable.iter().map(|(a, b)| json!({"effect": a, "reason": b})).collect::<Vec<_>>(),
-        })
+        schema::DiagnosisFile {
+            format: schema::DIAGNOSIS_FORMAT.into(),
+            sensor: schema::DiagnosisSensor::Kinematic,
+            residual: "3-D marker point error (mm)".into(),
+            n_train: self.n_train,
+            n_heldout: self.n_heldout,
+            train_rms: schema::StageRms {
+                nominal_mm: fin(self.train_rms_nominal),
+                base_model_mm: fin(self.train_rms_geometric),
+                final_mm: fin(self.train_rms_final),
+            },
+            heldout_rms: schema::StageRms {
+                nominal_mm: ofin(self.heldout_rms_nominal),
+                base_model_mm: ofin(self.heldout_rms_geometric),
+                final_mm: ofin(self.heldout_rms_final),
+            },
+            effects,
+            nonparametric_used: self.nonparametric.is_some(),
+            rounds: self
+                .rounds
+                .iter()
+                .map(|r| r.iter().map(evidence).collect())
+                .collect(),
+            not_identifiable: self.not_identifiable.iter().map(evidence).collect(),
+            untestable: self
+                .untestable
+                .iter()
+                .map(|(a, b)| schema::Untestable {
+                    effect: a.clone(),
+                    reason: b.clone(),
+                })
+                .collect(),
+            ambiguous_heldout: self.ambiguous_heldout.clone(),
+            warnings: self.warnings.clone(),
+        }
     }
 
     /// Effects in calibration-file form.

@@ -1,9 +1,11 @@
 //! Session report: gathers what a session wrote into a directory tree (run summaries,
-//! datasets, calibrations, diagnoses, laser method tables, SVG plots) and renders ONE
-//! report for a field engineer, as Markdown and optionally as self-contained HTML.
+//! datasets, calibrations, diagnoses, laser method tables, scan reports, pivots, SVG plots)
+//! and renders ONE report for a field engineer, as Markdown and optionally as
+//! self-contained HTML.
 //!
-//! Every JSON file is read as a [`serde_json::Value`] so the report tolerates fields being
-//! added to the formats; a file that does not parse is listed as a warning, never a panic.
+//! Every output file is read through its typed schema ([`crate::schema`]), the same type
+//! its writer serialises; a file that does not read (bad JSON, wrong or missing `format`
+//! tag, wrong shape) is listed as a warning naming the file and the field, never a panic.
 //! Output is deterministic: files are visited in sorted path order and no clock is read.
 //! Numbers are shown in the files' units (mm, degrees, seconds).
 
@@ -13,17 +15,21 @@ use std::path::{Path, PathBuf};
 use serde_json::{json, Value};
 
 use crate::dataset::{read_dataset, Summary};
+use crate::schema::{
+    self, CalibrationFile, DiagnosisFile, DiagnosisSensor, LaserReportFile, PivotFile,
+    RunSummaryFile, ScanReportFile, SchemaFile,
+};
 
 /// How deep below the report directory files are looked for.
 const MAX_DEPTH: usize = 6;
 
-/// One JSON file found in the session directory.
+/// One output file found in the session directory, read through its schema type.
 #[derive(Debug, Clone)]
-pub struct Found {
+pub struct Found<T> {
     /// Path relative to the session directory (`/`-separated).
     pub rel: String,
-    /// The parsed content.
-    pub value: Value,
+    /// The typed content.
+    pub value: T,
 }
 
 /// One dataset found in the session directory, with its `robocal inspect` summary.
@@ -41,15 +47,19 @@ pub struct Session {
     /// The session directory as given.
     pub dir: PathBuf,
     /// `summary.json` files of `robocal run`.
-    pub runs: Vec<Found>,
+    pub runs: Vec<Found<RunSummaryFile>>,
     /// Datasets (`*.jsonl` that read as `robocal-dataset/1`).
     pub datasets: Vec<FoundDataset>,
     /// `calibration.json` files.
-    pub calibrations: Vec<Found>,
-    /// `diagnosis.json` files.
-    pub diagnoses: Vec<Found>,
+    pub calibrations: Vec<Found<CalibrationFile>>,
+    /// `diagnosis.json` files (every sensor).
+    pub diagnoses: Vec<Found<DiagnosisFile>>,
     /// `laser_report.json` files.
-    pub laser_reports: Vec<Found>,
+    pub laser_reports: Vec<Found<LaserReportFile>>,
+    /// `scan_report.json` files.
+    pub scan_reports: Vec<Found<ScanReportFile>>,
+    /// `pivot.json` files.
+    pub pivots: Vec<Found<PivotFile>>,
     /// SVG plots: relative path and content.
     pub plots: Vec<(String, String)>,
     /// Files that could not be read or parsed.
@@ -85,9 +95,21 @@ fn rel_of(base: &Path, p: &Path) -> String {
         .join("/")
 }
 
-fn read_json(p: &Path) -> Result<Value, String> {
-    let text = std::fs::read_to_string(p).map_err(|e| e.to_string())?;
-    serde_json::from_str(&text).map_err(|e| e.to_string())
+fn take<T: SchemaFile>(p: &Path, rel: &str, slot: &mut Vec<Found<T>>, warnings: &mut Vec<String>) {
+    let text = match std::fs::read_to_string(p) {
+        Ok(t) => t,
+        Err(e) => {
+            warnings.push(format!("{rel}: {e}"));
+            return;
+        }
+    };
+    match schema::parse::<T>(&text, rel) {
+        Ok(value) => slot.push(Found {
+            rel: rel.to_string(),
+            value,
+        }),
+        Err(e) => warnings.push(e.to_string()),
+    }
 }
 
 /// Gathers the session files under `dir` (recursively, sorted by path).
@@ -105,23 +127,15 @@ pub fn gather(dir: &Path) -> anyhow::Result<Session> {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let slot = match name.as_str() {
-            "summary.json" => Some(&mut s.runs),
-            "calibration.json" => Some(&mut s.calibrations),
-            "diagnosis.json" => Some(&mut s.diagnoses),
-            "laser_report.json" => Some(&mut s.laser_reports),
-            _ => None,
-        };
-        if let Some(slot) = slot {
-            match read_json(&p) {
-                Ok(value) if value.is_object() => slot.push(Found { rel, value }),
-                Ok(_) => s
-                    .warnings
-                    .push(format!("{rel}: not a JSON object, ignored")),
-                Err(e) => s.warnings.push(format!("{rel}: {e}")),
-            }
-        } else if name.ends_with(".jsonl") {
-            match read_dataset(&p) {
+        let w = &mut s.warnings;
+        match name.as_str() {
+            "summary.json" => take(&p, &rel, &mut s.runs, w),
+            "calibration.json" => take(&p, &rel, &mut s.calibrations, w),
+            "diagnosis.json" => take(&p, &rel, &mut s.diagnoses, w),
+            "laser_report.json" => take(&p, &rel, &mut s.laser_reports, w),
+            "scan_report.json" => take(&p, &rel, &mut s.scan_reports, w),
+            "pivot.json" => take(&p, &rel, &mut s.pivots, w),
+            _ if name.ends_with(".jsonl") => match read_dataset(&p) {
                 Ok(loaded) => {
                     let w = loaded.warnings.iter().map(ToString::to_string).collect();
                     s.datasets.push(FoundDataset {
@@ -130,16 +144,14 @@ pub fn gather(dir: &Path) -> anyhow::Result<Session> {
                     });
                 }
                 Err(e) => s.warnings.push(format!("{rel}: not a dataset ({e})")),
-            }
-        } else if name.ends_with(".svg") {
-            match std::fs::read_to_string(&p) {
+            },
+            _ if name.ends_with(".svg") => match std::fs::read_to_string(&p) {
                 Ok(t) => s.plots.push((rel, t)),
                 Err(e) => s.warnings.push(format!("{rel}: {e}")),
-            }
+            },
+            _ => {}
         }
     }
-    // A `summary.json` that is not a run summary (no `planned`) is not reported as a run.
-    s.runs.retain(|f| f.value.get("planned").is_some());
     Ok(s)
 }
 
@@ -173,7 +185,7 @@ pub struct Headline {
     pub after_mm: Option<f64>,
     /// Where the two numbers come from.
     pub source: String,
-    /// Effects found by the diagnosis (labels), sorted.
+    /// Effects found by the diagnoses (labels, every sensor), sorted.
     pub effects: Vec<String>,
     /// Poses skipped during acquisition (None without a run summary).
     pub skipped: Option<usize>,
@@ -187,28 +199,32 @@ impl Session {
         let mut before = None;
         let mut after = None;
         let mut source = String::from("no held-out error in this directory");
-        // 1. a diagnosis with held-out numbers: nominal -> final.
+        // 1. a kinematic diagnosis with held-out numbers: nominal -> final.
         for d in &self.diagnoses {
-            let h = d.value.get("heldout_rms_mm");
-            let b = num(h.and_then(|h| h.get("nominal")));
-            let a = num(h.and_then(|h| h.get("final")));
-            if b.is_some() && a.is_some() {
-                before = b;
-                after = a;
-                source = format!("{} (held-out, nominal → final)", d.rel);
+            let h = &d.value.heldout_rms;
+            let b = h.nominal_mm.or(h.base_model_mm);
+            if let (Some(b), Some(a)) = (b, h.final_mm) {
+                before = Some(b);
+                after = Some(a);
+                let stage = if h.nominal_mm.is_some() {
+                    "nominal"
+                } else {
+                    "base model"
+                };
+                source = format!("{} (held-out, {stage} → final)", d.rel);
                 break;
             }
         }
         // 2. a calibration's metrics.
         if before.is_none() {
             for c in &self.calibrations {
-                let m = c.value.get("metrics");
-                let b = num(m.and_then(|m| m.get("heldout_rms_mm_before")));
-                let a = num(m.and_then(|m| m.get("heldout_rms_mm_after")));
+                let m = &c.value.metrics;
+                let b = num(m.get("heldout_rms_mm_before"));
+                let a = num(m.get("heldout_rms_mm_after"));
                 if b.is_some() && a.is_some() {
                     before = b;
                     after = a;
-                    let how = text(m.and_then(|m| m.get("heldout_source")));
+                    let how = text(m.get("heldout_source"));
                     source = if how == "—" {
                         format!("{} (held-out)", c.rel)
                     } else {
@@ -221,31 +237,15 @@ impl Session {
         let mut effects: Vec<String> = self
             .diagnoses
             .iter()
-            .flat_map(|d| {
-                d.value
-                    .get("chain")
-                    .and_then(Value::as_array)
-                    .cloned()
-                    .unwrap_or_default()
-            })
-            .map(|c| {
-                c.get("label")
-                    .and_then(Value::as_str)
-                    .map(str::to_string)
-                    .unwrap_or_else(|| text(c.get("effect").and_then(|e| e.get("kind"))))
-            })
+            .flat_map(|d| d.value.effects.iter().map(|e| e.label.clone()))
             .collect();
         effects.sort();
         effects.dedup();
         let mut skipped = None;
         let mut recorded = None;
         for r in &self.runs {
-            if let Some(n) = r.value.get("skipped").and_then(Value::as_array) {
-                *skipped.get_or_insert(0) += n.len();
-            }
-            if let Some(n) = r.value.get("recorded").and_then(Value::as_u64) {
-                *recorded.get_or_insert(0) += n as usize;
-            }
+            *skipped.get_or_insert(0) += r.value.summary.skipped.len();
+            *recorded.get_or_insert(0) += r.value.summary.recorded;
         }
         Headline {
             before_mm: before,
@@ -295,6 +295,8 @@ impl Session {
             "calibrations": self.calibrations.iter().map(|f| json!({"file": f.rel, "calibration": f.value})).collect::<Vec<_>>(),
             "diagnoses": self.diagnoses.iter().map(|f| json!({"file": f.rel, "diagnosis": f.value})).collect::<Vec<_>>(),
             "laser_reports": self.laser_reports.iter().map(|f| json!({"file": f.rel, "report": f.value})).collect::<Vec<_>>(),
+            "scan_reports": self.scan_reports.iter().map(|f| json!({"file": f.rel, "report": f.value})).collect::<Vec<_>>(),
+            "pivots": self.pivots.iter().map(|f| json!({"file": f.rel, "pivot": f.value})).collect::<Vec<_>>(),
             "plots": self.plots.iter().map(|(r, _)| r.clone()).collect::<Vec<_>>(),
             "warnings": self.warnings,
         })
@@ -312,11 +314,13 @@ impl Session {
             && self.calibrations.is_empty()
             && self.diagnoses.is_empty()
             && self.laser_reports.is_empty()
+            && self.scan_reports.is_empty()
+            && self.pivots.is_empty()
         {
-            let _ = writeln!(m, "Nothing to report: no run summary, dataset, calibration, diagnosis or laser report found.\n");
+            let _ = writeln!(m, "Nothing to report: no run summary, dataset, calibration, diagnosis, laser, scan or pivot report found.\n");
         }
         for r in &self.runs {
-            self.md_run(&mut m, r);
+            md_run(&mut m, r);
         }
         for d in &self.datasets {
             md_dataset(&mut m, d);
@@ -329,6 +333,12 @@ impl Session {
         }
         for l in &self.laser_reports {
             md_laser(&mut m, l);
+        }
+        for s in &self.scan_reports {
+            md_scan(&mut m, s);
+        }
+        for p in &self.pivots {
+            md_pivot(&mut m, p);
         }
         if !self.plots.is_empty() {
             let _ = writeln!(m, "## Plots\n");
@@ -346,82 +356,63 @@ impl Session {
         }
         m
     }
+}
 
-    fn md_run(&self, m: &mut String, r: &Found) {
-        let v = &r.value;
-        let _ = writeln!(m, "## Acquisition (`{}`)\n", r.rel);
-        let _ = writeln!(
-            m,
-            "- poses planned {}, recorded {}, skipped {}, remaining {}",
-            text(v.get("planned")),
-            text(v.get("recorded")),
-            v.get("skipped")
-                .and_then(Value::as_array)
-                .map_or(0, Vec::len),
-            text(v.get("remaining"))
-        );
-        let _ = writeln!(
-            m,
-            "- poses/hour {}",
-            num(v.get("poses_per_hour")).map_or("—".into(), |x| format!("{x:.0}"))
-        );
-        if let Some(t) = v.get("time").and_then(Value::as_object) {
-            let parts: Vec<String> = t
-                .iter()
-                .map(|(k, x)| {
-                    format!(
-                        "{k} {}",
-                        num(Some(x)).map_or("—".into(), |x| format!("{x:.1}"))
-                    )
-                })
-                .collect();
-            let _ = writeln!(m, "- time: {}", parts.join(", "));
+fn md_run(m: &mut String, r: &Found<RunSummaryFile>) {
+    let v = &r.value.summary;
+    let _ = writeln!(m, "## Acquisition (`{}`)\n", r.rel);
+    let _ = writeln!(
+        m,
+        "- poses planned {}, recorded {}, skipped {}, remaining {}",
+        v.planned,
+        v.recorded,
+        v.skipped.len(),
+        v.remaining
+    );
+    let _ = writeln!(
+        m,
+        "- poses/hour {}",
+        schema::fin(v.poses_per_hour).map_or("—".into(), |x| format!("{x:.0}"))
+    );
+    let t = &v.time;
+    let _ = writeln!(
+        m,
+        "- time: move_s {:.1}, settle_s {:.1}, sample_s {:.1}, overhead_s {:.1}",
+        t.move_s, t.settle_s, t.sample_s, t.overhead_s
+    );
+    let parts: Vec<String> = v.events.iter().map(|(k, x)| format!("{k} {x}")).collect();
+    let _ = writeln!(
+        m,
+        "- events: {}",
+        if parts.is_empty() {
+            "none".into()
+        } else {
+            parts.join(", ")
         }
-        if let Some(e) = v.get("events").and_then(Value::as_object) {
-            let mut parts: Vec<String> = e
-                .iter()
-                .map(|(k, x)| format!("{k} {}", text(Some(x))))
-                .collect();
-            parts.sort();
+    );
+    if let Some(a) = &v.aborted {
+        let _ = writeln!(m, "- **aborted**: {}", cell(a));
+    }
+    if !v.skipped.is_empty() {
+        // Group skips by reason.
+        let mut by: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
+        for s in &v.skipped {
+            by.entry(s.reason.as_str())
+                .or_default()
+                .push(s.id.to_string());
+        }
+        let _ = writeln!(m, "\n| skip reason | poses | ids |\n|---|---:|---|");
+        for (reason, ids) in by {
             let _ = writeln!(
                 m,
-                "- events: {}",
-                if parts.is_empty() {
-                    "none".into()
-                } else {
-                    parts.join(", ")
-                }
+                "| {} | {} | {} |",
+                cell(reason),
+                ids.len(),
+                ids.join(" ")
             );
         }
-        match v.get("aborted") {
-            Some(Value::Null) | None => {}
-            Some(a) => {
-                let _ = writeln!(m, "- **aborted**: {}", cell(&text(Some(a))));
-            }
-        }
-        if let Some(sk) = v.get("skipped").and_then(Value::as_array) {
-            if !sk.is_empty() {
-                // Group skips by reason.
-                let mut by: std::collections::BTreeMap<String, Vec<String>> = Default::default();
-                for s in sk {
-                    by.entry(text(s.get("reason")))
-                        .or_default()
-                        .push(text(s.get("id")));
-                }
-                let _ = writeln!(m, "\n| skip reason | poses | ids |\n|---|---:|---|");
-                for (reason, ids) in by {
-                    let _ = writeln!(
-                        m,
-                        "| {} | {} | {} |",
-                        cell(&reason),
-                        ids.len(),
-                        ids.join(" ")
-                    );
-                }
-            }
-        }
-        m.push('\n');
     }
+    m.push('\n');
 }
 
 fn md_dataset(m: &mut String, d: &FoundDataset) {
@@ -429,25 +420,23 @@ fn md_dataset(m: &mut String, d: &FoundDataset) {
     let _ = writeln!(m, "```text\n{}```\n", d.summary);
 }
 
-fn md_calibration(m: &mut String, c: &Found) {
+fn md_calibration(m: &mut String, c: &Found<CalibrationFile>) {
     let v = &c.value;
     let _ = writeln!(
         m,
         "## Calibration `{}` (`{}`)\n",
-        text(v.get("kind")),
+        text(v.extra.get("kind")),
         c.rel
     );
-    if let Some(r) = v.get("robot") {
-        let _ = writeln!(
-            m,
-            "- robot {} serial {}",
-            text(r.get("model")),
-            text(r.get("serial"))
-        );
-    }
-    if let Some(met) = v.get("metrics").and_then(Value::as_object) {
+    let _ = writeln!(
+        m,
+        "- robot {} serial {}",
+        v.robot.model,
+        v.robot.serial.as_deref().unwrap_or("—")
+    );
+    if !v.metrics.is_empty() {
         let _ = writeln!(m, "\n| metric | value |\n|---|---:|");
-        for (k, x) in met {
+        for (k, x) in &v.metrics {
             let s = match num(Some(x)) {
                 Some(f) if x.is_f64() => format!("{f:.4}"),
                 _ => text(Some(x)),
@@ -455,143 +444,150 @@ fn md_calibration(m: &mut String, c: &Found) {
             let _ = writeln!(m, "| {} | {} |", cell(k), cell(&s));
         }
     }
-    if let Some(params) = v.get("params").and_then(Value::as_array) {
-        let free: Vec<&Value> = params
-            .iter()
-            .filter(|p| p.get("free").and_then(Value::as_bool).unwrap_or(true))
-            .collect();
-        let fixed = params.len() - free.len();
+    let free: Vec<_> = v.params.iter().filter(|p| p.free).collect();
+    let fixed = v.params.len() - free.len();
+    let _ = writeln!(
+        m,
+        "\n{} parameters ({} free, {} fixed):\n\n| parameter | value | std | unit | nominal |\n|---|---:|---:|---|---:|",
+        v.params.len(),
+        free.len(),
+        fixed
+    );
+    for p in free {
         let _ = writeln!(
             m,
-            "\n{} parameters ({} free, {} fixed):\n\n| parameter | value | std | unit | nominal |\n|---|---:|---:|---|---:|",
-            params.len(),
-            free.len(),
-            fixed
+            "| {} | {:.5} | {} | {} | {} |",
+            cell(&p.name),
+            p.value,
+            p.std.map_or("—".into(), |x| format!("{x:.5}")),
+            cell(&p.unit),
+            num(p.extra.get("nominal")).map_or("—".into(), |x| format!("{x:.5}")),
         );
-        for p in free {
+    }
+    if v.effects.is_empty() {
+        let _ = writeln!(m, "\nEffects: none.");
+    } else {
+        let _ = writeln!(m, "\nEffects:");
+        for e in &v.effects {
+            let joint = e.joint.map(|j| format!(" (joint {j})"));
             let _ = writeln!(
                 m,
-                "| {} | {} | {} | {} | {} |",
-                cell(&text(p.get("name"))),
-                num(p.get("value")).map_or("—".into(), |x| format!("{x:.5}")),
-                num(p.get("std")).map_or("—".into(), |x| format!("{x:.5}")),
-                cell(&text(p.get("unit"))),
-                num(p.get("nominal")).map_or("—".into(), |x| format!("{x:.5}")),
+                "- {}{}: `{}`",
+                e.kind,
+                joint.unwrap_or_default(),
+                cell(&Value::Object(e.params.clone()).to_string())
             );
-        }
-    }
-    if let Some(effects) = v.get("effects").and_then(Value::as_array) {
-        if effects.is_empty() {
-            let _ = writeln!(m, "\nEffects: none.");
-        } else {
-            let _ = writeln!(m, "\nEffects:");
-            for e in effects {
-                let joint = e
-                    .get("joint")
-                    .map(|j| format!(" (joint {})", text(Some(j))));
-                let _ = writeln!(
-                    m,
-                    "- {}{}: `{}`",
-                    text(e.get("kind")),
-                    joint.unwrap_or_default(),
-                    cell(&e.get("params").map_or("{}".into(), Value::to_string))
-                );
-            }
         }
     }
     m.push('\n');
 }
 
-fn md_diagnosis(m: &mut String, d: &Found) {
+fn md_diagnosis(m: &mut String, d: &Found<DiagnosisFile>) {
     let v = &d.value;
+    let sensor = match v.sensor {
+        DiagnosisSensor::Kinematic => "kinematic",
+        DiagnosisSensor::Laser => "laser",
+        DiagnosisSensor::Camera => "camera",
+    };
     let _ = writeln!(m, "## Diagnosis (`{}`)\n", d.rel);
-    let tr = v.get("train_rms_mm");
-    let ho = v.get("heldout_rms_mm");
+    let _ = writeln!(m, "Sensor: {sensor}; residual: {}.\n", v.residual);
+    let (tr, ho) = (&v.train_rms, &v.heldout_rms);
     let _ = writeln!(
         m,
-        "| RMS (mm) | nominal | geometric | final |\n|---|---:|---:|---:|\n| train ({}) | {} | {} | {} |\n| held-out ({}) | {} | {} | {} |\n",
-        text(v.get("n_train")),
-        f3(num(tr.and_then(|t| t.get("nominal")))),
-        f3(num(tr.and_then(|t| t.get("geometric")))),
-        f3(num(tr.and_then(|t| t.get("final")))),
-        text(v.get("n_heldout")),
-        f3(num(ho.and_then(|t| t.get("nominal")))),
-        f3(num(ho.and_then(|t| t.get("geometric")))),
-        f3(num(ho.and_then(|t| t.get("final")))),
+        "| RMS (mm) | nominal | base model | final |\n|---|---:|---:|---:|\n| train ({}) | {} | {} | {} |\n| held-out ({}) | {} | {} | {} |\n",
+        v.n_train,
+        f3(tr.nominal_mm),
+        f3(tr.base_model_mm),
+        f3(tr.final_mm),
+        v.n_heldout,
+        f3(ho.nominal_mm),
+        f3(ho.base_model_mm),
+        f3(ho.final_mm),
     );
-    let chain = v
-        .get("chain")
-        .and_then(Value::as_array)
-        .cloned()
-        .unwrap_or_default();
-    if chain.is_empty() {
-        let _ = writeln!(m, "No physical effect found beyond the geometric model.\n");
+    if v.effects.is_empty() {
+        let _ = writeln!(m, "No effect found beyond the base model.\n");
     } else {
         let _ = writeln!(
             m,
             "Chain (residual RMS → effect with evidence → new RMS):\n"
         );
-        for (i, c) in chain.iter().enumerate() {
-            let ev = c.get("evidence");
-            let g = |k: &str| ev.and_then(|e| e.get(k));
+        for (i, c) in v.effects.iter().enumerate() {
+            let ev = &c.evidence;
             let _ = writeln!(
                 m,
                 "{}. train {} mm → **{}** (F {}, p {}, ΔBIC {}, CV gain {}) → {} mm; held-out {} → {} mm",
                 i + 1,
-                f3(num(c.get("train_rms_mm_before"))),
-                cell(&text(c.get("label"))),
-                num(g("F")).map_or("—".into(), |x| format!("{x:.1}")),
-                num(g("p_value")).map_or("—".into(), |x| format!("{x:.2e}")),
-                num(g("delta_bic")).map_or("—".into(), |x| format!("{x:.1}")),
-                f3(num(g("cv_gain"))),
-                f3(num(c.get("train_rms_mm_after"))),
-                f3(num(c.get("heldout_rms_mm_before"))),
-                f3(num(c.get("heldout_rms_mm_after"))),
+                f3(c.train_rms_mm_before),
+                cell(&c.label),
+                ev.f.map_or("—".into(), |x| format!("{x:.1}")),
+                ev.p_value.map_or("—".into(), |x| format!("{x:.2e}")),
+                ev.delta_bic.map_or("—".into(), |x| format!("{x:.1}")),
+                f3(ev.cv_gain),
+                f3(c.train_rms_mm_after),
+                f3(c.heldout_rms_mm_before),
+                f3(c.heldout_rms_mm_after),
+            );
+            for p in &c.parameters {
+                let ci = p
+                    .ci95
+                    .map_or(String::new(), |[a, b]| format!(" (95 %: {a:.4} … {b:.4})"));
+                let _ = writeln!(m, "   - {} = {:.4} {}{ci}", p.name, p.value, p.unit);
+            }
+        }
+        m.push('\n');
+    }
+    if v.nonparametric_used {
+        let _ = writeln!(m, "A nonparametric correction was added for structured residual no named effect explained.\n");
+    }
+    if !v.ambiguous_heldout.is_empty() {
+        let _ = writeln!(m, "Held-out poses inside a change point's window (ambiguous, not scored as errors of the model):");
+        for a in &v.ambiguous_heldout {
+            let _ = writeln!(
+                m,
+                "- pose {} at t = {:.1} s: {} stepped between {:.1} s and {:.1} s",
+                a.id, a.t_s, a.effect, a.after_s, a.before_s
             );
         }
         m.push('\n');
     }
-    if v.get("nonparametric_used").and_then(Value::as_bool) == Some(true) {
-        let _ = writeln!(m, "A nonparametric correction was added for structured residual no named effect explained.\n");
-    }
-    for (key, title) in [
-        ("not_identifiable", "Not identifiable"),
-        ("untestable", "Untestable"),
-    ] {
-        if let Some(list) = v.get(key).and_then(Value::as_array) {
-            if !list.is_empty() {
-                let _ = writeln!(m, "{title}:");
-                for x in list {
-                    let name = x.get("effect").or_else(|| x.get("candidate"));
-                    match (name, x.get("reason")) {
-                        (Some(n), Some(r)) => {
-                            let _ = writeln!(m, "- {}: {}", text(Some(n)), cell(&text(Some(r))));
-                        }
-                        _ => {
-                            let _ = writeln!(m, "- {}", cell(&text(Some(x))));
-                        }
-                    }
-                }
-                m.push('\n');
-            }
+    if !v.not_identifiable.is_empty() {
+        let _ = writeln!(m, "Not identifiable:");
+        for x in &v.not_identifiable {
+            let _ = writeln!(
+                m,
+                "- {} (ΔBIC {}, independence {})",
+                x.candidate,
+                x.delta_bic.map_or("—".into(), |x| format!("{x:.1}")),
+                f3(x.independence)
+            );
         }
+        m.push('\n');
+    }
+    if !v.untestable.is_empty() {
+        let _ = writeln!(m, "Untestable:");
+        for x in &v.untestable {
+            let _ = writeln!(m, "- {}: {}", x.effect, cell(&x.reason));
+        }
+        m.push('\n');
+    }
+    if !v.warnings.is_empty() {
+        let _ = writeln!(m, "Diagnosis warnings:");
+        for w in &v.warnings {
+            let _ = writeln!(m, "- {}", cell(w));
+        }
+        m.push('\n');
     }
 }
 
-fn md_laser(m: &mut String, l: &Found) {
+fn md_laser(m: &mut String, l: &Found<LaserReportFile>) {
     let v = &l.value;
     let _ = writeln!(m, "## Laser hand-eye methods (`{}`)\n", l.rel);
     let _ = writeln!(
         m,
         "| method | points | spread mm | FRE mm | TRE mm | RMS vs truth mm | note |\n|---|---:|---:|---:|---:|---:|---|"
     );
-    for r in v
-        .get("rows")
-        .and_then(Value::as_array)
-        .cloned()
-        .unwrap_or_default()
-    {
-        let spread = match (num(r.get("spread_mean_mm")), num(r.get("spread_std_mm"))) {
+    for r in &v.rows {
+        let spread = match (r.spread_mean_mm, r.spread_std_mm) {
             (Some(a), Some(s)) => format!("{a:.3} ± {s:.3}"),
             (Some(a), None) => format!("{a:.3}"),
             _ => "—".into(),
@@ -599,20 +595,79 @@ fn md_laser(m: &mut String, l: &Found) {
         let _ = writeln!(
             m,
             "| {} | {} | {} | {} | {} | {} | {} |",
-            cell(&text(r.get("method"))),
-            text(r.get("n_used")),
+            cell(&r.method),
+            r.n_used,
             spread,
-            f3(num(r.get("fre_mm"))),
-            f3(num(r.get("tre_mm"))),
-            f3(num(r.get("spot_rms_vs_truth_mm"))),
-            cell(&text(r.get("note"))),
+            f3(r.fre_mm),
+            f3(r.tre_mm),
+            f3(r.spot_rms_vs_truth_mm),
+            cell(&r.note),
         );
     }
-    if let Some(x) = num(v.get("final_plane_rms_mm")) {
+    if let Some(x) = v.final_plane_rms_mm {
         let _ = writeln!(
             m,
             "\nFinal plane RMS {x:.4} mm ({}).",
-            cell(&text(v.get("final_termination")))
+            cell(&v.final_termination)
+        );
+    }
+    m.push('\n');
+}
+
+fn md_scan(m: &mut String, s: &Found<ScanReportFile>) {
+    let v = &s.value;
+    let _ = writeln!(m, "## Laser scan (`{}`)\n", s.rel);
+    let _ = writeln!(m, "{} points of `{}`.\n", v.points, cell(&v.scan));
+    let _ = writeln!(
+        m,
+        "| face | points | flatness RMS mm | max mm |\n|---|---:|---:|---:|"
+    );
+    for f in &v.faces {
+        let _ = writeln!(
+            m,
+            "| {} | {} | {:.4} | {:.4} |",
+            cell(&f.face),
+            f.points,
+            f.rms_mm,
+            f.max_mm
+        );
+    }
+    for a in &v.angles {
+        let _ = writeln!(m, "\n- angle {}/{}: {:.3}°", a.a, a.b, a.angle_deg);
+    }
+    m.push('\n');
+}
+
+fn md_pivot(m: &mut String, p: &Found<PivotFile>) {
+    let v = &p.value;
+    let _ = writeln!(
+        m,
+        "## Pivot calibration{} (`{}`)\n",
+        v.tool
+            .as_deref()
+            .map_or(String::new(), |t| format!(" of {t}")),
+        p.rel
+    );
+    let _ = writeln!(
+        m,
+        "| method | tip in marker mm | pivot point mm | RMS mm | max mm | frames |\n|---|---|---|---:|---:|---:|"
+    );
+    for r in &v.results {
+        let t = r.tip_in_marker_mm;
+        let q = r.pivot_point_mm;
+        let _ = writeln!(
+            m,
+            "| {} | {:.3}, {:.3}, {:.3} | {:.3}, {:.3}, {:.3} | {:.4} | {:.4} | {} |",
+            cell(&r.method),
+            t[0],
+            t[1],
+            t[2],
+            q[0],
+            q[1],
+            q[2],
+            r.rms_mm,
+            r.max_mm,
+            r.frames
         );
     }
     m.push('\n');

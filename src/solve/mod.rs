@@ -12,6 +12,7 @@
 pub mod bootstrap;
 pub mod calfile;
 pub mod identifiability;
+pub mod inference;
 pub mod kinematics;
 pub mod laser;
 pub mod lm;
@@ -19,6 +20,7 @@ pub mod metrics;
 pub mod nominal;
 pub mod obs;
 pub mod rcm;
+pub mod predict;
 pub mod rigid;
 pub mod stats;
 pub mod tool;

@@ -81,22 +81,33 @@ pub fn scan_report(
                 "  face {k}: {} points, flatness RMS {rms:.4} mm, max {max:.4} mm\n",
                 pts.len()
             ));
-            flat.push(
-                serde_json::json!({"face": k, "points": pts.len(), "rms_mm": rms, "max_mm": max}),
-            );
+            flat.push(crate::schema::FaceFlatness {
+                face: k.clone(),
+                points: pts.len(),
+                rms_mm: rms,
+                max_mm: max,
+            });
         }
     }
     for (a, b, deg) in &angles {
         s.push_str(&format!("  angle {a}/{b}: {deg:.3} deg\n"));
     }
-    crate::fsio::write(
-        out_dir.join("scan_report.json"),
-        serde_json::to_string_pretty(&serde_json::json!({
-            "scan": scan.display().to_string(),
-            "points": all.len(),
-            "faces": flat,
-            "angles_deg": angles.iter().map(|(a, b, d)| serde_json::json!({"a": a, "b": b, "deg": d})).collect::<Vec<_>>(),
-        }))?,
+    crate::schema::write(
+        &out_dir.join("scan_report.json"),
+        &crate::schema::ScanReportFile {
+            format: crate::schema::SCAN_REPORT_FORMAT.into(),
+            scan: scan.display().to_string(),
+            points: all.len(),
+            faces: flat,
+            angles: angles
+                .iter()
+                .map(|(a, b, d)| crate::schema::FaceAngle {
+                    a: a.clone(),
+                    b: b.clone(),
+                    angle_deg: *d,
+                })
+                .collect(),
+        },
     )?;
     if let Some(p) = ply_path {
         crate::fsio::write(
@@ -229,11 +240,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     cal.save(args.out.join("calibration.json"))?;
-    let report = serde_json::to_string_pretty(&cmp)?;
-    crate::fsio::write(args.out.join("laser_report.json"), report)
-        .with_context(|| format!("writing {}", args.out.join("laser_report.json").display()))?;
+    let report = cmp.to_report_file();
+    crate::schema::write(&args.out.join("laser_report.json"), &report)?;
     if args.json {
-        println!("{}", serde_json::to_string(&cmp)?);
+        println!("{}", serde_json::to_string(&report)?);
     } else {
         print!("{}", laser::table(&cmp));
         println!(
@@ -303,13 +313,9 @@ pub fn diagnose_laser(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     cal.save(out.join("calibration.json"))?;
-    crate::fsio::write(
-        out.join("diagnosis.json"),
-        serde_json::to_string_pretty(&serde_json::json!({
-            "format": "robocal-diagnosis/1",
-            "kind": "laser",
-            "diagnosis": diag,
-        }))?,
+    crate::schema::write(
+        &out.join("diagnosis.json"),
+        &diag.to_file(train.len(), validation.len()),
     )?;
     let mut s = format!(
         "laser diagnosis of {}: point-to-plane RMS {:.4} mm",

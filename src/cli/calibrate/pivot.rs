@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 
 use anyhow::Context as _;
-use serde_json::json;
 
 use crate::solve::tool::{pivot_algebraic, pivot_frames, pivot_sphere};
 
@@ -62,10 +61,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             r.max_mm,
             r.n
         );
-        out.push(json!({"method": r.method,
-            "tip_in_marker_mm": [r.tip_in_marker.x, r.tip_in_marker.y, r.tip_in_marker.z],
-            "pivot_point_mm": [r.pivot_point.x, r.pivot_point.y, r.pivot_point.z],
-            "rms_mm": r.rms_mm, "max_mm": r.max_mm, "frames": r.n}));
+        out.push(crate::schema::PivotResult {
+            method: r.method.to_string(),
+            tip_in_marker_mm: [r.tip_in_marker.x, r.tip_in_marker.y, r.tip_in_marker.z],
+            pivot_point_mm: [r.pivot_point.x, r.pivot_point.y, r.pivot_point.z],
+            rms_mm: r.rms_mm,
+            max_mm: r.max_mm,
+            frames: r.n,
+        });
     }
     println!(
         "difference between methods: {:.4} mm",
@@ -74,9 +77,12 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     if let Some(dir) = args.out {
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         let path = dir.join("pivot.json");
-        let v = json!({"format": "robocal-pivot/1", "tool": args.tool, "results": out});
-        crate::fsio::write(&path, serde_json::to_string_pretty(&v)? + "\n")
-            .with_context(|| format!("writing {}", path.display()))?;
+        let v = crate::schema::PivotFile {
+            format: crate::schema::PIVOT_FORMAT.into(),
+            tool: args.tool.clone(),
+            results: out,
+        };
+        crate::schema::write(&path, &v)?;
         println!("wrote {}", path.display());
     }
     Ok(())

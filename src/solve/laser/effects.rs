@@ -10,7 +10,7 @@
 use super::fit::{fit_direct, pca_plane, DirectOptions, MultiPlaneFit};
 use super::{by_plane, by_target, Beam, LaserError, LaserObs, Plane};
 use crate::dataset::CalEffect;
-use crate::diagnose::stats::f_sf;
+use crate::solve::inference::f_sf;
 use nalgebra::Point3;
 use serde::Serialize;
 use serde_json::{json, Map, Value};
@@ -155,6 +155,95 @@ impl LaserDiagnosis {
                 }
             })
             .collect()
+    }
+}
+
+impl LaserDiagnosis {
+    /// `diagnosis.json` content ([`crate::schema::DiagnosisFile`]): the train residual is the
+    /// point-to-plane distance, the held-out figure the mean 5-direction spread of the
+    /// validation targets (both mm). ΔBIC is written with the sign convention of the file
+    /// (positive favours the effect).
+    pub fn to_file(&self, n_train: usize, n_heldout: usize) -> crate::schema::DiagnosisFile {
+        use crate::schema::{self, fin, EffectParameter};
+        let cal = self.cal_effects();
+        let n_cand = LaserEffectKind::ALL.len();
+        let effects = self
+            .findings
+            .iter()
+            .zip(cal)
+            .enumerate()
+            .map(|(i, (f, c))| {
+                let (name, unit, k) = match f.sensor_unit {
+                    "ppm" => ("scale", "ppm", 1e6),
+                    "mm at 90 deg" => ("bias_at_90deg", "mm", 1.0),
+                    _ => ("p2_amplitude", "mm", 1.0),
+                };
+                schema::DiagnosedEffect {
+                    kind: f.kind.into(),
+                    joint: None,
+                    label: f.kind.into(),
+                    parameters: vec![EffectParameter::new(
+                        name,
+                        unit,
+                        f.sensor_value,
+                        f.coef_std * k,
+                    )],
+                    evidence: schema::Evidence {
+                        candidate: f.kind.into(),
+                        kind: f.kind.into(),
+                        joint: None,
+                        df: Some(1),
+                        f: fin(f.f_stat),
+                        p_value: fin(f.p_value),
+                        tests: Some(n_cand - i),
+                        delta_bic: fin(-f.delta_bic),
+                        ..Default::default()
+                    },
+                    train_rms_mm_before: fin(f.rms_before_mm),
+                    train_rms_mm_after: fin(f.rms_after_mm),
+                    heldout_rms_mm_before: f.spread_before_mm.and_then(fin),
+                    heldout_rms_mm_after: f.spread_after_mm.and_then(fin),
+                    calibration: c,
+                }
+            })
+            .collect();
+        let last_round = self
+            .last_round
+            .iter()
+            .map(|(name, f, p, dbic)| schema::Evidence {
+                candidate: name.clone(),
+                kind: name.clone(),
+                df: Some(1),
+                f: fin(*f),
+                p_value: fin(*p),
+                delta_bic: fin(-dbic),
+                ..Default::default()
+            })
+            .collect::<Vec<_>>();
+        schema::DiagnosisFile {
+            format: schema::DIAGNOSIS_FORMAT.into(),
+            sensor: schema::DiagnosisSensor::Laser,
+            residual: "train: point-to-plane distance (mm); held-out: mean 5-direction spread of the validation targets (mm)".into(),
+            n_train,
+            n_heldout,
+            train_rms: schema::StageRms {
+                nominal_mm: None,
+                base_model_mm: fin(self.rms_before_mm),
+                final_mm: fin(self.rms_after_mm),
+            },
+            heldout_rms: schema::StageRms {
+                nominal_mm: None,
+                base_model_mm: self.spread_before_mm.and_then(fin),
+                final_mm: self.spread_after_mm.and_then(fin),
+            },
+            effects,
+            nonparametric_used: false,
+            rounds: vec![last_round],
+            not_identifiable: vec![],
+            untestable: vec![],
+            ambiguous_heldout: vec![],
+            warnings: vec![],
+        }
     }
 }
 

@@ -131,6 +131,61 @@ pub struct Comparison {
     pub final_planes: Vec<(String, Plane)>,
 }
 
+impl Comparison {
+    /// `laser_report.json` content ([`crate::schema::LaserReportFile`]).
+    pub fn to_report_file(&self) -> crate::schema::LaserReportFile {
+        use crate::schema::{fin, LaserMethodRow, SelectionStep, TargetSpread};
+        crate::schema::LaserReportFile {
+            format: crate::schema::LASER_REPORT_FORMAT.into(),
+            rows: self
+                .rows
+                .iter()
+                .map(|r| LaserMethodRow {
+                    method: r.method.clone(),
+                    r_mm: r.r_mm,
+                    v: r.v,
+                    spread_mean_mm: fin(r.spread_mean_mm),
+                    spread_std_mm: fin(r.spread_std_mm),
+                    fre_mm: r.fre_mm.and_then(fin),
+                    tre_mm: r.tre_mm.and_then(fin),
+                    spot_rms_vs_truth_mm: r.spot_rms_vs_truth_mm.and_then(fin),
+                    n_used: r.n_used,
+                    note: r.note.clone(),
+                })
+                .collect(),
+            selection: self
+                .selection
+                .iter()
+                .map(|(k, v)| {
+                    (
+                        k.clone(),
+                        v.iter()
+                            .map(|(i, n, s)| SelectionStep {
+                                iteration: *i,
+                                points: *n,
+                                score: fin(*s),
+                            })
+                            .collect(),
+                    )
+                })
+                .collect(),
+            selection_best: self.selection_best.clone(),
+            final_spreads: self
+                .final_spreads
+                .iter()
+                .map(|(t, s)| TargetSpread {
+                    target: t.clone(),
+                    spread_mm: fin(*s),
+                })
+                .collect(),
+            outliers: self.outliers.clone(),
+            final_plane_rms_mm: fin(self.final_plane_rms_mm),
+            final_termination: self.final_termination.clone(),
+            final_std: self.final_std.filter(|s| s.iter().all(|x| x.is_finite())),
+        }
+    }
+}
+
 fn row(
     method: &str,
     beam: &Beam,

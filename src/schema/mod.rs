@@ -1,0 +1,519 @@
+//! One typed serde schema per output file robocal writes: each writer serialises and every
+//! reader (`robocal report`, `robocal session`, tests) deserialises the same struct, so a
+//! field cannot drift between the two. Every file carries a `format` tag; every number's
+//! unit is in its field name (`_mm`, `_deg`, `_s`, `_ppm`) or, for effect parameters, in
+//! an explicit `unit` field. Files use mm, degrees, seconds (see `docs/dataset-format.md`).
+//!
+//! | file | type | format tag |
+//! |---|---|---|
+//! | `calibration.json` | [`CalibrationFile`] | `robocal-calibration/1` |
+//! | `diagnosis.json` | [`DiagnosisFile`] | `robocal-diagnosis/2` |
+//! | `summary.json` (run) | [`RunSummaryFile`] | `robocal-run-summary/1` |
+//! | `laser_report.json` | [`LaserReportFile`] | `robocal-laser-report/1` |
+//! | `scan_report.json` | [`ScanReportFile`] | `robocal-scan-report/1` |
+//! | `plan.json` | [`PlanFile`] | `robocal-plan/1` |
+//! | `pivot.json` | [`PivotFile`] | `robocal-pivot/1` |
+//!
+//! Reading is strict: [`read`] checks the format tag first (naming the file, the tag found
+//! and the one expected), then deserialises, so an older or foreign file is a clear error.
+use std::path::Path;
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+pub use crate::acquire::summary::RunSummary;
+pub use crate::dataset::{CalEffect, CalibrationFile, CALIBRATION_FORMAT};
+pub use crate::plan::file::{PlanFile, PLAN_FORMAT};
+
+/// `diagnosis.json`.
+pub const DIAGNOSIS_FORMAT: &str = "robocal-diagnosis/2";
+/// `summary.json` of `robocal run`.
+pub const RUN_SUMMARY_FORMAT: &str = "robocal-run-summary/1";
+/// `laser_report.json` of `robocal calibrate laser`.
+pub const LASER_REPORT_FORMAT: &str = "robocal-laser-report/1";
+/// `scan_report.json` of `robocal calibrate laser --scan`.
+pub const SCAN_REPORT_FORMAT: &str = "robocal-scan-report/1";
+/// `pivot.json` of `robocal calibrate pivot`.
+pub const PIVOT_FORMAT: &str = "robocal-pivot/1";
+
+/// Errors reading or writing a schema file.
+#[derive(Debug, thiserror::Error)]
+pub enum SchemaError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: not JSON: {source}")]
+    Json {
+        path: String,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error("{path}: field \"format\": expected \"{expected}\", got {found} (an older robocal or a different file; re-run the command that wrote it)")]
+    Format {
+        path: String,
+        expected: &'static str,
+        found: String,
+    },
+    #[error("{path}: {source} (a `{expected}` file)")]
+    Shape {
+        path: String,
+        expected: &'static str,
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// A file type of this module: its format tag.
+pub trait SchemaFile: Serialize + DeserializeOwned {
+    /// The `format` tag the file carries.
+    const FORMAT: &'static str;
+}
+
+/// Parse `text` as a `T` (tag checked first); `path` names the file in errors.
+pub fn parse<T: SchemaFile>(text: &str, path: &str) -> Result<T, SchemaError> {
+    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| SchemaError::Json {
+        path: path.into(),
+        source: e,
+    })?;
+    match v.get("format").and_then(|f| f.as_str()) {
+        Some(f) if f == T::FORMAT => {}
+        other => {
+            return Err(SchemaError::Format {
+                path: path.into(),
+                expected: T::FORMAT,
+                found: other.map_or_else(|| "no format tag".into(), |s| format!("\"{s}\"")),
+            })
+        }
+    }
+    serde_json::from_value(v).map_err(|e| SchemaError::Shape {
+        path: path.into(),
+        expected: T::FORMAT,
+        source: e,
+    })
+}
+
+/// Read a `T` from `path` (see [`parse`]).
+pub fn read<T: SchemaFile>(path: &Path) -> Result<T, SchemaError> {
+    let text = std::fs::read_to_string(path).map_err(|e| SchemaError::Io {
+        path: path.display().to_string(),
+        source: e,
+    })?;
+    parse(&text, &path.display().to_string())
+}
+
+/// Write `v` to `path` as pretty JSON with a trailing newline (atomically: temp file +
+/// rename, so a reader never sees half a file).
+pub fn write<T: SchemaFile>(path: &Path, v: &T) -> Result<(), SchemaError> {
+    let io = |e| SchemaError::Io {
+        path: path.display().to_string(),
+        source: e,
+    };
+    let text = serde_json::to_string_pretty(v).map_err(|e| SchemaError::Json {
+        path: path.display().to_string(),
+        source: e,
+    })? + "\n";
+    // The one atomic-write helper (temp + fsync + rename + directory fsync).
+    crate::fsio::write_atomic(path, text.as_bytes()).map_err(io)
+}
+
+/// A finite number or `None` (NaN / ∞ are written as `null`, never as a number).
+pub fn fin(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+impl SchemaFile for CalibrationFile {
+    const FORMAT: &'static str = CALIBRATION_FORMAT;
+}
+
+impl SchemaFile for PlanFile {
+    const FORMAT: &'static str = PLAN_FORMAT;
+}
+
+// ------------------------------------------------------------------ diagnosis.json
+
+/// Which sensor / problem a diagnosis is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DiagnosisSensor {
+    /// Tracked marker on the arm: 3-D point error (mm).
+    Kinematic,
+    /// Laser range sensor on the flange: point-to-plane distance (mm).
+    Laser,
+    /// Camera: reprojection / point error.
+    Camera,
+}
+
+/// RMS (mm) of one data set at the stages of a diagnosis.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct StageRms {
+    /// Before any identification (nominal model with only the registration fitted).
+    pub nominal_mm: Option<f64>,
+    /// After the base model fit (geometry / plain beam), before effects.
+    pub base_model_mm: Option<f64>,
+    /// With every accepted effect.
+    pub final_mm: Option<f64>,
+}
+
+/// One parameter of a diagnosed effect, in file units with its 95 % interval.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EffectParameter {
+    /// Parameter name (e.g. `half_lost_motion`, `tau`, `dx`).
+    pub name: String,
+    /// Unit of `value`, `std` and `ci95` (`deg`, `mm`, `s`, `ppm`, `deg/K`, ...).
+    pub unit: String,
+    pub value: f64,
+    /// Standard deviation (from the final joint fit), when computable.
+    pub std: Option<f64>,
+    /// 95 % interval `[value − 1.96 std, value + 1.96 std]`, when `std` is known.
+    pub ci95: Option<[f64; 2]>,
+}
+
+impl EffectParameter {
+    /// A parameter with its interval from `std` (non-finite std → no interval).
+    pub fn new(name: &str, unit: &str, value: f64, std: f64) -> Self {
+        let std = fin(std);
+        EffectParameter {
+            name: name.into(),
+            unit: unit.into(),
+            value,
+            std,
+            ci95: std.map(|s| [value - 1.96 * s, value + 1.96 * s]),
+        }
+    }
+}
+
+/// Statistical evidence for one candidate effect in one selection round.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Evidence {
+    /// Candidate label, e.g. `backlash(j2)`.
+    pub candidate: String,
+    /// Effect kind.
+    pub kind: String,
+    pub joint: Option<usize>,
+    /// Degrees of freedom of the candidate block.
+    pub df: Option<usize>,
+    /// Nested-model F statistic.
+    pub f: Option<f64>,
+    pub p_value: Option<f64>,
+    /// Number of tests the p-value was corrected for (Bonferroni).
+    pub tests: Option<usize>,
+    /// ΔBIC in favour of the effect (positive favours it).
+    pub delta_bic: Option<f64>,
+    /// Relative gain of the time-blocked cross-validated RMS.
+    pub cv_gain: Option<f64>,
+    /// Independence from the current model's Jacobian (0..1).
+    pub independence: Option<f64>,
+    /// Fraction of the kernel benchmark's explained variance this candidate explains.
+    pub np_ratio: Option<f64>,
+}
+
+/// One accepted effect.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosedEffect {
+    /// Effect kind (the contract's names: `backlash`, `thermal_drift`, `laser_scale`, ...).
+    pub kind: String,
+    /// Joint (1-based) where the effect has one.
+    pub joint: Option<usize>,
+    /// Human label, e.g. `thermal_drift(j2, warm-up, time)`.
+    pub label: String,
+    /// Parameters in file units with intervals.
+    pub parameters: Vec<EffectParameter>,
+    pub evidence: Evidence,
+    pub train_rms_mm_before: Option<f64>,
+    pub train_rms_mm_after: Option<f64>,
+    pub heldout_rms_mm_before: Option<f64>,
+    pub heldout_rms_mm_after: Option<f64>,
+    /// The effect as written into `calibration.json` (what `robocal predict` applies).
+    pub calibration: CalEffect,
+}
+
+/// An effect the data could not test, and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Untestable {
+    pub effect: String,
+    pub reason: String,
+}
+
+/// A held-out pose whose prediction depends on a change point the training data cannot
+/// place (between the last training pose before and the first after the step).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AmbiguousPose {
+    /// Record id of the held-out pose.
+    pub id: u64,
+    /// Its time (s).
+    pub t_s: f64,
+    /// The effect whose change point it falls within.
+    pub effect: String,
+    /// Last training pose time before the step (s).
+    pub after_s: f64,
+    /// First training pose time after the step (s).
+    pub before_s: f64,
+}
+
+/// `diagnosis.json`: one shape for every sensor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosisFile {
+    /// Always [`DIAGNOSIS_FORMAT`].
+    pub format: String,
+    pub sensor: DiagnosisSensor,
+    /// What the RMS figures measure (e.g. `3-D marker point error`).
+    pub residual: String,
+    pub n_train: usize,
+    pub n_heldout: usize,
+    pub train_rms: StageRms,
+    pub heldout_rms: StageRms,
+    /// Accepted effects in the order they were added.
+    pub effects: Vec<DiagnosedEffect>,
+    /// Whether a data-driven (nonparametric) correction was added.
+    pub nonparametric_used: bool,
+    /// Candidates scored per round (round 0 = after the base fit), best first.
+    pub rounds: Vec<Vec<Evidence>>,
+    /// Significant but absorbed by the model (not identifiable with this data).
+    pub not_identifiable: Vec<Evidence>,
+    pub untestable: Vec<Untestable>,
+    /// Held-out poses inside a change point's uncertainty window (predictions not trusted).
+    #[serde(default)]
+    pub ambiguous_heldout: Vec<AmbiguousPose>,
+    /// Warnings of the diagnosis (missing `q_prev`, dropped torn lines, ...).
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+impl SchemaFile for DiagnosisFile {
+    const FORMAT: &'static str = DIAGNOSIS_FORMAT;
+}
+
+impl DiagnosisFile {
+    /// Labels of the physical effects found (not the nonparametric correction).
+    pub fn physical_effects(&self) -> Vec<&DiagnosedEffect> {
+        self.effects
+            .iter()
+            .filter(|e| e.kind != "nonparametric")
+            .collect()
+    }
+}
+
+// ------------------------------------------------------------------ summary.json
+
+/// `summary.json` of `robocal run`: the [`RunSummary`] with its format tag.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunSummaryFile {
+    /// Always [`RUN_SUMMARY_FORMAT`].
+    pub format: String,
+    #[serde(flatten)]
+    pub summary: RunSummary,
+}
+
+impl SchemaFile for RunSummaryFile {
+    const FORMAT: &'static str = RUN_SUMMARY_FORMAT;
+}
+
+impl From<RunSummary> for RunSummaryFile {
+    fn from(summary: RunSummary) -> Self {
+        RunSummaryFile {
+            format: RUN_SUMMARY_FORMAT.into(),
+            summary,
+        }
+    }
+}
+
+// ------------------------------------------------------------------ laser_report.json
+
+/// One estimator's row of the laser hand-eye comparison.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LaserMethodRow {
+    pub method: String,
+    /// Beam origin in the flange frame (mm).
+    pub r_mm: [f64; 3],
+    /// Beam direction in the flange frame (unit vector).
+    pub v: [f64; 3],
+    pub spread_mean_mm: Option<f64>,
+    pub spread_std_mm: Option<f64>,
+    pub fre_mm: Option<f64>,
+    pub tre_mm: Option<f64>,
+    pub spot_rms_vs_truth_mm: Option<f64>,
+    pub n_used: usize,
+    pub note: String,
+}
+
+/// One step of a plane's data selection.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SelectionStep {
+    pub iteration: usize,
+    pub points: usize,
+    pub score: Option<f64>,
+}
+
+/// The 5-direction spread of one validation target (mm).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TargetSpread {
+    pub target: String,
+    pub spread_mm: Option<f64>,
+}
+
+/// `laser_report.json`: the side-by-side comparison of the laser estimators.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LaserReportFile {
+    /// Always [`LASER_REPORT_FORMAT`].
+    pub format: String,
+    pub rows: Vec<LaserMethodRow>,
+    /// Data-selection trace per plane label.
+    pub selection: std::collections::BTreeMap<String, Vec<SelectionStep>>,
+    /// The iteration kept per plane label.
+    pub selection_best: std::collections::BTreeMap<String, usize>,
+    pub final_spreads: Vec<TargetSpread>,
+    /// Ids of the records the robust final fit flagged as outliers.
+    pub outliers: Vec<u64>,
+    pub final_plane_rms_mm: Option<f64>,
+    pub final_termination: String,
+    /// Std of the final beam: r (mm, 3) then v (unitless, 3).
+    pub final_std: Option<[f64; 6]>,
+}
+
+impl SchemaFile for LaserReportFile {
+    const FORMAT: &'static str = LASER_REPORT_FORMAT;
+}
+
+// ------------------------------------------------------------------ scan_report.json
+
+/// Flatness of one scanned face.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FaceFlatness {
+    pub face: String,
+    pub points: usize,
+    pub rms_mm: f64,
+    pub max_mm: f64,
+}
+
+/// Angle between two scanned faces.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FaceAngle {
+    pub a: String,
+    pub b: String,
+    pub angle_deg: f64,
+}
+
+/// `scan_report.json`: a scan reconstructed with a laser calibration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScanReportFile {
+    /// Always [`SCAN_REPORT_FORMAT`].
+    pub format: String,
+    /// The scan dataset.
+    pub scan: String,
+    pub points: usize,
+    pub faces: Vec<FaceFlatness>,
+    pub angles: Vec<FaceAngle>,
+}
+
+impl SchemaFile for ScanReportFile {
+    const FORMAT: &'static str = SCAN_REPORT_FORMAT;
+}
+
+// ------------------------------------------------------------------ pivot.json
+
+/// One pivot-calibration method's result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PivotResult {
+    pub method: String,
+    pub tip_in_marker_mm: [f64; 3],
+    pub pivot_point_mm: [f64; 3],
+    pub rms_mm: f64,
+    pub max_mm: f64,
+    pub frames: usize,
+}
+
+/// `pivot.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PivotFile {
+    /// Always [`PIVOT_FORMAT`].
+    pub format: String,
+    pub tool: Option<String>,
+    pub results: Vec<PivotResult>,
+}
+
+impl SchemaFile for PivotFile {
+    const FORMAT: &'static str = PIVOT_FORMAT;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn diagnosis_round_trip_and_tag_check() {
+        let d = DiagnosisFile {
+            format: DIAGNOSIS_FORMAT.into(),
+            sensor: DiagnosisSensor::Laser,
+            residual: "point-to-plane distance".into(),
+            n_train: 10,
+            n_heldout: 0,
+            train_rms: StageRms {
+                nominal_mm: None,
+                base_model_mm: Some(0.2),
+                final_mm: Some(0.1),
+            },
+            heldout_rms: StageRms::default(),
+            effects: vec![DiagnosedEffect {
+                kind: "laser_scale".into(),
+                joint: None,
+                label: "laser_scale".into(),
+                parameters: vec![EffectParameter::new("scale", "ppm", 120.0, 5.0)],
+                evidence: Evidence::default(),
+                train_rms_mm_before: Some(0.2),
+                train_rms_mm_after: Some(0.1),
+                heldout_rms_mm_before: None,
+                heldout_rms_mm_after: None,
+                calibration: CalEffect {
+                    kind: "laser_scale".into(),
+                    joint: None,
+                    params: Default::default(),
+                    extra: Default::default(),
+                },
+            }],
+            nonparametric_used: false,
+            rounds: vec![],
+            not_identifiable: vec![],
+            untestable: vec![],
+            ambiguous_heldout: vec![],
+            warnings: vec![],
+        };
+        let text = serde_json::to_string(&d).unwrap();
+        let back: DiagnosisFile = parse(&text, "mem").unwrap();
+        assert_eq!(back, d);
+        assert_eq!(
+            back.effects[0].parameters[0].ci95,
+            Some([120.0 - 9.8, 120.0 + 9.8])
+        );
+        let old = r#"{"format":"robocal-diagnosis/1","chain":[]}"#;
+        let e = parse::<DiagnosisFile>(old, "d.json")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("d.json") && e.contains("robocal-diagnosis/2"),
+            "{e}"
+        );
+        let e = parse::<DiagnosisFile>(r#"{"format":"robocal-diagnosis/2"}"#, "d.json")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("missing field"), "{e}");
+    }
+
+    #[test]
+    fn run_summary_flattened_with_tag() {
+        let f = RunSummaryFile::from(RunSummary {
+            planned: 3,
+            ..RunSummary::default()
+        });
+        let text = serde_json::to_string(&f).unwrap();
+        assert!(
+            text.contains("\"format\":\"robocal-run-summary/1\""),
+            "{text}"
+        );
+        assert!(text.contains("\"planned\":3"), "{text}");
+        let back: RunSummaryFile = parse(&text, "s.json").unwrap();
+        assert_eq!(back, f);
+    }
+}
