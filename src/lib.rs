@@ -14,4 +14,5 @@ pub mod diagnose;
 pub mod model;
 pub mod plan;
 pub mod report;
+pub mod session;
 pub mod solve;

@@ -11,6 +11,7 @@ mod laser_world;
 mod model;
 mod plan;
 mod report;
+mod session;
 mod solve;
 mod wire_cell;
 mod world_vs_model;

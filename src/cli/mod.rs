@@ -8,12 +8,14 @@ use std::ffi::OsString;
 pub mod calibrate;
 pub mod devices;
 pub mod diagnose;
+pub mod history;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;
 pub mod predict;
 pub mod report;
 pub mod run;
+pub mod session;
 pub mod sim;
 pub mod wire_cell;
 
@@ -46,6 +48,10 @@ pub enum Command {
     Sim(sim::Args),
     /// List and probe configured devices.
     Devices(devices::Args),
+    /// A whole calibration session: plan, acquire, calibrate, diagnose, validate, verdict, report.
+    Session(session::Args),
+    /// Fleet history of one robot: accuracy and parameter drift over its sessions.
+    History(history::Args),
 }
 
 /// Parse `args` and run; returns the process exit code.
@@ -64,6 +70,15 @@ where
     };
     init_tracing();
     let result = match cli.command {
+        Command::Session(a) => {
+            return match session::exec(a) {
+                Ok(code) => code,
+                Err(e) => {
+                    eprintln!("error: {e:#}");
+                    1
+                }
+            }
+        }
         Command::Plan(a) => plan::exec(a),
         Command::Run(a) => run::exec(a),
         Command::Calibrate(a) => calibrate::exec(a),
@@ -73,6 +88,7 @@ where
         Command::Inspect(a) => inspect::exec(a),
         Command::Sim(a) => sim::exec(a),
         Command::Devices(a) => devices::exec(a),
+        Command::History(a) => history::exec(a),
     };
     match result {
         Ok(()) => 0,
@@ -89,5 +105,7 @@ fn init_tracing() {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        // No colour codes when the log goes to a file or a pipe.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
 }
