@@ -190,16 +190,16 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         });
         if !args.json {
             println!(
-            "{:<12} {:<8} {:<18} {:<14} {}{}",
-            d.name,
-            role,
-            d.vendor,
-            proto,
-            d.target(),
-            d.model
-                .as_ref()
-                .map(|m| format!("  ({m})"))
-                .unwrap_or_default()
+                "{:<12} {:<8} {:<18} {:<14} {}{}",
+                d.name,
+                role,
+                d.vendor,
+                proto,
+                d.target(),
+                d.model
+                    .as_ref()
+                    .map(|m| format!("  ({m})"))
+                    .unwrap_or_default()
             );
         }
         if let Some(rt) = &rt {
@@ -221,7 +221,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 }
                 Probe::Failed(kind, msg) => {
                     failures += 1;
-                    entry["probe"] = serde_json::json!({"ok": false, "kind": kind.to_string(), "message": msg});
+                    entry["probe"] =
+                        serde_json::json!({"ok": false, "kind": kind.to_string(), "message": msg});
                     if !args.json {
                         println!("    error ({kind}): {msg}");
                     }

@@ -98,7 +98,10 @@ fn frame(p: &robocal_mocks::scenario::Placement) -> FrameSpec {
 
 /// The cell as the scenario file states it, for arm `arm` (index), and the single-arm
 /// scenario the session runs on.
-pub fn describe_scenario(sc: &Scenario, arm: Option<&str>) -> anyhow::Result<(CellDescription, Scenario)> {
+pub fn describe_scenario(
+    sc: &Scenario,
+    arm: Option<&str>,
+) -> anyhow::Result<(CellDescription, Scenario)> {
     let a = match arm {
         Some(n) => sc
             .arms
@@ -261,11 +264,19 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         None => AcceptSpec::default_surgical(),
     };
     let spec_text = match &a.spec {
-        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
         None => DEFAULT_SPEC.to_string(),
     };
-    crate::plan::PlanSpec::from_toml_str(&spec_text)
-        .with_context(|| format!("plan spec {}", a.spec.as_ref().map_or("(default)".into(), |p| p.display().to_string())))?;
+    crate::plan::PlanSpec::from_toml_str(&spec_text).with_context(|| {
+        format!(
+            "plan spec {}",
+            a.spec
+                .as_ref()
+                .map_or("(default)".into(), |p| p.display().to_string())
+        )
+    })?;
     if a.poses < 10 || a.heldout_points < 5 {
         bail!("--poses must be ≥ 10 and --heldout-points ≥ 5");
     }
@@ -315,7 +326,11 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         operator_note: a.note.clone(),
         plan_only: a.plan_only,
     };
-    let src = a.sim.as_ref().or(a.devices.as_ref()).expect("checked above");
+    let src = a
+        .sim
+        .as_ref()
+        .or(a.devices.as_ref())
+        .expect("checked above");
     session::create(dir, setup, src, cell, &spec_text, accept)?;
     if let Some(text) = scenario_text {
         // The session runs on the single-arm scenario (the copy keeps the original's content
@@ -414,7 +429,10 @@ pub fn fleet_table(sessions: &[session::SessionFile]) -> String {
     for s in sessions {
         let m = &s.measured;
         let a = imp(m.heldout_rms_mm_before, m.heldout_rms_mm_after);
-        let r = imp(m.relative_distance_pct_before, m.relative_distance_pct_after);
+        let r = imp(
+            m.relative_distance_pct_before,
+            m.relative_distance_pct_after,
+        );
         ia.extend(a);
         ir.extend(r);
         let _ = writeln!(
@@ -452,7 +470,10 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             use std::io::{BufRead as _, IsTerminal as _, Write as _};
             println!(
                 "will move the arm {} through the session's poses at ≤ {} °/s",
-                s0.cell.robot_serial.as_deref().unwrap_or(&s0.cell.robot_model),
+                s0.cell
+                    .robot_serial
+                    .as_deref()
+                    .unwrap_or(&s0.cell.robot_model),
                 s0.setup.speed_deg_s
             );
             if !std::io::stdin().is_terminal() {
@@ -514,5 +535,9 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             println!("report: {}", dir.join("report.html").display());
         }
     }
-    Ok(if s.setup.plan_only { 0 } else { s.judgement.as_ref().map_or(2, |j| j.exit_code()) })
+    Ok(if s.setup.plan_only {
+        0
+    } else {
+        s.judgement.as_ref().map_or(2, |j| j.exit_code())
+    })
 }

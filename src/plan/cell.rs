@@ -92,10 +92,9 @@ impl CellGeometry {
         let tib = super::frame_iso(&self.tracker_pose);
         let m = Point3::from(marker_in_base.translation.vector);
         let t = Point3::from(tib.translation.vector);
-        let blocked = self
-            .occluders
-            .iter()
-            .any(|o| segment_distance(&t, &m, &Point3::from(o.center_mm)) < o.radius_mm + self.margin_mm);
+        let blocked = self.occluders.iter().any(|o| {
+            segment_distance(&t, &m, &Point3::from(o.center_mm)) < o.radius_mm + self.margin_mm
+        });
         if blocked {
             return Some(RejectReason::Occluded);
         }
@@ -161,11 +160,16 @@ mod tests {
         let seen = at(Vector3::new(0.0, 300.0, 0.0), 1500.0);
         assert_eq!(c.check(&seen), None);
         let far = at(Vector3::zeros(), 2500.0);
-        assert!(matches!(c.check(&far), Some(RejectReason::TrackerVolume | RejectReason::Occluded)));
+        assert!(matches!(
+            c.check(&far),
+            Some(RejectReason::TrackerVolume | RejectReason::Occluded)
+        ));
         let mut away = seen;
-        away.rotation =
-            nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &dir).unwrap();
-        assert!(matches!(c.check(&away), Some(RejectReason::TrackerAngle { .. })));
+        away.rotation = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &dir).unwrap();
+        assert!(matches!(
+            c.check(&away),
+            Some(RejectReason::TrackerAngle { .. })
+        ));
         // The occluder sits on the line of sight from the tracker to a marker beyond it.
         let behind = Isometry3::from_parts(
             nalgebra::Translation3::new(-100.0, 0.0, 400.0),

@@ -134,10 +134,18 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     };
     let c = &s.cell;
     row(&mut h, "Robot", &c.robot_model);
-    row(&mut h, "Robot serial", c.robot_serial.as_deref().unwrap_or("—"));
+    row(
+        &mut h,
+        "Robot serial",
+        c.robot_serial.as_deref().unwrap_or("—"),
+    );
     row(&mut h, "Controller", c.controller.as_deref().unwrap_or("—"));
     row(&mut h, "Tracker", c.tracker.as_deref().unwrap_or("—"));
-    row(&mut h, "Tracker serial", c.tracker_serial.as_deref().unwrap_or("—"));
+    row(
+        &mut h,
+        "Tracker serial",
+        c.tracker_serial.as_deref().unwrap_or("—"),
+    );
     row(
         &mut h,
         "Other sensors",
@@ -170,7 +178,11 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
                 "<tr><td>{}</td><td>{}</td><td{}>{}</td><td class=\"{cls}\">{word}</td></tr>",
                 esc(&c.name),
                 esc(&c.limit),
-                if c.value.contains("WORSE") { " class=\"worse\"" } else { "" },
+                if c.value.contains("WORSE") {
+                    " class=\"worse\""
+                } else {
+                    ""
+                },
                 esc(&c.value)
             );
         }
@@ -187,7 +199,11 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
             "{} → {}{}",
             f4(b),
             f4(a),
-            if worse { " <span class=\"worse\">WORSE</span>" } else { "" }
+            if worse {
+                " <span class=\"worse\">WORSE</span>"
+            } else {
+                ""
+            }
         )
     };
     h.push_str("<h2>Session</h2><table id=\"numbers\">");
@@ -206,7 +222,10 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         m.heldout_poses,
         ba(m.heldout_rms_mm_before, m.heldout_rms_mm_after),
         ba(m.heldout_max_mm_before, m.heldout_max_mm_after),
-        ba(m.relative_distance_pct_before, m.relative_distance_pct_after),
+        ba(
+            m.relative_distance_pct_before,
+            m.relative_distance_pct_after
+        ),
     );
     h.push_str("</table>\n");
     // Plots.
@@ -227,7 +246,11 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     } else {
         h.push_str("<ul id=\"effects\">");
         for e in &s.effects {
-            let cls = if e.words.contains("WORSE") { " class=\"worse\"" } else { "" };
+            let cls = if e.words.contains("WORSE") {
+                " class=\"worse\""
+            } else {
+                ""
+            };
             let _ = write!(h, "<li{cls}>{}</li>", esc(&e.words));
         }
         h.push_str("</ul>");
@@ -248,7 +271,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
             let rows: Vec<(String, f64, Option<f64>)> = s
                 .params
                 .iter()
-                .filter(|p| p.unit == unit && !p.name.starts_with("base") && !p.name.starts_with("tool"))
+                .filter(|p| {
+                    p.unit == unit && !p.name.starts_with("base") && !p.name.starts_with("tool")
+                })
                 .map(|p| (p.name.clone(), p.value - p.nominal, p.ci95))
                 .collect();
             if !rows.is_empty() {
@@ -308,7 +333,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     if s.deploy.is_empty() {
         h.push_str("<p>Nothing yet: the session did not finish.</p>");
     } else if s.verdict != VerdictKind::Pass {
-        h.push_str("<p class=\"bad\">Do not deploy: the session did not pass its acceptance criteria.</p>");
+        h.push_str(
+            "<p class=\"bad\">Do not deploy: the session did not pass its acceptance criteria.</p>",
+        );
     }
     if !s.deploy.is_empty() {
         h.push_str("<ul id=\"deploy\">");

@@ -93,7 +93,11 @@ impl AcceptSpec {
         };
         check("heldout_rms_mm_max", spec.heldout_rms_mm_max, 1e4)?;
         check("heldout_max_mm_max", spec.heldout_max_mm_max, 1e4)?;
-        check("relative_distance_pct_max", spec.relative_distance_pct_max, 100.0)?;
+        check(
+            "relative_distance_pct_max",
+            spec.relative_distance_pct_max,
+            100.0,
+        )?;
         check("skipped_fraction_max", spec.skipped_fraction_max, 1.0)?;
         check("param_ci95_mm_max", spec.param_ci95_mm_max, 1e4)?;
         check("param_ci95_deg_max", spec.param_ci95_deg_max, 360.0)?;
@@ -246,7 +250,10 @@ impl Verdict {
 
     /// The failed criteria.
     pub fn failed(&self) -> Vec<&Criterion> {
-        self.criteria.iter().filter(|c| c.ok == Some(false)).collect()
+        self.criteria
+            .iter()
+            .filter(|c| c.ok == Some(false))
+            .collect()
     }
 
     /// Process exit code: 0 PASS, 2 FAIL / INCOMPLETE.

@@ -52,7 +52,10 @@ pub fn urdf(model: &KinematicModel, name: &str, datasets: &serde_json::Value) ->
     for i in 0..dof {
         let f = frames[i + 1];
         let link = format!("link{}", i + 1);
-        let (lo, hi) = limits.get(i).copied().unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
+        let (lo, hi) = limits
+            .get(i)
+            .copied()
+            .unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
         let _ = writeln!(s, "  <link name=\"{link}\"/>");
         let _ = writeln!(
             s,
@@ -93,7 +96,9 @@ mod tests {
         let back = KinematicModel::from_urdf_str(&text, None, Some("flange")).unwrap();
         let mut worst: f64 = 0.0;
         for k in 0..20 {
-            let q: Vec<f64> = (0..6).map(|j| ((k * 7 + j * 3) as f64 * 0.37).sin()).collect();
+            let q: Vec<f64> = (0..6)
+                .map(|j| ((k * 7 + j * 3) as f64 * 0.37).sin())
+                .collect();
             let a = m.flange_pose(&q);
             let b = back.flange_pose(&q);
             worst = worst.max((a.translation.vector - b.translation.vector).norm());

@@ -117,8 +117,12 @@ impl History {
                 path: loc.into(),
                 source,
             };
-            if let Some(p) = Path::new(loc).parent().filter(|p| !p.as_os_str().is_empty()) {
-                std::fs::create_dir_all(p).map_err(|e| HistoryError::Other(format!("{}: {e}", p.display())))?;
+            if let Some(p) = Path::new(loc)
+                .parent()
+                .filter(|p| !p.as_os_str().is_empty())
+            {
+                std::fs::create_dir_all(p)
+                    .map_err(|e| HistoryError::Other(format!("{}: {e}", p.display())))?;
             }
             let c = rusqlite::Connection::open(loc).map_err(sq)?;
             c.execute_batch("PRAGMA foreign_keys = ON;").map_err(sq)?;
@@ -235,7 +239,19 @@ impl History {
 
     /// The sessions of one robot, oldest first, with their parameter changes.
     pub fn robot(&mut self, serial: &str) -> Result<Vec<Row>, HistoryError> {
-        type Raw = (String, String, String, String, String, i64, i64, Option<f64>, Option<f64>, Option<f64>, Option<f64>);
+        type Raw = (
+            String,
+            String,
+            String,
+            String,
+            String,
+            i64,
+            i64,
+            Option<f64>,
+            Option<f64>,
+            Option<f64>,
+            Option<f64>,
+        );
         let (raw, params): (Vec<Raw>, Vec<(String, String, String, f64)>) = match self {
             History::Sqlite(c, loc) => {
                 let sq = |source| HistoryError::Sqlite {
@@ -264,7 +280,9 @@ impl History {
                     .map_err(sq)?;
                 let mut st = c.prepare(SELECT_PARAMS).map_err(sq)?;
                 let params = st
-                    .query_map([serial], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))
+                    .query_map([serial], |r| {
+                        Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?))
+                    })
                     .map_err(sq)?
                     .collect::<Result<Vec<_>, _>>()
                     .map_err(sq)?;
@@ -349,8 +367,14 @@ pub fn table(serial: &str, rows: &[Row]) -> String {
 
 /// SVG: held-out RMS before / after per session (accuracy drift).
 pub fn svg(serial: &str, rows: &[Row]) -> String {
-    let b: Vec<f64> = rows.iter().map(|r| r.rms_before.unwrap_or(f64::NAN)).collect();
-    let a: Vec<f64> = rows.iter().map(|r| r.rms_after.unwrap_or(f64::NAN)).collect();
+    let b: Vec<f64> = rows
+        .iter()
+        .map(|r| r.rms_before.unwrap_or(f64::NAN))
+        .collect();
+    let a: Vec<f64> = rows
+        .iter()
+        .map(|r| r.rms_after.unwrap_or(f64::NAN))
+        .collect();
     super::svg::before_after(
         &format!("Robot {serial}: held-out RMS per session"),
         "session (oldest first)",

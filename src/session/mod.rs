@@ -238,7 +238,11 @@ impl SessionFile {
         let f: SessionFile =
             serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
         if f.format != SESSION_FORMAT {
-            bail!("{}: format {:?} is not {SESSION_FORMAT}", path.display(), f.format);
+            bail!(
+                "{}: format {:?} is not {SESSION_FORMAT}",
+                path.display(),
+                f.format
+            );
         }
         Ok(f)
     }
@@ -371,7 +375,8 @@ pub fn create(
         );
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let bytes = std::fs::read(cell_src).with_context(|| format!("reading {}", cell_src.display()))?;
+    let bytes =
+        std::fs::read(cell_src).with_context(|| format!("reading {}", cell_src.display()))?;
     write_atomic(&dir.join(&setup.cell_file), &bytes)?;
     write_atomic(&dir.join(&setup.spec_file), spec_text.as_bytes())?;
     write_atomic(
@@ -443,9 +448,12 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         log(&format!("acquire: {set} poses"));
         let plan_path = dir.join("plan").join(format!("{set}.json"));
         let run_dir = dir.join(format!("run-{set}"));
-        let summary = cell
-            .acquire(&plan_path, &run_dir)
-            .with_context(|| format!("acquiring the {set} poses (continue with `robocal session --resume {}`)", dir.display()))?;
+        let summary = cell.acquire(&plan_path, &run_dir).with_context(|| {
+            format!(
+                "acquiring the {set} poses (continue with `robocal session --resume {}`)",
+                dir.display()
+            )
+        })?;
         *s.duration_s.get_or_insert(0.0) += summary.time.total_s();
         if let Some(reason) = &summary.aborted {
             s.save(&path)?;
@@ -510,7 +518,15 @@ pub fn judge_into(s: &mut SessionFile) {
     let missing: Vec<String> = Stage::ALL
         .iter()
         .filter(|st| **st != Stage::Report && !s.stages_done.contains(st))
-        .map(|st| format!("stage {} not done", serde_json::to_value(st).unwrap_or_default().as_str().unwrap_or("?")))
+        .map(|st| {
+            format!(
+                "stage {} not done",
+                serde_json::to_value(st)
+                    .unwrap_or_default()
+                    .as_str()
+                    .unwrap_or("?")
+            )
+        })
         .collect();
     let mut m = s.measured.clone();
     m.poses_planned = s.poses_planned;
@@ -588,8 +604,12 @@ fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
             *rejects.entry(k.clone()).or_insert(0) += v;
         }
         predicted += f.summary.timing.optimised_s;
-        s.warnings
-            .extend(f.summary.warnings.iter().map(|w| format!("{name} plan: {w}")));
+        s.warnings.extend(
+            f.summary
+                .warnings
+                .iter()
+                .map(|w| format!("{name} plan: {w}")),
+        );
         log(&format!(
             "  {name}: {} poses, {:.0} s predicted",
             f.poses.len(),
@@ -630,8 +650,8 @@ fn calibrate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     };
     let res = identify(&train, &opts).context("kinematic identification")?;
     let mut file = calfile::ident_file(&train.header.robot, &res);
-    file.extra
-        .insert("datasets".into(), s.dataset_hashes());
+    file.extra.insert("datasets".into(), s.dataset_hashes());
+    std::fs::create_dir_all(dir.join("calibrate"))?;
     file.save(dir.join("calibrate").join("calibration.json"))
         .context("writing calibrate/calibration.json")?;
     s.params = res
@@ -670,7 +690,13 @@ fn calibrate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
 }
 
 fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
-    let train = dir.join(&s.datasets.iter().find(|d| d.role == "train").context("no train dataset")?.path);
+    let train = dir.join(
+        &s.datasets
+            .iter()
+            .find(|d| d.role == "train")
+            .context("no train dataset")?
+            .path,
+    );
     let val = dir.join(
         &s.datasets
             .iter()
@@ -722,21 +748,30 @@ pub fn effects_in_words(diag: &serde_json::Value, out: &Path, dir: &Path) -> Vec
                 .and_then(|v| v.as_str())
                 .unwrap_or_else(|| label.split('(').next().unwrap_or(label))
                 .to_string();
-            let joint = label
-                .split("(j")
-                .nth(1)
-                .and_then(|r| r.chars().take_while(|c| c.is_ascii_digit()).collect::<String>().parse::<usize>().ok());
+            let joint = label.split("(j").nth(1).and_then(|r| {
+                r.chars()
+                    .take_while(|c| c.is_ascii_digit())
+                    .collect::<String>()
+                    .parse::<usize>()
+                    .ok()
+            });
             let j = joint.map_or("a joint".to_string(), |j| format!("joint {j}"));
             let what = match kind.as_str() {
                 "joint_compliance" => format!("{j} bends under the gravity load it carries"),
                 "backlash" => format!("{j} has lost motion (backlash) when it reverses"),
-                "joint_eccentricity" => format!("{j}'s angle error varies once per turn (eccentric encoder or gear)"),
+                "joint_eccentricity" => {
+                    format!("{j}'s angle error varies once per turn (eccentric encoder or gear)")
+                }
                 "thermal_drift" => "the robot drifts as it warms up".to_string(),
                 "tracker_scale" => "the tracker's distances are scaled".to_string(),
-                "base_shift" => "the tracker or the robot base moved during the session".to_string(),
+                "base_shift" => {
+                    "the tracker or the robot base moved during the session".to_string()
+                }
                 "latency" => "the tracker and the robot clocks are offset".to_string(),
                 "transmission_ratio" => format!("{j}'s gear ratio differs from nominal"),
-                "nonparametric" => "a residual no physical effect explains was learnt from the data".to_string(),
+                "nonparametric" => {
+                    "a residual no physical effect explains was learnt from the data".to_string()
+                }
                 other => format!("effect {other}"),
             };
             let coefs: Vec<String> = st
@@ -796,7 +831,10 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     if obs.is_empty() {
         bail!("no usable held-out pose in the validation dataset");
     }
-    let pred_before: Vec<_> = obs.iter().map(|o| res.nominal.measured_point(&o.q)).collect();
+    let pred_before: Vec<_> = obs
+        .iter()
+        .map(|o| res.nominal.measured_point(&o.q))
+        .collect();
     let csv = dir.join("diagnose").join("heldout_predictions.csv");
     let after: std::collections::HashMap<u64, nalgebra::Point3<f64>> =
         match std::fs::read_to_string(&csv) {
@@ -830,7 +868,10 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     }
     let meas: Vec<_> = obs.iter().map(|o| o.p).collect();
     let err = |pred: &[nalgebra::Point3<f64>]| -> Vec<f64> {
-        pred.iter().zip(&meas).map(|(p, m)| (p - m).norm()).collect()
+        pred.iter()
+            .zip(&meas)
+            .map(|(p, m)| (p - m).norm())
+            .collect()
     };
     let (eb, ea) = (err(&pred_before), err(&pred_after));
     let rms = |e: &[f64]| crate::solve::stats::rms(e);
@@ -877,9 +918,6 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     );
     let urdf = deploy::urdf(&model, &name, &s.dataset_hashes());
     write_atomic(&ddir.join("robot.urdf"), urdf.as_bytes())?;
-    s.deploy = vec![
-        "deploy/calibration.json".into(),
-        "deploy/robot.urdf".into(),
-    ];
+    s.deploy = vec!["deploy/calibration.json".into(), "deploy/robot.urdf".into()];
     Ok(())
 }

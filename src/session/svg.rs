@@ -117,7 +117,11 @@ pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) ->
     }
     legend(
         &mut s,
-        &[("before (nominal)", "#999"), ("after", "#1f77b4"), ("after, WORSE", "#d62728")],
+        &[
+            ("before (nominal)", "#999"),
+            ("after", "#1f77b4"),
+            ("after, WORSE", "#d62728"),
+        ],
     );
     s.push_str("</svg>");
     s
@@ -130,7 +134,9 @@ pub fn histogram(before: &[f64], after: &[f64]) -> String {
     let count = |v: &[f64]| {
         let mut c = vec![0usize; bins];
         for x in v {
-            let k = ((x / xmax) * bins as f64).floor().clamp(0.0, bins as f64 - 1.0) as usize;
+            let k = ((x / xmax) * bins as f64)
+                .floor()
+                .clamp(0.0, bins as f64 - 1.0) as usize;
             c[k] += 1;
         }
         c
@@ -138,7 +144,14 @@ pub fn histogram(before: &[f64], after: &[f64]) -> String {
     let (cb, ca) = (count(before), count(after));
     let ymax = nice_max(cb.iter().chain(&ca).copied().max().unwrap_or(1) as f64);
     let mut s = String::new();
-    frame(&mut s, "Held-out error histogram", &format!("error (mm), 0 to {xmax}"), "poses", 0.0, ymax);
+    frame(
+        &mut s,
+        "Held-out error histogram",
+        &format!("error (mm), 0 to {xmax}"),
+        "poses",
+        0.0,
+        ymax,
+    );
     let bw = (W - L - R) / bins as f64;
     for (k, (b, a)) in cb.iter().zip(&ca).enumerate() {
         let x = L + bw * k as f64;
@@ -162,7 +175,10 @@ pub fn histogram(before: &[f64], after: &[f64]) -> String {
             xmax * k as f64 / bins as f64
         );
     }
-    legend(&mut s, &[("before (nominal)", "#999"), ("after", "#1f77b4")]);
+    legend(
+        &mut s,
+        &[("before (nominal)", "#999"), ("after", "#1f77b4")],
+    );
     s.push_str("</svg>");
     s
 }
@@ -204,7 +220,11 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
                 x(d + c)
             );
         }
-        let _ = write!(s, "<circle cx=\"{:.1}\" cy=\"{y}\" r=\"3\" fill=\"black\"/>", x(*d));
+        let _ = write!(
+            s,
+            "<circle cx=\"{:.1}\" cy=\"{y}\" r=\"3\" fill=\"black\"/>",
+            x(*d)
+        );
     }
     for v in [-lim, 0.0, lim] {
         let _ = write!(

@@ -100,7 +100,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     );
     say!(
         "train RMS {:.4} mm (nominal {:.4} mm), residual sigma {:.4} mm",
-        res.train_rms_mm, res.train_rms_mm_before, res.sigma_mm
+        res.train_rms_mm,
+        res.train_rms_mm_before,
+        res.sigma_mm
     );
     match &res.heldout {
         Some(h) => say!(
@@ -116,7 +118,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     say!(
         "identifiability: condition number {:.1} (column-scaled), O1 {:.3e}, O3 {:.3e}",
-        res.identifiability.condition, res.identifiability.o1, res.identifiability.o3
+        res.identifiability.condition,
+        res.identifiability.o1,
+        res.identifiability.o3
     );
     for f in &res.fixed {
         say!("  fixed {:8} {}", f.name, f.reason);
@@ -152,7 +156,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         if let (Some(b), Some(a)) = (&sb.relative, &sa.relative) {
             say!(
                 "relative distance error: {:.4} % → {:.4} %",
-                b.mean_pct, a.mean_pct
+                b.mean_pct,
+                a.mean_pct
             );
             file.metrics
                 .insert("relative_distance_pct_before".into(), json!(b.mean_pct));
@@ -176,7 +181,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         if let (Some(b), Some(a)) = (&sb.iso, &sa.iso) {
             say!(
                 "ISO 9283 ({} repeated targets): AP {:.4} → {:.4} mm, RP {:.4} mm",
-                a.targets, b.ap_mean_mm, a.ap_mean_mm, a.rp_mean_mm
+                a.targets,
+                b.ap_mean_mm,
+                a.ap_mean_mm,
+                a.rp_mean_mm
             );
             file.metrics
                 .insert("iso9283_ap_mm_before".into(), json!(b.ap_mean_mm));
@@ -206,9 +214,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         if !res.heldout_obs.is_empty() {
             let e = crate::solve::kinematics::model_errors(&b.mean_model, &res.heldout_obs);
             let r = crate::solve::stats::rms(&e);
-            say!(
-                "held-out RMS of the subset-mean model: {r:.4} mm (full-data fit kept as final)"
-            );
+            say!("held-out RMS of the subset-mean model: {r:.4} mm (full-data fit kept as final)");
             heldout_mean = Some(r);
         }
         if !b.non_normal.is_empty() {
@@ -279,7 +285,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let s = p.std.map(|s| show(s, p.unit).0).unwrap_or(f64::NAN);
         say!(
             "  {:8} {:>12.5} ± {:.5} {u}  (nominal {:.5})",
-            p.name, v, s, n
+            p.name,
+            v,
+            s,
+            n
         );
     }
     Ok(())
