@@ -13,6 +13,7 @@ pub mod dataset;
 pub mod diagnose;
 pub mod model;
 pub mod plan;
+pub mod plausible;
 pub mod report;
 pub mod session;
 pub mod solve;
