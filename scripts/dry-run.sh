@@ -1,15 +1,12 @@
 #!/usr/bin/env bash
-# The main command: a full dry run of a calibration session against the simulated cell.
-#
-#   plan (seed 001 annulus on denso-vs060, training + held-out validation poses)
-#   -> robocal run --sim <lab scenario> --virtual-clock   (training and validation runs)
-#   -> robocal calibrate kinematics
-#   -> robocal diagnose
-#   -> robocal report   (report.md + report.html, headline printed last)
+# A full dry run of a calibration session against the simulated cell: a thin wrapper over
+# `robocal session` (plan -> training + held-out runs -> calibrate -> diagnose -> validate ->
+# verdict -> report.html), plus a camera session on the UR5e eye-in-hand cell.
 #
 # Everything lands in out/dry-run/ (replaced on each run). Needs only cargo; no hardware.
-# Environment: POSES (training poses kept by --select, default 120), HELDOUT_POINTS (validation
-# annulus points, default 40), SCENARIO (default the lab scenario), BOOTSTRAP (default 100).
+# Environment: POSES (training poses, default 120), HELDOUT_POINTS (validation points,
+# default 40), SCENARIO (default the lab scenario), ACCEPT (acceptance spec, default the
+# shipped accept/surgical.toml), FEATURES (e.g. "--features opencv").
 set -euo pipefail
 
 cd "$(dirname "$0")/.."
@@ -18,8 +15,7 @@ OUT="$ROOT/out/dry-run"
 POSES=${POSES:-120}
 HELDOUT_POINTS=${HELDOUT_POINTS:-40}
 SCENARIO=${SCENARIO:-mocks/scenarios/lab-vs060-optotrak-il600.toml}
-BOOTSTRAP=${BOOTSTRAP:-100}
-SPEC=plans/seed001-annulus.toml
+ACCEPT=${ACCEPT:-accept/surgical.toml}
 CAMERA_SCENARIO=${CAMERA_SCENARIO:-mocks/scenarios/ur5e-camera.toml}
 FEATURES=${FEATURES:-}
 
@@ -38,44 +34,19 @@ test -x "$BIN"
 rm -rf "$OUT"
 mkdir -p "$OUT"
 
-step "plan: $SPEC on denso-vs060, $POSES training poses (greedy D-optimal selection)"
-"$BIN" plan --spec "$SPEC" --robot denso-vs060 --select "$POSES" --out "$OUT/plan-train.json" \
-    --summary "$OUT/plan-train.txt" > /dev/null
-tail -n 4 "$OUT/plan-train.txt"
-
-step "plan: held-out validation poses (same annulus, seed 2, $HELDOUT_POINTS points, group validation)"
-sed -e 's/^name = .*/name = "seed001-annulus-validation"/' \
-    -e 's/^seed = .*/seed = 2/' \
-    -e 's/^group = .*/group = "validation"/' \
-    -e "s/^points = .*/points = $HELDOUT_POINTS/" \
-    "$SPEC" > "$OUT/validation-spec.toml"
-grep -q '^group = "validation"' "$OUT/validation-spec.toml"
-"$BIN" plan --spec "$OUT/validation-spec.toml" --robot denso-vs060 --out "$OUT/plan-validation.json" \
-    --summary "$OUT/plan-validation.txt" > /dev/null
-tail -n 4 "$OUT/plan-validation.txt"
-
-step "run: training poses on the simulated cell ($SCENARIO, virtual clock)"
-"$BIN" run --plan "$OUT/plan-train.json" --sim "$SCENARIO" --virtual-clock --json \
-    --out "$OUT/run" > "$OUT/run-progress.log"
-tail -n 1 "$OUT/run-progress.log" | cut -c1-200
-
-step "run: validation poses (held out from every fit)"
-"$BIN" run --plan "$OUT/plan-validation.json" --sim "$SCENARIO" --virtual-clock --json \
-    --out "$OUT/run-validation" > "$OUT/run-validation-progress.log"
-tail -n 1 "$OUT/run-validation-progress.log" | cut -c1-200
-
-step "inspect the training dataset"
-"$BIN" inspect "$OUT/run/dataset.jsonl"
-
-step "calibrate kinematics (bootstrap $BOOTSTRAP)"
-"$BIN" calibrate kinematics --data "$OUT/run/dataset.jsonl" \
-    --heldout "$OUT/run-validation/dataset.jsonl" --bootstrap "$BOOTSTRAP" \
-    --out "$OUT/calibrate" | tail -n 5
-
-# diagnose scores its chain (nominal -> geometric -> with effects) on the separate validation run.
-step "diagnose the residual"
-"$BIN" diagnose --data "$OUT/run/dataset.jsonl" \
-    --heldout "$OUT/run-validation/dataset.jsonl" --out "$OUT/diagnose" | tail -n 6
+step "session: $SCENARIO ($POSES training poses, $HELDOUT_POINTS held-out points, $ACCEPT)"
+set +e
+"$BIN" session --sim "$SCENARIO" --out "$OUT/session" --accept "$ACCEPT" \
+    --poses "$POSES" --heldout-points "$HELDOUT_POINTS" --note "scripts/dry-run.sh" \
+    | tee "$OUT/headline.txt"
+CODE=${PIPESTATUS[0]}
+set -e
+if [ "$CODE" -eq 1 ]; then
+    fail $LINENO "robocal session (exit 1)"
+    exit 1
+fi
+test -s "$OUT/session/report.html"
+test -s "$OUT/session/session.json"
 
 # A camera session on the UR5e eye-in-hand cell (seed 004 viewpoints on a shell about the
 # chessboard): one image per pose, served by the camera simulator; chessboard corners too when
@@ -88,10 +59,8 @@ mkdir -p "$OUT/camera"
     --out "$OUT/camera/run" | tail -n 3
 "$BIN" inspect "$OUT/camera/run/dataset.jsonl" | grep -E "^(records|poses|camera)"
 
-step "report"
-"$BIN" report --dir "$OUT" --out "$OUT/report.html" | tee "$OUT/headline.txt"
-
-test -s "$OUT/report.md"
-test -s "$OUT/report.html"
 printf '\ndry run done in %d s: %s\n' "$((SECONDS - START))" "$OUT"
-printf 'HEADLINE: %s\n' "$(tail -n 1 "$OUT/headline.txt")"
+printf 'VERDICT: %s\n' "$(head -n 1 "$OUT/headline.txt")"
+printf 'report: %s\n' "$OUT/session/report.html"
+# The session's verdict is the script's: 0 PASS, 2 FAIL / INCOMPLETE.
+exit "$CODE"

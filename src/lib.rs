@@ -19,4 +19,5 @@ pub mod plausible;
 pub mod register;
 pub mod report;
 pub mod schema;
+pub mod session;
 pub mod solve;

@@ -15,6 +15,7 @@ mod plan;
 mod rcm;
 mod report;
 mod run_integrity;
+mod session;
 mod solve;
 mod wire_cell;
 mod world_vs_model;

@@ -21,6 +21,10 @@ pub struct Args {
     /// Per-device probe deadline (s).
     #[arg(long, default_value_t = 5.0)]
     pub timeout_s: f64,
+    /// One JSON object on stdout: `{"devices": [{name, role, vendor, protocol, target, model,
+    /// probe: {ok, kind, message}}]}`.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// The outcome of probing one device.
@@ -159,9 +163,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         .max(Duration::from_millis(100));
     let file = DevicesFile::read(&args.devices)?;
     if file.devices.is_empty() {
-        println!("{}: no devices", args.devices.display());
+        if args.json {
+            println!("{}", serde_json::json!({ "devices": [] }));
+        } else {
+            println!("{}: no devices", args.devices.display());
+        }
         return Ok(());
     }
+    let mut listing = Vec::new();
     let rt = if args.probe {
         Some(
             tokio::runtime::Builder::new_current_thread()
@@ -178,18 +187,24 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             .ok()
             .and_then(|v| v.as_str().map(str::to_string))
             .unwrap_or_default();
-        println!(
-            "{:<12} {:<8} {:<18} {:<14} {}{}",
-            d.name,
-            role,
-            d.vendor,
-            proto,
-            d.target(),
-            d.model
-                .as_ref()
-                .map(|m| format!("  ({m})"))
-                .unwrap_or_default()
-        );
+        let mut entry = serde_json::json!({
+            "name": d.name, "role": role, "vendor": d.vendor, "protocol": proto,
+            "target": d.target(), "model": d.model,
+        });
+        if !args.json {
+            println!(
+                "{:<12} {:<8} {:<18} {:<14} {}{}",
+                d.name,
+                role,
+                d.vendor,
+                proto,
+                d.target(),
+                d.model
+                    .as_ref()
+                    .map(|m| format!("  ({m})"))
+                    .unwrap_or_default()
+            );
+        }
         if let Some(rt) = &rt {
             let r = rt.block_on(async {
                 match tokio::time::timeout(timeout, probe(d)).await {
@@ -201,13 +216,26 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 }
             });
             match r {
-                Probe::Ok(s) => println!("    ok: {s}"),
+                Probe::Ok(s) => {
+                    entry["probe"] = serde_json::json!({"ok": true, "message": s});
+                    if !args.json {
+                        println!("    ok: {s}");
+                    }
+                }
                 Probe::Failed(kind, msg) => {
                     failures += 1;
-                    println!("    error ({kind}): {msg}");
+                    entry["probe"] =
+                        serde_json::json!({"ok": false, "kind": kind.to_string(), "message": msg});
+                    if !args.json {
+                        println!("    error ({kind}): {msg}");
+                    }
                 }
             }
         }
+        listing.push(entry);
+    }
+    if args.json {
+        println!("{}", serde_json::json!({ "devices": listing }));
     }
     if failures > 0 {
         anyhow::bail!(

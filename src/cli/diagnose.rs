@@ -32,12 +32,24 @@ pub struct Args {
     /// Do not add a nonparametric correction even if structured residual remains.
     #[arg(long)]
     pub no_nonparametric: bool,
+    /// Print `diagnosis.json` on stdout instead of the text summary.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Run `robocal diagnose`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let out = run(&args)?;
-    println!("{out}");
+    if args.json {
+        let p = args.out.join("diagnosis.json");
+        match std::fs::read_to_string(&p) {
+            Ok(text) => println!("{text}"),
+            // Laser diagnoses write their own report file.
+            Err(_) => println!("{}", serde_json::json!({ "summary": out })),
+        }
+    } else {
+        println!("{out}");
+    }
     Ok(())
 }
 

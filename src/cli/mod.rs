@@ -9,6 +9,7 @@ pub mod calibrate;
 pub mod chain;
 pub mod devices;
 pub mod diagnose;
+pub mod history;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;
@@ -17,6 +18,7 @@ pub mod register;
 pub mod report;
 pub mod run;
 pub mod run_checks;
+pub mod session;
 pub mod sim;
 pub mod wire_cell;
 
@@ -53,6 +55,10 @@ pub enum Command {
     Register(register::Args),
     /// Predicted tool-tip error at CT targets and each link's share.
     Chain(chain::Args),
+    /// A whole calibration session: plan, acquire, calibrate, diagnose, validate, verdict, report.
+    Session(session::Args),
+    /// Fleet history of one robot: accuracy and parameter drift over its sessions.
+    History(history::Args),
 }
 
 /// Parse `args` and run; returns the process exit code.
@@ -71,6 +77,15 @@ where
     };
     init_tracing();
     let result = match cli.command {
+        Command::Session(a) => {
+            return match session::exec(a) {
+                Ok(code) => code,
+                Err(e) => {
+                    eprintln!("error: {e:#}");
+                    1
+                }
+            }
+        }
         Command::Plan(a) => plan::exec(a),
         Command::Run(a) => run::exec(a),
         Command::Calibrate(a) => calibrate::exec(a),
@@ -82,6 +97,7 @@ where
         Command::Devices(a) => devices::exec(a),
         Command::Register(a) => register::exec(a),
         Command::Chain(a) => chain::exec(a),
+        Command::History(a) => history::exec(a),
     };
     match result {
         Ok(()) => 0,
@@ -103,5 +119,7 @@ fn init_tracing() {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        // No colour codes when the log goes to a file or a pipe.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
 }

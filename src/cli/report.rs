@@ -39,6 +39,18 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         bail!("{}: not a directory", args.dir.display());
     }
     let session = gather(&args.dir)?;
+    if session.runs.is_empty()
+        && session.datasets.is_empty()
+        && session.calibrations.is_empty()
+        && session.diagnoses.is_empty()
+        && session.laser_reports.is_empty()
+    {
+        bail!(
+            "{}: nothing to report (no run summary, dataset, calibration, diagnosis or laser \
+             report in it or below it)",
+            args.dir.display()
+        );
+    }
     let ext = args
         .out
         .as_ref()

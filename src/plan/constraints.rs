@@ -34,6 +34,8 @@ pub enum RejectReason {
     LaserIncidence { angle_deg: f64 },
     /// Fewer feasible IK branches than the validation set needs.
     TooFewBranches { got: usize },
+    /// Something in the cell (an occluder of the cell geometry) blocks the line of sight.
+    Occluded,
 }
 
 impl RejectReason {
@@ -50,6 +52,7 @@ impl RejectReason {
             RejectReason::LaserRange { .. } => "laser-range",
             RejectReason::LaserIncidence { .. } => "laser-incidence",
             RejectReason::TooFewBranches { .. } => "too-few-branches",
+            RejectReason::Occluded => "occluded",
         }
     }
 }
@@ -79,6 +82,7 @@ impl fmt::Display for RejectReason {
             RejectReason::TooFewBranches { got } => {
                 write!(f, "only {got} feasible IK branches")
             }
+            RejectReason::Occluded => write!(f, "line of sight blocked by an occluder"),
         }
     }
 }

@@ -20,6 +20,7 @@ use thiserror::Error;
 use crate::dataset::RobotBlock;
 use crate::model::KinematicModel;
 
+pub mod cell;
 pub mod constraints;
 pub mod export;
 pub mod file;
@@ -125,7 +126,11 @@ impl Feasibility {
 
 /// Pose-level checks of one candidate (tracker, laser).
 pub fn pose_checks(spec: &PlanSpec, c: &Candidate) -> Option<RejectReason> {
-    if let Some(t) = &spec.tracker {
+    if let Some(cell) = &spec.cell {
+        if let Some(r) = cell.check(&c.tool_in_base) {
+            return Some(r);
+        }
+    } else if let Some(t) = &spec.tracker {
         if let Some(r) = constraints::tracker_check(t, &frame_iso(&t.pose), &c.tool_in_base) {
             return Some(r);
         }

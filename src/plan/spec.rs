@@ -45,6 +45,10 @@ pub struct PlanSpec {
     pub timing: TimingSpec,
     #[serde(default)]
     pub observability: ObservabilitySpec,
+    /// The cell's geometry (tracker pose, measurement volume, view angle, occluders) as the
+    /// cell file states it; when present it replaces `tracker` in the visibility checks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cell: Option<super::cell::CellGeometry>,
 }
 
 fn default_group() -> String {

@@ -9,6 +9,8 @@
 //! Output is deterministic: files are visited in sorted path order and no clock is read.
 //! Numbers are shown in the files' units (mm, degrees, seconds).
 
+pub mod html;
+
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

@@ -44,6 +44,9 @@ pub struct Args {
     /// Fix these parameters in addition to the automatic choice (comma separated).
     #[arg(long, value_delimiter = ',')]
     pub fix: Vec<String>,
+    /// Print `calibration.json` on stdout instead of the text summary.
+    #[arg(long)]
+    pub json: bool,
 }
 
 fn show(v: f64, unit: Unit) -> (f64, &'static str) {
@@ -55,6 +58,14 @@ fn show(v: f64, unit: Unit) -> (f64, &'static str) {
 
 /// Run `robocal calibrate kinematics`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    let quiet = args.json;
+    macro_rules! say {
+        ($($t:tt)*) => {
+            if !quiet {
+                println!($($t)*);
+            }
+        };
+    }
     // Strict reader + plausibility; a held-out file must be for the same robot (issue 14).
     let (ds, held) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     if let Some(c) = args.huber {
@@ -75,19 +86,21 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     let mut file = calfile::ident_file(&ds.header.robot, &res);
 
-    println!(
+    say!(
         "identified {} parameters from {} poses: {} after {} iterations",
         res.x.len(),
         res.train_obs.len(),
         res.termination.describe(),
         res.iterations
     );
-    println!(
+    say!(
         "train RMS {:.4} mm (nominal {:.4} mm), residual sigma {:.4} mm",
-        res.train_rms_mm, res.train_rms_mm_before, res.sigma_mm
+        res.train_rms_mm,
+        res.train_rms_mm_before,
+        res.sigma_mm
     );
     match &res.heldout {
-        Some(h) => println!(
+        Some(h) => say!(
             "held-out ({}; {} poses): RMS {:.4} → {:.4} mm, max {:.4} → {:.4} mm",
             h.source.describe(),
             h.n,
@@ -96,17 +109,19 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             h.max_before,
             h.max_after
         ),
-        None => println!("no held-out poses and too few poses for cross-validation"),
+        None => say!("no held-out poses and too few poses for cross-validation"),
     }
-    println!(
+    say!(
         "identifiability: condition number {:.1} (column-scaled), O1 {:.3e}, O3 {:.3e}",
-        res.identifiability.condition, res.identifiability.o1, res.identifiability.o3
+        res.identifiability.condition,
+        res.identifiability.o1,
+        res.identifiability.o3
     );
     for f in &res.fixed {
-        println!("  fixed {:8} {}", f.name, f.reason);
+        say!("  fixed {:8} {}", f.name, f.reason);
     }
     if !res.skipped.is_empty() {
-        println!(
+        say!(
             "skipped {} pose records (first: id {} — {})",
             res.skipped.len(),
             res.skipped[0].id,
@@ -114,9 +129,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         );
     }
     if let Some(c) = res.huber_mm {
-        println!("Huber {c} mm: {} poses down-weighted", res.outliers.len());
+        say!("Huber {c} mm: {} poses down-weighted", res.outliers.len());
         for (id, e) in res.outliers.iter().take(20) {
-            println!("  id {id}: {e:.3} mm");
+            say!("  id {id}: {e:.3} mm");
         }
     }
     // Seed-001 metrics on the held-out poses.
@@ -134,9 +149,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let sb = metrics::score(&res.heldout_obs, &pb);
         let sa = metrics::score(&res.heldout_obs, &pa);
         if let (Some(b), Some(a)) = (&sb.relative, &sa.relative) {
-            println!(
+            say!(
                 "relative distance error: {:.4} % → {:.4} %",
-                b.mean_pct, a.mean_pct
+                b.mean_pct,
+                a.mean_pct
             );
             file.metrics
                 .insert("relative_distance_pct_before".into(), json!(b.mean_pct));
@@ -144,7 +160,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 .insert("relative_distance_pct_after".into(), json!(a.mean_pct));
         }
         if let (Some(b), Some(a)) = (&sb.coincidence, &sa.coincidence) {
-            println!(
+            say!(
                 "inverse-solution coincidence error ({} points): {:.4} → {:.4} mm",
                 a.per_point.len(),
                 b.mean_mm,
@@ -155,12 +171,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             file.metrics
                 .insert("coincidence_mm_after".into(), json!(a.mean_mm));
         } else {
-            println!("inverse-solution coincidence error: no held-out point reached by several IK branches");
+            say!("inverse-solution coincidence error: no held-out point reached by several IK branches");
         }
         if let (Some(b), Some(a)) = (&sb.iso, &sa.iso) {
-            println!(
+            say!(
                 "ISO 9283 ({} repeated targets): AP {:.4} → {:.4} mm, RP {:.4} mm",
-                a.targets, b.ap_mean_mm, a.ap_mean_mm, a.rp_mean_mm
+                a.targets,
+                b.ap_mean_mm,
+                a.ap_mean_mm,
+                a.rp_mean_mm
             );
             file.metrics
                 .insert("iso9283_ap_mm_before".into(), json!(b.ap_mean_mm));
@@ -178,7 +197,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         };
         let b = bootstrap(&res, &opts.effects, &bo).context("bootstrap")?;
-        println!(
+        say!(
             "bootstrap: {} fits of {} poses in {:.2} s ({} failed); max |mean − full| = {:.2} σ",
             b.samples.len(),
             b.subset_size,
@@ -190,13 +209,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         if !res.heldout_obs.is_empty() {
             let e = crate::solve::kinematics::model_errors(&b.mean_model, &res.heldout_obs);
             let r = crate::solve::stats::rms(&e);
-            println!(
-                "held-out RMS of the subset-mean model: {r:.4} mm (full-data fit kept as final)"
-            );
+            say!("held-out RMS of the subset-mean model: {r:.4} mm (full-data fit kept as final)");
             heldout_mean = Some(r);
         }
         if !b.non_normal.is_empty() {
-            println!(
+            say!(
                 "not normal at 1 % (Jarque–Bera): {}",
                 b.non_normal.join(", ")
             );
@@ -247,20 +264,26 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                    "non_normal": b.non_normal, "heldout_rms_mm_mean_model": heldout_mean,
                    "final": "full-data fit (the subset mean is reported per parameter)"}),
         );
-        println!("wrote {}", path.display());
+        say!("wrote {}", path.display());
     }
     let path = args.out.join("calibration.json");
     file.save(&path)
         .with_context(|| format!("writing {}", path.display()))?;
-    println!("wrote {}", path.display());
-    println!("parameters (value ± std, nominal):");
+    if quiet {
+        println!("{}", std::fs::read_to_string(&path)?);
+    }
+    say!("wrote {}", path.display());
+    say!("parameters (value ± std, nominal):");
     for p in res.params.iter().filter(|p| p.free) {
         let (v, u) = show(p.value, p.unit);
         let (n, _) = show(p.nominal, p.unit);
         let s = p.std.map(|s| show(s, p.unit).0).unwrap_or(f64::NAN);
-        println!(
+        say!(
             "  {:8} {:>12.5} ± {:.5} {u}  (nominal {:.5})",
-            p.name, v, s, n
+            p.name,
+            v,
+            s,
+            n
         );
     }
     Ok(())

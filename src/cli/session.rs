@@ -1,0 +1,543 @@
+//! `robocal session`: a whole calibration session in one command (see [`crate::session`]).
+//!
+//! ```text
+//! robocal session --sim SCENARIO.toml --out DIR [--arm NAME] [--accept ACCEPT.toml]   # dry run
+//! robocal session --devices CELL.toml --live [--yes] --out DIR                          # hardware
+//! robocal session --resume DIR                                                          # continue
+//! robocal session --sim SCENARIO.toml --out DIR --plan-only                            # plan only
+//! ```
+//! Exit code: 0 PASS (or `--plan-only` done), 2 FAIL / INCOMPLETE, 1 error.
+//! This adapter reads the cell file into a [`CellDescription`] and supplies the devices: the
+//! acquisition is `robocal run`'s (same run directories, same safety wrappers, same resume).
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _};
+use robocal_mocks::Scenario;
+
+use crate::acquire::RunSummary;
+use crate::plan::cell::{CellGeometry, Occluder, VolumeFrustum};
+use crate::plan::spec::FrameSpec;
+use crate::session::{self, AcceptSpec, CellDescription, Mode, SessionSetup};
+
+/// The default plan spec (seed 001 annulus).
+const DEFAULT_SPEC: &str = include_str!("../../plans/seed001-annulus.toml");
+
+/// Arguments of `robocal session`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// Dry run against the simulated cell of this scenario.
+    #[arg(long, value_name = "SCENARIO.toml", conflicts_with_all = ["devices", "live", "resume"])]
+    pub sim: Option<PathBuf>,
+    /// Real hardware described by this device file (needs --live).
+    #[arg(long, value_name = "CELL.toml", conflicts_with = "resume")]
+    pub devices: Option<PathBuf>,
+    /// Allow real motion. Nothing moves on hardware without it.
+    #[arg(long, requires = "devices")]
+    pub live: bool,
+    /// Do not ask for confirmation before moving real hardware.
+    #[arg(long)]
+    pub yes: bool,
+    /// The session directory to create.
+    #[arg(long, value_name = "DIR", required_unless_present = "resume")]
+    pub out: Option<PathBuf>,
+    /// Continue the session in this directory at whichever stage stopped.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["out", "spec", "accept", "plan_only"])]
+    pub resume: Option<PathBuf>,
+    /// Stop after planning (plans, summaries, URScript / PacScript in DIR/plan/).
+    #[arg(long)]
+    pub plan_only: bool,
+    /// Acceptance criteria (strict TOML, see accept/*.toml); default accept/surgical.toml.
+    #[arg(long, value_name = "ACCEPT.toml")]
+    pub accept: Option<PathBuf>,
+    /// Plan spec (default plans/seed001-annulus.toml); the cell file's geometry replaces its
+    /// tracker and tool.
+    #[arg(long, value_name = "SPEC.toml")]
+    pub spec: Option<PathBuf>,
+    /// Which arm of a multi-arm scenario (default: the first).
+    #[arg(long, value_name = "NAME")]
+    pub arm: Option<String>,
+    /// Training poses kept (greedy D-optimal selection).
+    #[arg(long, default_value_t = 120)]
+    pub poses: usize,
+    /// Held-out validation points (separate plan, another seed).
+    #[arg(long, default_value_t = 40)]
+    pub heldout_points: usize,
+    /// Tracker frames averaged per pose.
+    #[arg(long, default_value_t = 30)]
+    pub frames: usize,
+    /// Joint speed cap (deg/s).
+    #[arg(long, default_value_t = 60.0)]
+    pub speed_deg_s: f64,
+    /// Joint acceleration cap (deg/s²).
+    #[arg(long, default_value_t = 120.0)]
+    pub accel_deg_s2: f64,
+    /// Operator's note for the report.
+    #[arg(long, value_name = "TEXT")]
+    pub note: Option<String>,
+    /// Dry run with in-process simulated devices instead of the wire protocols (faster).
+    #[arg(long)]
+    pub in_process: bool,
+    /// Fleet history to record the session in: a SQLite file or a postgres:// URL (default:
+    /// $ROBOCAL_DB, else robocal-history.sqlite).
+    #[arg(long, value_name = "LOC")]
+    pub history: Option<String>,
+    /// Do not record the session in the fleet history.
+    #[arg(long, conflicts_with = "history")]
+    pub no_history: bool,
+    /// Print session.json on stdout at the end.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn frame(p: &robocal_mocks::scenario::Placement) -> FrameSpec {
+    FrameSpec {
+        xyz: p.xyz_mm,
+        rpy: p.rpy_deg,
+    }
+}
+
+/// The cell as the scenario file states it, for arm `arm` (index), and the single-arm
+/// scenario the session runs on.
+pub fn describe_scenario(
+    sc: &Scenario,
+    arm: Option<&str>,
+) -> anyhow::Result<(CellDescription, Scenario)> {
+    let a = match arm {
+        Some(n) => sc
+            .arms
+            .iter()
+            .find(|a| a.name == n)
+            .with_context(|| format!("scenario {:?} has no arm named {n:?}", sc.name))?,
+        None => sc
+            .arms
+            .first()
+            .with_context(|| format!("scenario {:?} has no arm", sc.name))?,
+    };
+    let mut one = sc.clone();
+    one.arms = vec![a.clone()];
+    one.trackers.retain(|t| t.arm == a.name);
+    one.lasers.retain(|l| l.arm == a.name);
+    one.cameras
+        .retain(|c| c.arm.as_deref().is_none_or(|n| n == a.name));
+    let t = one.trackers.first();
+    let geometry = t.map(|t| {
+        let vol = t.effects.volume.unwrap_or(match t.kind {
+            robocal_mocks::scenario::TrackerKind::NdiOptotrakCertus => {
+                robocal_mocks::scenario::VolumeKind::Optotrak
+            }
+            _ => robocal_mocks::scenario::VolumeKind::PolarisPyramid,
+        });
+        CellGeometry {
+            tracker_pose: frame(&t.tracker_in_base),
+            volume: robocal_mocks::world::sensors::volume_frustum(vol).map(
+                |(near_mm, far_mm, tan_x, tan_y)| VolumeFrustum {
+                    near_mm,
+                    far_mm,
+                    tan_x,
+                    tan_y,
+                },
+            ),
+            max_view_angle_deg: t.effects.max_view_angle_deg,
+            occluders: t
+                .effects
+                .occluders
+                .iter()
+                .map(|o| Occluder {
+                    center_mm: o.center_mm,
+                    radius_mm: o.radius_mm,
+                })
+                .collect(),
+            margin_mm: 25.0,
+            margin_deg: 3.0,
+        }
+    });
+    let mut sensors: Vec<String> = one
+        .lasers
+        .iter()
+        .map(|l| format!("laser {} ({})", l.name, l.kind))
+        .collect();
+    sensors.extend(one.cameras.iter().map(|c| format!("camera {}", c.name)));
+    Ok((
+        CellDescription {
+            robot_model: a.model.clone(),
+            robot_serial: Some(a.serial.clone()),
+            controller: Some(protocol_name(&a.protocol)),
+            tracker: t.map(|t| format!("{} ({})", t.kind.as_str(), protocol_name(&t.protocol))),
+            tracker_serial: t.map(|t| t.name.clone()),
+            sensors,
+            marker_on_flange: t.map(|t| frame(&t.marker_on_flange)),
+            home_deg: a.home_deg.clone(),
+            geometry,
+            tracker_rate_hz: t.map(|t| t.rate_hz),
+            settle_s: Some(a.motion.settle_s),
+        },
+        one,
+    ))
+}
+
+fn protocol_name<T: serde::Serialize>(p: &T) -> String {
+    serde_json::to_value(p)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| "?".into())
+}
+
+/// The cell as a device file states it (no geometry: visibility from the plan spec).
+fn describe_devices(path: &Path) -> anyhow::Result<CellDescription> {
+    use crate::acquire::devices::{DevicesFile, Role};
+    let f = DevicesFile::read(path)?;
+    let arm = f
+        .devices
+        .iter()
+        .find(|d| d.role == Role::Arm)
+        .with_context(|| format!("{}: no device with role = \"arm\"", path.display()))?;
+    let tracker = f.devices.iter().find(|d| d.role == Role::Tracker);
+    let model = arm.model.clone().with_context(|| {
+        format!(
+            "{}: device {:?}: add `model = \"denso-vs060\"` (the robot preset) for a session",
+            path.display(),
+            arm.name
+        )
+    })?;
+    Ok(CellDescription {
+        robot_model: model,
+        // The arm reports its serial number when it connects (dataset header).
+        robot_serial: None,
+        controller: Some(protocol_name(&arm.protocol)),
+        tracker: tracker.map(|t| format!("{} ({})", t.vendor, protocol_name(&t.protocol))),
+        tracker_serial: tracker.map(|t| t.name.clone()),
+        sensors: f
+            .devices
+            .iter()
+            .filter(|d| matches!(d.role, Role::Laser | Role::Camera))
+            .map(|d| format!("{:?} {}", d.role, d.name))
+            .collect(),
+        ..Default::default()
+    })
+}
+
+/// The devices of the session: `robocal run`'s acquisition on the session's cell file copy.
+struct RunCell {
+    mode: Mode,
+    cell_file: PathBuf,
+    setup: SessionSetup,
+    in_process: bool,
+    yes: bool,
+}
+
+impl session::Cell for RunCell {
+    fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        let resume = run_dir.join("run.json").is_file();
+        let live = self.mode == Mode::Live;
+        let args = super::run::Args {
+            plan: (!resume).then(|| plan.to_path_buf()),
+            sim: (!resume && !live).then(|| self.cell_file.clone()),
+            devices: (!resume && live).then(|| self.cell_file.clone()),
+            live: live && !resume,
+            yes: self.yes,
+            out: (!resume).then(|| run_dir.to_path_buf()),
+            resume: resume.then(|| run_dir.to_path_buf()),
+            virtual_clock: !live,
+            speed_deg_s: self.setup.speed_deg_s,
+            accel_deg_s2: self.setup.accel_deg_s2,
+            frames: self.setup.frames,
+            max_poses: None,
+            json: false,
+            in_process: self.in_process,
+            camera: false,
+            no_camera: !resume,
+            board: None,
+        };
+        super::run::exec(args)?;
+        let p = run_dir.join("summary.json");
+        let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{}", p.display()))
+    }
+}
+
+fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
+    let Some(dir) = &a.out else {
+        bail!("--out DIR is required (or --resume DIR)");
+    };
+    let accept = match &a.accept {
+        Some(p) => AcceptSpec::from_file(p)?,
+        None => AcceptSpec::default_surgical(),
+    };
+    let spec_text = match &a.spec {
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
+        None => DEFAULT_SPEC.to_string(),
+    };
+    crate::plan::PlanSpec::from_toml_str(&spec_text).with_context(|| {
+        format!(
+            "plan spec {}",
+            a.spec
+                .as_ref()
+                .map_or("(default)".into(), |p| p.display().to_string())
+        )
+    })?;
+    if a.poses < 10 || a.heldout_points < 5 {
+        bail!("--poses must be ≥ 10 and --heldout-points ≥ 5");
+    }
+    let (mode, cell, cell_file, scenario_text) = match (&a.sim, &a.devices) {
+        (Some(s), None) => {
+            let sc = Scenario::load(s).with_context(|| format!("reading {}", s.display()))?;
+            if sc.arms.len() > 1 && a.arm.is_none() {
+                eprintln!(
+                    "note: {} has {} arms; this session calibrates {:?} (choose with --arm NAME)",
+                    s.display(),
+                    sc.arms.len(),
+                    sc.arms[0].name
+                );
+            }
+            let (cell, one) = describe_scenario(&sc, a.arm.as_deref())?;
+            if one.trackers.is_empty() {
+                bail!(
+                    "{}: arm {:?} has no tracker: a kinematic session needs one (camera cells: use \
+                     `robocal plan` + `robocal run`)",
+                    s.display(),
+                    one.arms[0].name
+                );
+            }
+            let text = toml::to_string(&one).context("writing the session's scenario")?;
+            (Mode::Sim, cell, "scenario.toml", Some(text))
+        }
+        (None, Some(d)) => {
+            if !a.live && !a.plan_only {
+                bail!(
+                    "nothing moves without --live: add --live to drive {}, or use --sim SCENARIO.toml for a dry run",
+                    d.display()
+                );
+            }
+            (Mode::Live, describe_devices(d)?, "devices.toml", None)
+        }
+        _ => bail!("give --sim SCENARIO.toml (dry run) or --devices CELL.toml --live"),
+    };
+    let setup = SessionSetup {
+        mode,
+        cell_file: cell_file.into(),
+        spec_file: "spec.toml".into(),
+        poses: a.poses,
+        heldout_points: a.heldout_points,
+        frames: a.frames.max(1),
+        speed_deg_s: a.speed_deg_s,
+        accel_deg_s2: a.accel_deg_s2,
+        operator_note: a.note.clone(),
+        plan_only: a.plan_only,
+    };
+    let src = a
+        .sim
+        .as_ref()
+        .or(a.devices.as_ref())
+        .expect("checked above");
+    session::create(dir, setup, src, cell, &spec_text, accept)?;
+    if let Some(text) = scenario_text {
+        // The session runs on the single-arm scenario (the copy keeps the original's content
+        // for the record as scenario-original.toml).
+        std::fs::copy(src, dir.join("scenario-original.toml"))?;
+        session::write_atomic(&dir.join("scenario.toml"), text.as_bytes())?;
+    }
+    Ok((dir.clone(), mode, a.plan_only))
+}
+
+/// Run `robocal session`; returns the exit code (0 PASS, 2 FAIL / INCOMPLETE).
+///
+/// A scenario with several arms (a fleet) and no `--arm` runs one session per arm in
+/// `DIR/<arm>/` and prints the fleet table (seed 001 §4.5): held-out absolute and relative
+/// error before / after per robot and the mean improvement (also `DIR/fleet.md`).
+pub fn exec(a: Args) -> anyhow::Result<i32> {
+    let fleet_dir = match (&a.sim, &a.arm, &a.resume) {
+        (Some(sim), None, None) => {
+            let sc = Scenario::load(sim).with_context(|| format!("reading {}", sim.display()))?;
+            (sc.arms.len() > 1).then(|| {
+                (
+                    a.out.clone().unwrap_or_default(),
+                    sc.arms.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
+                )
+            })
+        }
+        (None, None, Some(d)) if d.join("fleet.json").is_file() => {
+            let text = std::fs::read_to_string(d.join("fleet.json"))?;
+            let arms: Vec<String> = serde_json::from_str::<serde_json::Value>(&text)?
+                .get("arms")
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .context("fleet.json: no `arms` list")?;
+            Some((d.clone(), arms))
+        }
+        _ => None,
+    };
+    let Some((dir, arms)) = fleet_dir else {
+        return exec_one(a);
+    };
+    if a.resume.is_none() {
+        if dir.join("fleet.json").exists() {
+            bail!(
+                "{} already holds a fleet session: continue it with `robocal session --resume {}`",
+                dir.display(),
+                dir.display()
+            );
+        }
+        std::fs::create_dir_all(&dir)?;
+        let sim = a.sim.as_ref().expect("a fleet starts from --sim");
+        std::fs::copy(sim, dir.join("fleet-scenario.toml"))
+            .with_context(|| format!("copying {}", sim.display()))?;
+        session::write_atomic(
+            &dir.join("fleet.json"),
+            serde_json::to_string_pretty(&serde_json::json!({ "arms": arms }))?.as_bytes(),
+        )?;
+    }
+    let mut worst = 0;
+    let mut done = Vec::new();
+    for arm in &arms {
+        let sub = dir.join(arm);
+        eprintln!("==> fleet: arm {arm} in {}", sub.display());
+        let mut b = a.clone();
+        if sub.join("session.json").is_file() {
+            b.resume = Some(sub.clone());
+            b.sim = None;
+            b.out = None;
+        } else {
+            b.resume = None;
+            b.out = Some(sub.clone());
+            b.arm = Some(arm.clone());
+            b.sim = Some(dir.join("fleet-scenario.toml"));
+        }
+        let code = exec_one(b)?;
+        worst = worst.max(code);
+        done.push(session::SessionFile::load(&sub.join("session.json"))?);
+    }
+    let table = fleet_table(&done);
+    print!("{table}");
+    session::write_atomic(&dir.join("fleet.md"), table.as_bytes())?;
+    Ok(worst)
+}
+
+/// The seed 001 §4.5 table: per robot, held-out RMS and relative distance error before /
+/// after and their improvement; the mean improvement last.
+pub fn fleet_table(sessions: &[session::SessionFile]) -> String {
+    use std::fmt::Write as _;
+    let mut t = String::from(
+        "| robot | verdict | held-out RMS before → after (mm) | improvement | relative distance before → after (%) | improvement |\n|---|---|---|---|---|---|\n",
+    );
+    let imp = |b: Option<f64>, a: Option<f64>| match (b, a) {
+        (Some(b), Some(a)) if b > 0.0 => Some((b - a) / b * 100.0),
+        _ => None,
+    };
+    let f = |v: Option<f64>, p: usize| v.map_or("—".into(), |x| format!("{x:.p$}"));
+    let (mut ia, mut ir) = (Vec::new(), Vec::new());
+    for s in sessions {
+        let m = &s.measured;
+        let a = imp(m.heldout_rms_mm_before, m.heldout_rms_mm_after);
+        let r = imp(
+            m.relative_distance_pct_before,
+            m.relative_distance_pct_after,
+        );
+        ia.extend(a);
+        ir.extend(r);
+        let _ = writeln!(
+            t,
+            "| {} | {} | {} → {} | {} % | {} → {} | {} % |",
+            s.cell.robot_serial.as_deref().unwrap_or("?"),
+            s.verdict,
+            f(m.heldout_rms_mm_before, 3),
+            f(m.heldout_rms_mm_after, 3),
+            f(a, 1),
+            f(m.relative_distance_pct_before, 3),
+            f(m.relative_distance_pct_after, 3),
+            f(r, 1)
+        );
+    }
+    let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+    let _ = writeln!(
+        t,
+        "| mean | | | {} % | | {} % |",
+        f(mean(&ia), 1),
+        f(mean(&ir), 1)
+    );
+    t
+}
+
+fn exec_one(a: Args) -> anyhow::Result<i32> {
+    let dir = match &a.resume {
+        Some(d) => d.clone(),
+        None => start(&a)?.0,
+    };
+    let s0 = session::SessionFile::load(&dir.join("session.json"))?;
+    if s0.setup.mode == Mode::Live && !s0.setup.plan_only {
+        // The device file was validated above (or when the session began): now confirm.
+        if !a.yes {
+            use std::io::{BufRead as _, IsTerminal as _, Write as _};
+            println!(
+                "will move the arm {} through the session's poses at ≤ {} °/s",
+                s0.cell
+                    .robot_serial
+                    .as_deref()
+                    .unwrap_or(&s0.cell.robot_model),
+                s0.setup.speed_deg_s
+            );
+            if !std::io::stdin().is_terminal() {
+                bail!("confirmation needed: re-run with --yes to move the hardware");
+            }
+            print!("type `yes` to move the arm: ");
+            std::io::stdout().flush().ok();
+            let mut answer = String::new();
+            std::io::stdin().lock().read_line(&mut answer)?;
+            if answer.trim() != "yes" {
+                bail!("not confirmed: nothing moved");
+            }
+        }
+    }
+    let mut cell = RunCell {
+        mode: s0.setup.mode,
+        cell_file: dir.join(&s0.setup.cell_file),
+        setup: s0.setup.clone(),
+        in_process: a.in_process,
+        yes: true,
+    };
+    let mut log = |m: &str| eprintln!("==> {m}");
+    let s = session::run(&dir, &mut cell, &mut log)?;
+    if !s.setup.plan_only && !a.no_history {
+        let loc = crate::session::history::location(a.history.as_deref());
+        let mut h = crate::session::history::History::open(&loc)
+            .with_context(|| format!("opening the history {loc}"))?;
+        h.record(&s)
+            .with_context(|| format!("recording the session in {loc}"))?;
+        eprintln!("==> recorded in the fleet history {loc}");
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+    } else {
+        println!("{}", s.verdict_line);
+        println!(
+            "poses: {} planned, {} skipped; acquisition {:.0} s predicted, {} measured",
+            s.poses_planned,
+            s.poses_skipped,
+            s.predicted_duration_s,
+            s.duration_s.map_or("—".into(), |d| format!("{d:.0} s"))
+        );
+        let f = |v: Option<f64>| v.map_or("—".into(), |x| format!("{x:.4}"));
+        println!(
+            "held-out RMS {} → {} mm, max {} → {} mm, relative distance {} → {} %",
+            f(s.measured.heldout_rms_mm_before),
+            f(s.measured.heldout_rms_mm_after),
+            f(s.measured.heldout_max_mm_before),
+            f(s.measured.heldout_max_mm_after),
+            f(s.measured.relative_distance_pct_before),
+            f(s.measured.relative_distance_pct_after)
+        );
+        for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {
+            println!("WORSE: {w}");
+        }
+        if s.setup.plan_only {
+            println!("plan only: {}", dir.join("plan").display());
+        } else {
+            println!("report: {}", dir.join("report.html").display());
+        }
+    }
+    Ok(if s.setup.plan_only {
+        0
+    } else {
+        s.judgement.as_ref().map_or(2, |j| j.exit_code())
+    })
+}

@@ -1,0 +1,379 @@
+//! The session report as one self-contained HTML page (inline CSS and SVG, no script, no
+//! network): verdict first, SIMULATED / LIVE in large print, the cell, the criteria, plots,
+//! effects in plain words, skipped poses, what to deploy and the datasets' SHA-256.
+//!
+//! The page is built only from artifacts of ONE session: every artifact's recorded dataset
+//! SHA-256s must equal `session.json`'s, and the datasets on disk must still hash to them;
+//! otherwise rendering fails naming the artifact.
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{bail, Context as _};
+
+use crate::session::svg::{self, esc};
+use crate::session::{sha256_file, Mode, SessionFile, VerdictKind};
+
+/// Artifacts that must carry the session's dataset fingerprint (if present).
+const ARTIFACTS: [&str; 4] = [
+    "calibrate/calibration.json",
+    "diagnose/diagnosis.json",
+    "diagnose/calibration.json",
+    "deploy/calibration.json",
+];
+
+/// Checks that every artifact in `dir` belongs to the session `s` (same datasets).
+pub fn check_same_session(dir: &Path, s: &SessionFile) -> anyhow::Result<()> {
+    for d in &s.datasets {
+        let p = dir.join(&d.path);
+        let sha = sha256_file(&p)?;
+        if sha != d.sha256 {
+            bail!(
+                "{}: SHA-256 {sha} differs from the {} dataset recorded in session.json ({}): \
+                 refusing to report a session whose data changed",
+                p.display(),
+                d.role,
+                d.sha256
+            );
+        }
+    }
+    let want = s.dataset_hashes();
+    for a in ARTIFACTS {
+        let p = dir.join(a);
+        if !p.is_file() {
+            continue;
+        }
+        let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
+        match v.get("datasets") {
+            Some(got) if *got == want => {}
+            Some(got) => bail!(
+                "{}: made from datasets {got}, but this session's are {want}: refusing to combine \
+                 artifacts of different sessions",
+                p.display()
+            ),
+            None => bail!(
+                "{}: records no dataset SHA-256: cannot tell which session it belongs to",
+                p.display()
+            ),
+        }
+    }
+    Ok(())
+}
+
+fn f4(v: Option<f64>) -> String {
+    v.map_or("—".into(), |x| format!("{x:.4}"))
+}
+
+fn inline_svg(path: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let start = text.find("<svg")?;
+    // Only SVG markup (no script) is inlined.
+    if text.contains("<script") {
+        return None;
+    }
+    Some(text[start..].to_string())
+}
+
+/// Render the report of the session in `dir`.
+pub fn render_session(dir: &Path, s: &SessionFile) -> anyhow::Result<String> {
+    check_same_session(dir, s)?;
+    let mut h = String::new();
+    let (vclass, vcolour) = match s.verdict {
+        VerdictKind::Pass => ("pass", "#1a7f37"),
+        VerdictKind::Fail => ("fail", "#cf222e"),
+        VerdictKind::Incomplete => ("incomplete", "#9a6700"),
+    };
+    let mode = match s.setup.mode {
+        Mode::Sim => "SIMULATED",
+        Mode::Live => "LIVE",
+    };
+    let title = format!(
+        "{} — calibration of {} {}",
+        s.verdict,
+        s.cell.robot_model,
+        s.cell.robot_serial.as_deref().unwrap_or("")
+    );
+    let _ = write!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title>\
+<style>body{{font-family:sans-serif;max-width:1000px;margin:1em auto;padding:0 1em;color:#222}}\
+h1.verdict{{font-size:2.2em;color:white;background:{vcolour};padding:.4em .6em;border-radius:6px}}\
+.mode{{font-size:2.6em;font-weight:bold;letter-spacing:.1em;border:4px solid #333;display:inline-block;padding:.1em .5em;margin:.2em 0}}\
+table{{border-collapse:collapse;margin:.5em 0}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}\
+.worse{{color:#cf222e;font-weight:bold}}.ok{{color:#1a7f37;font-weight:bold}}.bad{{color:#cf222e;font-weight:bold}}\
+.flag{{border:3px solid #cf222e;background:#fff0f0;padding:.5em 1em;margin:1em 0}}\
+code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><body>\n",
+        esc(&title)
+    );
+    let _ = writeln!(
+        h,
+        "<h1 class=\"verdict {vclass}\" id=\"verdict\">{}</h1>",
+        esc(&s.verdict_line)
+    );
+    let _ = writeln!(h, "<div class=\"mode\" id=\"mode\">{mode}</div>");
+    if s.setup.mode == Mode::Sim {
+        h.push_str("<p>Dry run on the simulated cell: no robot moved; the numbers show what the session would measure.</p>\n");
+    }
+    if let Some(j) = &s.judgement {
+        if !j.worse.is_empty() {
+            let _ = writeln!(
+                h,
+                "<div class=\"flag\" id=\"worse\"><b>Calibration made a held-out metric WORSE:</b><ul>{}</ul></div>",
+                j.worse
+                    .iter()
+                    .map(|w| format!("<li class=\"worse\">{}</li>", esc(w)))
+                    .collect::<String>()
+            );
+        }
+    }
+    // The cell.
+    h.push_str("<h2>Cell</h2><table id=\"cell\">");
+    let row = |h: &mut String, k: &str, v: &str| {
+        let _ = write!(h, "<tr><th>{}</th><td>{}</td></tr>", esc(k), esc(v));
+    };
+    let c = &s.cell;
+    row(&mut h, "Robot", &c.robot_model);
+    row(
+        &mut h,
+        "Robot serial",
+        c.robot_serial.as_deref().unwrap_or("—"),
+    );
+    row(&mut h, "Controller", c.controller.as_deref().unwrap_or("—"));
+    row(&mut h, "Tracker", c.tracker.as_deref().unwrap_or("—"));
+    row(
+        &mut h,
+        "Tracker serial",
+        c.tracker_serial.as_deref().unwrap_or("—"),
+    );
+    row(
+        &mut h,
+        "Other sensors",
+        &if c.sensors.is_empty() {
+            "—".to_string()
+        } else {
+            c.sensors.join("; ")
+        },
+    );
+    row(&mut h, "Session started (UTC)", &s.created);
+    row(&mut h, "Last stage (UTC)", &s.updated);
+    row(
+        &mut h,
+        "Operator note",
+        s.setup.operator_note.as_deref().unwrap_or("—"),
+    );
+    row(&mut h, "Acceptance spec", &s.accept.name);
+    h.push_str("</table>\n");
+    // Criteria.
+    if let Some(j) = &s.judgement {
+        h.push_str("<h2>Acceptance criteria</h2><table id=\"criteria\"><tr><th>criterion</th><th>limit</th><th>this session</th><th>result</th></tr>");
+        for c in &j.criteria {
+            let (cls, word) = match c.ok {
+                Some(true) => ("ok", "pass"),
+                Some(false) => ("bad", "FAIL"),
+                None => ("bad", "not measured"),
+            };
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td{}>{}</td><td class=\"{cls}\">{word}</td></tr>",
+                esc(&c.name),
+                esc(&c.limit),
+                if c.value.contains("WORSE") {
+                    " class=\"worse\""
+                } else {
+                    ""
+                },
+                esc(&c.value)
+            );
+        }
+        h.push_str("</table>");
+        for i in &j.incomplete {
+            let _ = write!(h, "<p class=\"bad\">Incomplete: {}</p>", esc(i));
+        }
+    }
+    // Numbers.
+    let m = &s.measured;
+    let ba = |b: Option<f64>, a: Option<f64>| -> String {
+        let worse = matches!((b, a), (Some(b), Some(a)) if a > b);
+        format!(
+            "{} → {}{}",
+            f4(b),
+            f4(a),
+            if worse {
+                " <span class=\"worse\">WORSE</span>"
+            } else {
+                ""
+            }
+        )
+    };
+    h.push_str("<h2>Session</h2><table id=\"numbers\">");
+    let _ = write!(
+        h,
+        "<tr><th>poses planned</th><td>{}</td></tr><tr><th>poses skipped</th><td>{}</td></tr>\
+         <tr><th>predicted / measured acquisition time</th><td>{:.0} s / {}</td></tr>\
+         <tr><th>held-out poses</th><td>{}</td></tr>\
+         <tr><th>held-out RMS (mm), nominal → calibrated</th><td>{}</td></tr>\
+         <tr><th>held-out max error (mm)</th><td>{}</td></tr>\
+         <tr><th>relative distance error (%)</th><td>{}</td></tr>",
+        s.poses_planned,
+        s.poses_skipped,
+        s.predicted_duration_s,
+        s.duration_s.map_or("—".into(), |d| format!("{d:.0} s")),
+        m.heldout_poses,
+        ba(m.heldout_rms_mm_before, m.heldout_rms_mm_after),
+        ba(m.heldout_max_mm_before, m.heldout_max_mm_after),
+        ba(
+            m.relative_distance_pct_before,
+            m.relative_distance_pct_after
+        ),
+    );
+    h.push_str("</table>\n");
+    // Plots.
+    if !s.heldout_errors.is_empty() {
+        let b: Vec<f64> = s.heldout_errors.iter().map(|e| e.before_mm).collect();
+        let a: Vec<f64> = s.heldout_errors.iter().map(|e| e.after_mm).collect();
+        let _ = write!(
+            h,
+            "<h2>Held-out error before / after</h2><figure id=\"plot-per-pose\">{}</figure><figure id=\"plot-histogram\">{}</figure>",
+            svg::per_pose(&b, &a),
+            svg::histogram(&b, &a)
+        );
+    }
+    // Effects.
+    h.push_str("<h2>What the diagnosis found</h2>");
+    if s.effects.is_empty() {
+        h.push_str("<p id=\"effects\">No physical effect beyond the geometry was found.</p>");
+    } else {
+        h.push_str("<ul id=\"effects\">");
+        for e in &s.effects {
+            let cls = if e.words.contains("WORSE") {
+                " class=\"worse\""
+            } else {
+                ""
+            };
+            let _ = write!(h, "<li{cls}>{}</li>", esc(&e.words));
+        }
+        h.push_str("</ul>");
+        for e in &s.effects {
+            if let Some(svg) = e.plot.as_ref().and_then(|p| inline_svg(&dir.join(p))) {
+                let _ = write!(
+                    h,
+                    "<figure class=\"effect-plot\"><figcaption>Residual against its regressor: {}</figcaption>{svg}</figure>",
+                    esc(&e.kind)
+                );
+            }
+        }
+    }
+    // Parameters.
+    if !s.params.is_empty() {
+        h.push_str("<h2>Parameter changes (calibrated − nominal, 95 % interval)</h2>");
+        for unit in ["mm", "deg"] {
+            let rows: Vec<(String, f64, Option<f64>)> = s
+                .params
+                .iter()
+                .filter(|p| {
+                    p.unit == unit && !p.name.starts_with("base") && !p.name.starts_with("tool")
+                })
+                .map(|p| (p.name.clone(), p.value - p.nominal, p.ci95))
+                .collect();
+            if !rows.is_empty() {
+                let _ = write!(
+                    h,
+                    "<figure class=\"plot-params\">{}</figure>",
+                    svg::param_changes(&format!("Arm parameters ({unit})"), unit, &rows)
+                );
+            }
+        }
+        h.push_str("<table id=\"params\"><tr><th>parameter</th><th>nominal</th><th>calibrated</th><th>change</th><th>95 % ±</th></tr>");
+        for p in &s.params {
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{:.5} {u}</td><td>{:.5} {u}</td><td>{:+.5}</td><td>{}</td></tr>",
+                esc(&p.name),
+                p.nominal,
+                p.value,
+                p.value - p.nominal,
+                p.ci95.map_or("—".into(), |c| format!("{c:.5}")),
+                u = esc(&p.unit)
+            );
+        }
+        h.push_str("</table>");
+    }
+    // Skipped.
+    h.push_str("<h2>Skipped poses</h2>");
+    if s.skipped.is_empty() {
+        h.push_str("<p id=\"skipped\">None: every planned pose was measured.</p>");
+    } else {
+        h.push_str("<table id=\"skipped\"><tr><th>set</th><th>pose</th><th>why</th></tr>");
+        for k in &s.skipped {
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(&k.set),
+                k.id,
+                esc(&k.reason)
+            );
+        }
+        h.push_str("</table>");
+    }
+    if !s.plan_rejects.is_empty() {
+        let _ = write!(
+            h,
+            "<p>Candidate poses the planner left out before moving (cell geometry, limits): {}.</p>",
+            esc(&s
+                .plan_rejects
+                .iter()
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect::<Vec<_>>()
+                .join(", "))
+        );
+    }
+    // Deploy.
+    h.push_str("<h2>What to deploy</h2>");
+    if s.deploy.is_empty() {
+        h.push_str("<p>Nothing yet: the session did not finish.</p>");
+    } else if s.verdict != VerdictKind::Pass {
+        h.push_str(
+            "<p class=\"bad\">Do not deploy: the session did not pass its acceptance criteria.</p>",
+        );
+    }
+    if !s.deploy.is_empty() {
+        h.push_str("<ul id=\"deploy\">");
+        for d in &s.deploy {
+            let what = if d.ends_with(".urdf") {
+                "the calibrated geometry as URDF (metres, radians): load it in ROS / the navigation software in place of the nominal model; effects are not in it"
+            } else {
+                "the calibration file (robocal-calibration/1: geometry and effects, mm / degrees): `robocal predict --calibration` applies it"
+            };
+            let _ = write!(h, "<li><code>{}</code>: {}</li>", esc(d), esc(what));
+        }
+        h.push_str("</ul>");
+    }
+    // Provenance.
+    h.push_str("<h2>Datasets</h2><table id=\"datasets\"><tr><th>role</th><th>file</th><th>poses</th><th>SHA-256</th></tr>");
+    for d in &s.datasets {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td><code>{}</code></td><td>{}</td><td><code>{}</code></td></tr>",
+            esc(&d.role),
+            esc(&d.path),
+            d.records,
+            esc(&d.sha256)
+        );
+    }
+    h.push_str("</table>");
+    if !s.warnings.is_empty() {
+        h.push_str("<h2>Warnings</h2><ul>");
+        for w in &s.warnings {
+            let _ = write!(h, "<li>{}</li>", esc(w));
+        }
+        h.push_str("</ul>");
+    }
+    let _ = write!(
+        h,
+        "<p><small>robocal {} · session.json format {}</small></p></body></html>\n",
+        env!("CARGO_PKG_VERSION"),
+        esc(&s.format)
+    );
+    Ok(h)
+}

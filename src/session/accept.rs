@@ -1,0 +1,448 @@
+//! Acceptance specification (`ACCEPT.toml`, strict TOML) and the session verdict.
+//!
+//! Thresholds on the held-out validation set (mm, %, fractions): RMS and max error after
+//! calibration, mean relative distance error, "must not get worse than nominal", skipped
+//! fraction of the planned poses, and the largest 95 % half-interval of a parameter.
+//! A criterion whose number is missing makes the verdict INCOMPLETE, never PASS.
+use std::fmt;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// Errors reading an acceptance specification.
+#[derive(Debug, Error)]
+pub enum AcceptError {
+    /// The file cannot be read.
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    /// Not valid TOML or an unknown / mistyped field.
+    #[error("{path}: {message}")]
+    Parse { path: String, message: String },
+    /// A threshold out of range.
+    #[error("{path}: field `{field}`: {message}")]
+    Invalid {
+        path: String,
+        field: String,
+        message: String,
+    },
+}
+
+/// `ACCEPT.toml`: the acceptance criteria of a use case. Every field is optional except the
+/// name; an absent threshold is not checked.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AcceptSpec {
+    /// Name of the use case (`surgical-navigation`, ...).
+    pub name: String,
+    /// Free text shown in the report.
+    #[serde(default)]
+    pub description: Option<String>,
+    /// Held-out RMS position error after calibration must be ≤ this (mm).
+    #[serde(default)]
+    pub heldout_rms_mm_max: Option<f64>,
+    /// Held-out largest position error after calibration must be ≤ this (mm).
+    #[serde(default)]
+    pub heldout_max_mm_max: Option<f64>,
+    /// Held-out mean relative distance error after calibration must be ≤ this (%).
+    #[serde(default)]
+    pub relative_distance_pct_max: Option<f64>,
+    /// Every held-out metric must be no worse after calibration than with the nominal model.
+    #[serde(default = "yes")]
+    pub must_improve: bool,
+    /// Skipped poses / planned poses (training + validation) must be ≤ this (0..1).
+    #[serde(default)]
+    pub skipped_fraction_max: Option<f64>,
+    /// The largest 95 % half-interval of a fitted length parameter must be ≤ this (mm).
+    #[serde(default)]
+    pub param_ci95_mm_max: Option<f64>,
+    /// The largest 95 % half-interval of a fitted angle parameter must be ≤ this (deg).
+    #[serde(default)]
+    pub param_ci95_deg_max: Option<f64>,
+    /// At least this many held-out poses (else INCOMPLETE).
+    #[serde(default = "d_min_heldout")]
+    pub min_heldout_poses: usize,
+}
+
+fn yes() -> bool {
+    true
+}
+fn d_min_heldout() -> usize {
+    10
+}
+
+impl AcceptSpec {
+    /// Parse and validate; `path` names the file in errors.
+    pub fn from_toml_str(text: &str, path: &str) -> Result<AcceptSpec, AcceptError> {
+        let spec: AcceptSpec = toml::from_str(text).map_err(|e| AcceptError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
+        let check = |field: &str, v: Option<f64>, max: f64| -> Result<(), AcceptError> {
+            match v {
+                Some(x) if !(x.is_finite() && x > 0.0 && x <= max) => Err(AcceptError::Invalid {
+                    path: path.into(),
+                    field: field.into(),
+                    message: format!("{x} is not a positive number ≤ {max}"),
+                }),
+                _ => Ok(()),
+            }
+        };
+        check("heldout_rms_mm_max", spec.heldout_rms_mm_max, 1e4)?;
+        check("heldout_max_mm_max", spec.heldout_max_mm_max, 1e4)?;
+        check(
+            "relative_distance_pct_max",
+            spec.relative_distance_pct_max,
+            100.0,
+        )?;
+        check("skipped_fraction_max", spec.skipped_fraction_max, 1.0)?;
+        check("param_ci95_mm_max", spec.param_ci95_mm_max, 1e4)?;
+        check("param_ci95_deg_max", spec.param_ci95_deg_max, 360.0)?;
+        Ok(spec)
+    }
+
+    /// Read an `ACCEPT.toml` file.
+    pub fn from_file(path: &Path) -> Result<AcceptSpec, AcceptError> {
+        let text = std::fs::read_to_string(path).map_err(|source| AcceptError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// The shipped default (`accept/surgical.toml`).
+    pub fn default_surgical() -> AcceptSpec {
+        Self::from_toml_str(SURGICAL, "accept/surgical.toml").expect("shipped spec is valid")
+    }
+}
+
+/// The shipped default acceptance spec (surgical navigation).
+pub const SURGICAL: &str = include_str!("../../accept/surgical.toml");
+
+/// The numbers a verdict is computed from (all held-out unless named otherwise).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Measured {
+    /// Planned poses, training + validation.
+    pub poses_planned: usize,
+    /// Skipped poses, training + validation.
+    pub poses_skipped: usize,
+    /// Held-out poses scored.
+    pub heldout_poses: usize,
+    /// Held-out RMS (mm) with the nominal model and after calibration.
+    pub heldout_rms_mm_before: Option<f64>,
+    pub heldout_rms_mm_after: Option<f64>,
+    /// Held-out max error (mm).
+    pub heldout_max_mm_before: Option<f64>,
+    pub heldout_max_mm_after: Option<f64>,
+    /// Held-out mean relative distance error (%).
+    pub relative_distance_pct_before: Option<f64>,
+    pub relative_distance_pct_after: Option<f64>,
+    /// Largest 95 % half-interval of a free length parameter (mm) and angle parameter (deg).
+    pub param_ci95_mm: Option<f64>,
+    pub param_ci95_deg: Option<f64>,
+}
+
+impl Measured {
+    /// The held-out metrics calibration made worse: `(name, before, after)`.
+    pub fn worse(&self) -> Vec<(String, f64, f64)> {
+        let mut v = Vec::new();
+        let mut push = |name: &str, b: Option<f64>, a: Option<f64>| {
+            if let (Some(b), Some(a)) = (b, a) {
+                if a > b {
+                    v.push((name.to_string(), b, a));
+                }
+            }
+        };
+        push(
+            "held-out RMS (mm)",
+            self.heldout_rms_mm_before,
+            self.heldout_rms_mm_after,
+        );
+        push(
+            "held-out max error (mm)",
+            self.heldout_max_mm_before,
+            self.heldout_max_mm_after,
+        );
+        push(
+            "relative distance error (%)",
+            self.relative_distance_pct_before,
+            self.relative_distance_pct_after,
+        );
+        v
+    }
+}
+
+/// PASS, FAIL or INCOMPLETE.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "UPPERCASE")]
+pub enum VerdictKind {
+    Pass,
+    Fail,
+    Incomplete,
+}
+
+impl fmt::Display for VerdictKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            VerdictKind::Pass => "PASS",
+            VerdictKind::Fail => "FAIL",
+            VerdictKind::Incomplete => "INCOMPLETE",
+        })
+    }
+}
+
+/// One criterion and how the session did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Criterion {
+    /// What is checked, in words.
+    pub name: String,
+    /// The limit, in words (`≤ 0.5 mm`).
+    pub limit: String,
+    /// The session's value, in words (`0.21 mm`), or `missing`.
+    pub value: String,
+    /// `true` passed, `false` failed, `None` could not be evaluated.
+    pub ok: Option<bool>,
+}
+
+/// The verdict with every criterion.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Verdict {
+    pub verdict: VerdictKind,
+    /// The acceptance spec's name.
+    pub accept: String,
+    pub criteria: Vec<Criterion>,
+    /// Held-out metrics that got worse with calibration (flagged everywhere).
+    pub worse: Vec<String>,
+    /// Why the verdict is INCOMPLETE (stages not run, data missing).
+    #[serde(default)]
+    pub incomplete: Vec<String>,
+}
+
+impl Verdict {
+    /// `PASS`, `FAIL: a; b` or `INCOMPLETE: ...` in one line.
+    pub fn line(&self) -> String {
+        match self.verdict {
+            VerdictKind::Pass => format!("PASS ({})", self.accept),
+            VerdictKind::Fail => format!(
+                "FAIL ({}): {}",
+                self.accept,
+                self.failed()
+                    .iter()
+                    .map(|c| format!("{} = {} (limit {})", c.name, c.value, c.limit))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ),
+            VerdictKind::Incomplete => {
+                let mut why = self.incomplete.clone();
+                why.extend(
+                    self.criteria
+                        .iter()
+                        .filter(|c| c.ok.is_none())
+                        .map(|c| format!("{} not measured", c.name)),
+                );
+                format!("INCOMPLETE ({}): {}", self.accept, why.join("; "))
+            }
+        }
+    }
+
+    /// The failed criteria.
+    pub fn failed(&self) -> Vec<&Criterion> {
+        self.criteria
+            .iter()
+            .filter(|c| c.ok == Some(false))
+            .collect()
+    }
+
+    /// Process exit code: 0 PASS, 2 FAIL / INCOMPLETE.
+    pub fn exit_code(&self) -> i32 {
+        match self.verdict {
+            VerdictKind::Pass => 0,
+            _ => 2,
+        }
+    }
+}
+
+fn le(name: &str, unit: &str, v: Option<f64>, limit: Option<f64>, out: &mut Vec<Criterion>) {
+    let Some(lim) = limit else { return };
+    out.push(Criterion {
+        name: name.into(),
+        limit: format!("≤ {lim} {unit}"),
+        value: v.map_or("missing".into(), |x| format!("{x:.4} {unit}")),
+        ok: v.filter(|x| x.is_finite()).map(|x| x <= lim),
+    });
+}
+
+/// Judge `m` against `spec`. `incomplete` lists stages that did not finish.
+pub fn judge(spec: &AcceptSpec, m: &Measured, incomplete: Vec<String>) -> Verdict {
+    let mut c = Vec::new();
+    le(
+        "held-out RMS error",
+        "mm",
+        m.heldout_rms_mm_after,
+        spec.heldout_rms_mm_max,
+        &mut c,
+    );
+    le(
+        "held-out max error",
+        "mm",
+        m.heldout_max_mm_after,
+        spec.heldout_max_mm_max,
+        &mut c,
+    );
+    le(
+        "relative distance error",
+        "%",
+        m.relative_distance_pct_after,
+        spec.relative_distance_pct_max,
+        &mut c,
+    );
+    let worse = m.worse();
+    if spec.must_improve {
+        let have = m.heldout_rms_mm_before.is_some() && m.heldout_rms_mm_after.is_some();
+        c.push(Criterion {
+            name: "no held-out metric worse than nominal".into(),
+            limit: "none worse".into(),
+            value: if !have {
+                "missing".into()
+            } else if worse.is_empty() {
+                "none worse".into()
+            } else {
+                worse
+                    .iter()
+                    .map(|(n, b, a)| format!("{n} {b:.4} → {a:.4} WORSE"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            },
+            ok: have.then_some(worse.is_empty()),
+        });
+    }
+    let frac = (m.poses_planned > 0).then(|| m.poses_skipped as f64 / m.poses_planned as f64);
+    if let Some(lim) = spec.skipped_fraction_max {
+        c.push(Criterion {
+            name: "skipped poses".into(),
+            limit: format!("≤ {:.1} %", lim * 100.0),
+            value: frac.map_or("missing".into(), |f| {
+                format!(
+                    "{:.1} % ({} of {})",
+                    f * 100.0,
+                    m.poses_skipped,
+                    m.poses_planned
+                )
+            }),
+            ok: frac.map(|f| f <= lim),
+        });
+    }
+    le(
+        "parameter 95 % half-interval (lengths)",
+        "mm",
+        m.param_ci95_mm,
+        spec.param_ci95_mm_max,
+        &mut c,
+    );
+    le(
+        "parameter 95 % half-interval (angles)",
+        "deg",
+        m.param_ci95_deg,
+        spec.param_ci95_deg_max,
+        &mut c,
+    );
+    let mut incomplete = incomplete;
+    if m.heldout_poses < spec.min_heldout_poses {
+        incomplete.push(format!(
+            "only {} held-out poses (need ≥ {})",
+            m.heldout_poses, spec.min_heldout_poses
+        ));
+    }
+    let verdict = if c.iter().any(|x| x.ok == Some(false)) {
+        VerdictKind::Fail
+    } else if !incomplete.is_empty() || c.iter().any(|x| x.ok.is_none()) {
+        VerdictKind::Incomplete
+    } else {
+        VerdictKind::Pass
+    };
+    Verdict {
+        verdict,
+        accept: spec.name.clone(),
+        criteria: c,
+        worse: worse
+            .iter()
+            .map(|(n, b, a)| format!("{n}: {b:.4} → {a:.4} (WORSE after calibration)"))
+            .collect(),
+        incomplete,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn good() -> Measured {
+        Measured {
+            poses_planned: 160,
+            poses_skipped: 2,
+            heldout_poses: 40,
+            heldout_rms_mm_before: Some(0.7),
+            heldout_rms_mm_after: Some(0.05),
+            heldout_max_mm_before: Some(1.5),
+            heldout_max_mm_after: Some(0.12),
+            relative_distance_pct_before: Some(0.27),
+            relative_distance_pct_after: Some(0.02),
+            param_ci95_mm: Some(0.05),
+            param_ci95_deg: Some(0.004),
+        }
+    }
+
+    #[test]
+    fn shipped_specs_parse_and_a_good_session_passes() {
+        let s = AcceptSpec::default_surgical();
+        let v = judge(&s, &good(), vec![]);
+        assert_eq!(v.verdict, VerdictKind::Pass, "{}", v.line());
+        assert_eq!(v.exit_code(), 0);
+        for f in ["surgical.toml", "research.toml"] {
+            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("accept").join(f);
+            AcceptSpec::from_file(&p).unwrap();
+        }
+    }
+
+    #[test]
+    fn worse_relative_distance_fails_and_is_flagged() {
+        let s = AcceptSpec::default_surgical();
+        let mut m = good();
+        m.relative_distance_pct_before = Some(0.27);
+        m.relative_distance_pct_after = Some(0.77);
+        let v = judge(&s, &m, vec![]);
+        assert_eq!(v.verdict, VerdictKind::Fail);
+        assert_eq!(v.exit_code(), 2);
+        assert!(v.line().contains("WORSE"), "{}", v.line());
+        assert_eq!(v.worse.len(), 1);
+    }
+
+    #[test]
+    fn too_many_skipped_fails_and_missing_numbers_are_incomplete() {
+        let s = AcceptSpec::default_surgical();
+        let mut m = good();
+        m.poses_skipped = 100;
+        assert_eq!(judge(&s, &m, vec![]).verdict, VerdictKind::Fail);
+        let mut m = good();
+        m.heldout_rms_mm_after = None;
+        let v = judge(&s, &m, vec![]);
+        assert_eq!(v.verdict, VerdictKind::Incomplete, "{}", v.line());
+        let v = judge(&s, &good(), vec!["validation run stopped".into()]);
+        assert_eq!(v.verdict, VerdictKind::Incomplete);
+    }
+
+    #[test]
+    fn strict_toml_names_the_bad_field() {
+        let e = AcceptSpec::from_toml_str("name = \"x\"\nheldout_rms = 1.0\n", "a.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a.toml") && e.contains("heldout_rms"), "{e}");
+        let e = AcceptSpec::from_toml_str("name = \"x\"\nheldout_rms_mm_max = -1.0\n", "a.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("heldout_rms_mm_max"), "{e}");
+    }
+}

@@ -1,0 +1,923 @@
+//! A whole calibration session in one call (`robocal session`): plan → acquire the training
+//! and the separate validation set → calibrate → diagnose → validate → verdict → report.
+//!
+//! The session directory holds every stage's output and `session.json`
+//! (`robocal-session/1`, [`SessionFile`]), rewritten after each stage, so `--resume DIR`
+//! continues at whichever stage stopped (acquisition resumes pose by pose as `robocal run
+//! --resume` does). The cell (simulated or real devices) is supplied by the caller as a
+//! [`Cell`]: this module never opens a device and never sees the simulator's truth.
+//!
+//! Layout of `DIR`:
+//! `session.json`, `accept.toml`, `spec.toml` (the plan spec as used), `plan/train.json`,
+//! `plan/validation.json` (+ `.txt` summaries, `.script` / `.pcs` exports),
+//! `run-train/`, `run-validation/` (run directories), `calibrate/calibration.json`,
+//! `diagnose/` (diagnosis, effect plots, final calibration), `deploy/` (calibration file and
+//! URDF of the calibrated geometry), `report.html`.
+//! Units: mm, degrees, seconds in every file.
+pub mod accept;
+pub mod deploy;
+pub mod history;
+pub mod svg;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _};
+use serde::{Deserialize, Serialize};
+use sha2::Digest as _;
+
+use crate::acquire::RunSummary;
+use crate::dataset::{Dataset, RobotBlock};
+use crate::model::{KinematicModel, Unit};
+use crate::plan::{self, cell::CellGeometry, export, PlanOptions, PlanSpec};
+use crate::solve::kinematics::{identify, IdentOptions};
+use crate::solve::{calfile, metrics};
+pub use accept::{AcceptSpec, Measured, Verdict, VerdictKind};
+
+/// `session.json` format tag.
+pub const SESSION_FORMAT: &str = "robocal-session/1";
+
+/// The stages, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Stage {
+    Plan,
+    AcquireTrain,
+    AcquireValidation,
+    Calibrate,
+    Diagnose,
+    Validate,
+    Report,
+}
+
+impl Stage {
+    /// All stages in order.
+    pub const ALL: [Stage; 7] = [
+        Stage::Plan,
+        Stage::AcquireTrain,
+        Stage::AcquireValidation,
+        Stage::Calibrate,
+        Stage::Diagnose,
+        Stage::Validate,
+        Stage::Report,
+    ];
+}
+
+/// `sim` (dry run on the simulated cell) or `live` (hardware).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    Sim,
+    Live,
+}
+
+/// What the cell file says about the cell (robot, controller, sensors, geometry).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellDescription {
+    /// Robot preset (`denso-vs060`, `ur5e`).
+    pub robot_model: String,
+    /// Robot serial number.
+    pub robot_serial: Option<String>,
+    /// Controller / protocol (`bcap`, `rtde`).
+    pub controller: Option<String>,
+    /// Tracker kind and serial / device name.
+    pub tracker: Option<String>,
+    pub tracker_serial: Option<String>,
+    /// Other sensors (laser, camera), one line each.
+    #[serde(default)]
+    pub sensors: Vec<String>,
+    /// Marker (tool) origin in the flange frame, as the cell file states it.
+    pub marker_on_flange: Option<plan::spec::FrameSpec>,
+    /// Home joint angles (deg).
+    pub home_deg: Option<Vec<f64>>,
+    /// Where the tracker stands, its volume, occluders (if the cell file says).
+    pub geometry: Option<CellGeometry>,
+    /// Tracker frame rate (Hz), for the time model.
+    pub tracker_rate_hz: Option<f64>,
+    /// Arm settling time after a move (s), for the time model.
+    pub settle_s: Option<f64>,
+}
+
+/// How the session was started (everything `--resume` needs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SessionSetup {
+    pub mode: Mode,
+    /// The cell file copy in the session directory (`scenario.toml` / `devices.toml`).
+    pub cell_file: String,
+    /// The plan spec copy (`spec.toml`).
+    pub spec_file: String,
+    /// Training poses kept by D-optimal selection.
+    pub poses: usize,
+    /// Validation (held-out) points.
+    pub heldout_points: usize,
+    /// Tracker frames averaged per pose.
+    pub frames: usize,
+    /// Joint speed / acceleration caps (deg/s, deg/s²).
+    pub speed_deg_s: f64,
+    pub accel_deg_s2: f64,
+    /// Operator's note for the report.
+    pub operator_note: Option<String>,
+    /// Stop after planning.
+    pub plan_only: bool,
+}
+
+/// One dataset of the session and its SHA-256.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetRef {
+    /// `train` or `validation`.
+    pub role: String,
+    /// Path relative to the session directory.
+    pub path: String,
+    /// SHA-256 of the file (hex).
+    pub sha256: String,
+    /// Pose records in it.
+    pub records: usize,
+}
+
+/// A skipped pose and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Skip {
+    /// `train` or `validation`.
+    pub set: String,
+    pub id: u64,
+    pub reason: String,
+}
+
+/// A fitted parameter: change from nominal and 95 % interval (file units mm / deg).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParamChange {
+    pub name: String,
+    /// `mm` or `deg`.
+    pub unit: String,
+    pub nominal: f64,
+    pub value: f64,
+    /// 1.96 σ (None when the covariance is unavailable).
+    pub ci95: Option<f64>,
+}
+
+/// An effect found by the diagnosis, in plain words.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EffectFound {
+    /// Kind key (`joint-compliance`, ...).
+    pub kind: String,
+    /// One sentence for a field engineer.
+    pub words: String,
+    /// Held-out RMS before / after adding it (mm).
+    pub heldout_rms_mm_before: Option<f64>,
+    pub heldout_rms_mm_after: Option<f64>,
+    /// Its residual plot (relative path), if any.
+    pub plot: Option<String>,
+}
+
+/// Held-out error of one pose (mm), before and after.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseError {
+    pub id: u64,
+    pub before_mm: f64,
+    pub after_mm: f64,
+    /// Joint angles (deg).
+    pub q_deg: Vec<f64>,
+}
+
+/// `session.json` (`robocal-session/1`). The verdict is its first field.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SessionFile {
+    /// `PASS`, `FAIL` or `INCOMPLETE`.
+    pub verdict: VerdictKind,
+    /// The verdict in one line (failed criteria named).
+    pub verdict_line: String,
+    /// Always `robocal-session/1`.
+    pub format: String,
+    /// When the session started / last finished a stage (UTC ISO 8601).
+    pub created: String,
+    pub updated: String,
+    pub setup: SessionSetup,
+    pub cell: CellDescription,
+    pub accept: AcceptSpec,
+    /// Stages finished, in order.
+    pub stages_done: Vec<Stage>,
+    /// Planned poses (training + validation) and how many were skipped in acquisition.
+    pub poses_planned: usize,
+    pub poses_skipped: usize,
+    /// Candidate poses the planner dropped and why (key → count), training + validation.
+    pub plan_rejects: std::collections::BTreeMap<String, usize>,
+    pub skipped: Vec<Skip>,
+    /// The planner's predicted acquisition time (s) and the measured one (devices' clock).
+    pub predicted_duration_s: f64,
+    pub duration_s: Option<f64>,
+    /// Headline held-out numbers (mm).
+    pub heldout_rms_mm_before: Option<f64>,
+    pub heldout_rms_mm_after: Option<f64>,
+    /// Every number the verdict used.
+    pub measured: Measured,
+    /// The verdict with each criterion.
+    pub judgement: Option<Verdict>,
+    /// The datasets and their SHA-256 (every artifact of the session records them).
+    pub datasets: Vec<DatasetRef>,
+    pub params: Vec<ParamChange>,
+    pub effects: Vec<EffectFound>,
+    pub heldout_errors: Vec<PoseError>,
+    /// Files to deploy (relative paths).
+    pub deploy: Vec<String>,
+    /// Warnings collected on the way.
+    pub warnings: Vec<String>,
+}
+
+impl SessionFile {
+    /// Read and check the format tag.
+    pub fn load(path: &Path) -> anyhow::Result<SessionFile> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{} is not a session directory", path.display()))?;
+        let f: SessionFile =
+            serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
+        if f.format != SESSION_FORMAT {
+            bail!(
+                "{}: format {:?} is not {SESSION_FORMAT}",
+                path.display(),
+                f.format
+            );
+        }
+        Ok(f)
+    }
+
+    /// Write atomically.
+    pub fn save(&self, path: &Path) -> anyhow::Result<()> {
+        write_atomic(path, serde_json::to_string_pretty(self)?.as_bytes())
+    }
+
+    /// The dataset fingerprint `{role: sha256}` every artifact of this session carries.
+    pub fn dataset_hashes(&self) -> serde_json::Value {
+        let mut m = serde_json::Map::new();
+        for d in &self.datasets {
+            m.insert(d.role.clone(), serde_json::Value::String(d.sha256.clone()));
+        }
+        serde_json::Value::Object(m)
+    }
+
+    fn done(&self, s: Stage) -> bool {
+        self.stages_done.contains(&s)
+    }
+}
+
+/// The devices of a session, supplied by the caller (the CLI wires the simulator or the
+/// hardware): acquire (or resume) a plan into a run directory.
+pub trait Cell {
+    /// Run the plan at `plan` into `run_dir`, resuming if `run_dir` already holds a run.
+    /// Returns the summary of this invocation.
+    fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary>;
+}
+
+/// Write a file atomically (tmp + fsync + rename).
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    if let Some(p) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(p).with_context(|| format!("creating {}", p.display()))?;
+    }
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::File::open(&tmp)
+        .and_then(|f| f.sync_all())
+        .with_context(|| format!("syncing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+/// SHA-256 of a file, hex.
+pub fn sha256_file(path: &Path) -> anyhow::Result<String> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(sha256_hex(&bytes))
+}
+
+/// SHA-256 of bytes, hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let d = sha2::Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The plan spec of a session: the given spec with the cell's geometry, marker, home and
+/// time model (speed caps of the run, sampling at the tracker's rate, the arm's settling).
+pub fn fit_spec_to_cell(
+    spec: &mut PlanSpec,
+    cell: &CellDescription,
+    setup: &SessionSetup,
+) -> Vec<String> {
+    let mut notes = Vec::new();
+    if let Some(g) = &cell.geometry {
+        spec.cell = Some(g.clone());
+        spec.tracker = None;
+        notes.push("visibility from the cell file's tracker pose, volume and occluders".into());
+    } else {
+        notes.push(
+            "the cell file does not say where the tracker stands: visibility from the plan spec"
+                .into(),
+        );
+    }
+    if let Some(m) = &cell.marker_on_flange {
+        spec.tool = m.clone();
+    }
+    if let Some(h) = &cell.home_deg {
+        spec.timing.home_deg = Some(h.clone());
+    }
+    spec.timing.speed_deg_s = vec![setup.speed_deg_s];
+    spec.timing.accel_deg_s2 = vec![setup.accel_deg_s2];
+    let rate = cell.tracker_rate_hz.unwrap_or(60.0).max(1.0);
+    // The engine's time per pose besides the move (see `acquire::engine`): the arm settles
+    // (the detector needs its window of polls after the arm's own settling), then the tracker
+    // frames are averaged.
+    let settle_opts = crate::acquire::SettleOptions::default();
+    spec.timing.settle_s = cell.settle_s.unwrap_or(0.3)
+        + settle_opts.poll_s * settle_opts.window as f64
+        + settle_opts.window as f64 / rate;
+    spec.timing.sample_s = setup.frames as f64 / rate;
+    notes
+}
+
+/// The validation spec: the same spec, another seed, group `validation`, `points` points.
+pub fn validation_spec(spec: &PlanSpec, points: usize) -> PlanSpec {
+    let mut v = spec.clone();
+    v.name = format!("{}-validation", spec.name);
+    v.seed = spec.seed.wrapping_add(1);
+    v.group = "validation".into();
+    if let Some(a) = v.annulus.as_mut() {
+        a.points = points;
+    }
+    v
+}
+
+fn rel(dir: &Path, p: &Path) -> String {
+    p.strip_prefix(dir)
+        .unwrap_or(p)
+        .to_string_lossy()
+        .replace('\\', "/")
+}
+
+/// Starts a new session: creates `dir`, copies the cell file, spec and acceptance spec.
+#[allow(clippy::too_many_arguments)]
+pub fn create(
+    dir: &Path,
+    setup: SessionSetup,
+    cell_src: &Path,
+    cell: CellDescription,
+    spec_text: &str,
+    accept: AcceptSpec,
+) -> anyhow::Result<SessionFile> {
+    if dir.join("session.json").exists() {
+        bail!(
+            "{} already holds a session: continue it with `robocal session --resume {}`",
+            dir.display(),
+            dir.display()
+        );
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let bytes =
+        std::fs::read(cell_src).with_context(|| format!("reading {}", cell_src.display()))?;
+    write_atomic(&dir.join(&setup.cell_file), &bytes)?;
+    write_atomic(&dir.join(&setup.spec_file), spec_text.as_bytes())?;
+    write_atomic(
+        &dir.join("accept.toml"),
+        toml::to_string(&accept)?.as_bytes(),
+    )?;
+    let now = crate::acquire::utc_now_iso();
+    let f = SessionFile {
+        verdict: VerdictKind::Incomplete,
+        verdict_line: "INCOMPLETE: session started".into(),
+        format: SESSION_FORMAT.into(),
+        created: now.clone(),
+        updated: now,
+        setup,
+        cell,
+        accept,
+        stages_done: vec![],
+        poses_planned: 0,
+        poses_skipped: 0,
+        plan_rejects: Default::default(),
+        skipped: vec![],
+        predicted_duration_s: 0.0,
+        duration_s: None,
+        heldout_rms_mm_before: None,
+        heldout_rms_mm_after: None,
+        measured: Measured::default(),
+        judgement: None,
+        datasets: vec![],
+        params: vec![],
+        effects: vec![],
+        heldout_errors: vec![],
+        deploy: vec![],
+        warnings: vec![],
+    };
+    f.save(&dir.join("session.json"))?;
+    Ok(f)
+}
+
+/// What a stage prints (the CLI shows it).
+pub type Log<'a> = &'a mut dyn FnMut(&str);
+
+/// Runs (or continues) the session in `dir` up to the end (or the plan, with `plan_only`).
+pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionFile> {
+    let path = dir.join("session.json");
+    let mut s = SessionFile::load(&path)?;
+    let step = |s: &mut SessionFile, st: Stage| -> anyhow::Result<()> {
+        if !s.stages_done.contains(&st) {
+            s.stages_done.push(st);
+        }
+        s.updated = crate::acquire::utc_now_iso();
+        judge_into(s);
+        s.save(&dir.join("session.json"))
+    };
+    if !s.done(Stage::Plan) {
+        log("plan: training and validation poses fitted to the cell");
+        plan_stage(dir, &mut s, &mut *log)?;
+        step(&mut s, Stage::Plan)?;
+    }
+    if s.setup.plan_only {
+        return Ok(s);
+    }
+    for (stage, set) in [
+        (Stage::AcquireTrain, "train"),
+        (Stage::AcquireValidation, "validation"),
+    ] {
+        if s.done(stage) {
+            continue;
+        }
+        log(&format!("acquire: {set} poses"));
+        let plan_path = dir.join("plan").join(format!("{set}.json"));
+        let run_dir = dir.join(format!("run-{set}"));
+        let summary = cell.acquire(&plan_path, &run_dir).with_context(|| {
+            format!(
+                "acquiring the {set} poses (continue with `robocal session --resume {}`)",
+                dir.display()
+            )
+        })?;
+        *s.duration_s.get_or_insert(0.0) += summary.time.total_s();
+        if let Some(reason) = &summary.aborted {
+            s.save(&path)?;
+            bail!(
+                "{set} acquisition stopped: {reason} (continue with `robocal session --resume {}`)",
+                dir.display()
+            );
+        }
+        s.skipped.retain(|k| k.set != set);
+        s.skipped.extend(summary.skipped.iter().map(|k| Skip {
+            set: set.into(),
+            id: k.id,
+            reason: k.reason.clone(),
+        }));
+        s.poses_skipped = s.skipped.len();
+        let ds_path = run_dir.join("dataset.jsonl");
+        let ds = Dataset::load(&ds_path).with_context(|| format!("{}", ds_path.display()))?;
+        if s.cell.robot_serial.is_none() {
+            s.cell.robot_serial = ds.header.robot.serial.clone();
+        }
+        s.datasets.retain(|d| d.role != set);
+        s.datasets.push(DatasetRef {
+            role: set.into(),
+            path: rel(dir, &ds_path),
+            sha256: sha256_file(&ds_path)?,
+            records: ds.poses().count(),
+        });
+        log(&format!(
+            "  {} recorded, {} skipped, {:.0} s",
+            summary.recorded,
+            summary.skipped.len(),
+            summary.time.total_s()
+        ));
+        step(&mut s, stage)?;
+    }
+    if !s.done(Stage::Calibrate) {
+        log("calibrate: kinematic identification on the training poses");
+        calibrate_stage(dir, &mut s)?;
+        step(&mut s, Stage::Calibrate)?;
+    }
+    if !s.done(Stage::Diagnose) {
+        log("diagnose: residual → physical effect → add it");
+        diagnose_stage(dir, &mut s, &mut *log)?;
+        step(&mut s, Stage::Diagnose)?;
+    }
+    if !s.done(Stage::Validate) {
+        log("validate: held-out poses, before / after");
+        validate_stage(dir, &mut s)?;
+        step(&mut s, Stage::Validate)?;
+    }
+    if !s.done(Stage::Report) {
+        step(&mut s, Stage::Report)?;
+        let html = crate::report::html::render_session(dir, &s)?;
+        write_atomic(&dir.join("report.html"), html.as_bytes())?;
+        s.save(&path)?;
+    }
+    Ok(s)
+}
+
+/// Recompute the verdict from what is measured so far.
+pub fn judge_into(s: &mut SessionFile) {
+    let missing: Vec<String> = Stage::ALL
+        .iter()
+        .filter(|st| **st != Stage::Report && !s.stages_done.contains(st))
+        .map(|st| {
+            format!(
+                "stage {} not done",
+                serde_json::to_value(st)
+                    .unwrap_or_default()
+                    .as_str()
+                    .unwrap_or("?")
+            )
+        })
+        .collect();
+    let mut m = s.measured.clone();
+    m.poses_planned = s.poses_planned;
+    m.poses_skipped = s.poses_skipped;
+    s.measured = m.clone();
+    let v = accept::judge(&s.accept, &m, missing);
+    s.verdict = v.verdict;
+    s.verdict_line = v.line();
+    s.heldout_rms_mm_before = m.heldout_rms_mm_before;
+    s.heldout_rms_mm_after = m.heldout_rms_mm_after;
+    s.judgement = Some(v);
+}
+
+fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
+    let spec_path = dir.join(&s.setup.spec_file);
+    let mut spec = PlanSpec::from_file(&spec_path)
+        .with_context(|| format!("reading {}", spec_path.display()))?;
+    for n in fit_spec_to_cell(&mut spec, &s.cell, &s.setup) {
+        log(&format!("  {n}"));
+    }
+    let robot = RobotBlock {
+        model: s.cell.robot_model.clone(),
+        serial: s.cell.robot_serial.clone(),
+        chain: None,
+        flange: None,
+        extra: Default::default(),
+    };
+    let model = KinematicModel::from_robot_block(&robot).context("the cell's robot")?;
+    let vspec = validation_spec(&spec, s.setup.heldout_points);
+    let train = plan::build_plan(
+        &spec,
+        robot.clone(),
+        &model,
+        &PlanOptions {
+            select: Some(s.setup.poses),
+        },
+    )?;
+    let val = plan::build_plan(&vspec, robot, &model, &PlanOptions::default())?;
+    let pdir = dir.join("plan");
+    let mut rejects = std::collections::BTreeMap::new();
+    let mut predicted = 0.0;
+    let tm = plan::TimeModel::from_spec(&spec.timing, model.dof());
+    let (speed, accel) = (tm.vmax[0], tm.amax[0]);
+    let wait = spec.timing.settle_s + spec.timing.sample_s;
+    for (name, out) in [("train", &train), ("validation", &val)] {
+        let f = &out.file;
+        if f.poses.is_empty() {
+            bail!("the {name} plan has no feasible pose in this cell: check the spec against the cell file");
+        }
+        write_atomic(
+            &pdir.join(format!("{name}.json")),
+            serde_json::to_string_pretty(f)?.as_bytes(),
+        )?;
+        write_atomic(
+            &pdir.join(format!("{name}.txt")),
+            export::summary_text(&f.summary).as_bytes(),
+        )?;
+        // Robot programs only when every move passes the run's safety path check.
+        if f.summary.path_violations == 0 {
+            write_atomic(
+                &pdir.join(format!("{name}.script")),
+                export::to_urscript(f, speed, accel, wait).as_bytes(),
+            )?;
+            write_atomic(
+                &pdir.join(format!("{name}.pcs")),
+                export::to_pacscript(f, 20.0, wait).as_bytes(),
+            )?;
+        } else {
+            s.warnings.push(format!(
+                "{name} plan: {} moves fail the safety path check; no URScript / PacScript exported",
+                f.summary.path_violations
+            ));
+        }
+        for (k, v) in &f.summary.rejects {
+            *rejects.entry(k.clone()).or_insert(0) += v;
+        }
+        predicted += f.summary.timing.optimised_s;
+        s.warnings.extend(
+            f.summary
+                .warnings
+                .iter()
+                .map(|w| format!("{name} plan: {w}")),
+        );
+        log(&format!(
+            "  {name}: {} poses, {:.0} s predicted",
+            f.poses.len(),
+            f.summary.timing.optimised_s
+        ));
+    }
+    s.poses_planned = train.file.poses.len() + val.file.poses.len();
+    s.plan_rejects = rejects;
+    s.predicted_duration_s = predicted;
+    Ok(())
+}
+
+fn load_ds(dir: &Path, s: &SessionFile, role: &str) -> anyhow::Result<(PathBuf, Dataset)> {
+    let d = s
+        .datasets
+        .iter()
+        .find(|d| d.role == role)
+        .with_context(|| format!("no {role} dataset in the session"))?;
+    let p = dir.join(&d.path);
+    let sha = sha256_file(&p)?;
+    if sha != d.sha256 {
+        bail!(
+            "{}: SHA-256 {sha} is not the {} recorded in session.json: the dataset changed since it was acquired",
+            p.display(),
+            d.sha256
+        );
+    }
+    let ds = Dataset::load(&p).with_context(|| format!("{}", p.display()))?;
+    Ok((p, ds))
+}
+
+fn calibrate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
+    let (_, train) = load_ds(dir, s, "train")?;
+    let (_, val) = load_ds(dir, s, "validation")?;
+    let opts = IdentOptions {
+        heldout: Some(val),
+        ..Default::default()
+    };
+    let res = identify(&train, &opts).context("kinematic identification")?;
+    let mut file = calfile::ident_file(&train.header.robot, &res);
+    file.extra.insert("datasets".into(), s.dataset_hashes());
+    std::fs::create_dir_all(dir.join("calibrate"))?;
+    file.save(dir.join("calibrate").join("calibration.json"))
+        .context("writing calibrate/calibration.json")?;
+    s.params = res
+        .params
+        .iter()
+        .filter(|p| p.free)
+        .map(|p| {
+            let k = match p.unit {
+                Unit::Mm => 1.0,
+                Unit::Rad => 1f64.to_degrees(),
+            };
+            ParamChange {
+                name: p.name.clone(),
+                unit: match p.unit {
+                    Unit::Mm => "mm".into(),
+                    Unit::Rad => "deg".into(),
+                },
+                nominal: p.nominal * k,
+                value: p.value * k,
+                ci95: p.std.map(|sd| 1.96 * sd * k),
+            }
+        })
+        .collect();
+    // Base / tool parameters are not the robot's: the acceptance bounds the arm's.
+    let arm = |n: &str| !(n.starts_with("base") || n.starts_with("tool"));
+    let max_ci = |unit: &str| {
+        s.params
+            .iter()
+            .filter(|p| p.unit == unit && arm(&p.name))
+            .filter_map(|p| p.ci95)
+            .fold(None, |m: Option<f64>, c| Some(m.map_or(c, |m| m.max(c))))
+    };
+    s.measured.param_ci95_mm = max_ci("mm");
+    s.measured.param_ci95_deg = max_ci("deg");
+    Ok(())
+}
+
+fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
+    let train = dir.join(
+        &s.datasets
+            .iter()
+            .find(|d| d.role == "train")
+            .context("no train dataset")?
+            .path,
+    );
+    let val = dir.join(
+        &s.datasets
+            .iter()
+            .find(|d| d.role == "validation")
+            .context("no validation dataset")?
+            .path,
+    );
+    let out = dir.join("diagnose");
+    let summary = crate::cli::diagnose::run(&crate::cli::diagnose::Args {
+        data: train,
+        out: out.clone(),
+        calibration: None,
+        heldout: Some(val),
+        no_nonparametric: false,
+        json: false,
+    })?;
+    // Every artifact records the datasets it came from.
+    let mut diag = serde_json::Value::Null;
+    for name in ["diagnosis.json", "calibration.json"] {
+        let p = out.join(name);
+        let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
+        let mut v: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("datasets".into(), s.dataset_hashes());
+        }
+        write_atomic(&p, serde_json::to_string_pretty(&v)?.as_bytes())?;
+        if name == "diagnosis.json" {
+            diag = v;
+        }
+    }
+    log(&format!("  {}", summary.lines().next().unwrap_or("")));
+    s.effects = effects_in_words(&diag, &out, dir);
+    Ok(())
+}
+
+/// The effects of a `diagnosis.json` chain in plain words.
+pub fn effects_in_words(diag: &serde_json::Value, out: &Path, dir: &Path) -> Vec<EffectFound> {
+    let Some(chain) = diag.get("chain").and_then(|c| c.as_array()) else {
+        return vec![];
+    };
+    chain
+        .iter()
+        .enumerate()
+        .map(|(i, st)| {
+            let label = st.get("label").and_then(|v| v.as_str()).unwrap_or("?");
+            let kind = st
+                .pointer("/effect/kind")
+                .and_then(|v| v.as_str())
+                .unwrap_or_else(|| label.split('(').next().unwrap_or(label))
+                .to_string();
+            let joint = label.split("(j").nth(1).and_then(|r| {
+                r.chars()
+                    .take_while(|c| c.is_ascii_digit())
+                    .collect::<String>()
+                    .parse::<usize>()
+                    .ok()
+            });
+            let j = joint.map_or("a joint".to_string(), |j| format!("joint {j}"));
+            let what = match kind.as_str() {
+                "joint_compliance" => format!("{j} bends under the gravity load it carries"),
+                "backlash" => format!("{j} has lost motion (backlash) when it reverses"),
+                "joint_eccentricity" => {
+                    format!("{j}'s angle error varies once per turn (eccentric encoder or gear)")
+                }
+                "thermal_drift" => "the robot drifts as it warms up".to_string(),
+                "tracker_scale" => "the tracker's distances are scaled".to_string(),
+                "base_shift" => {
+                    "the tracker or the robot base moved during the session".to_string()
+                }
+                "latency" => "the tracker and the robot clocks are offset".to_string(),
+                "transmission_ratio" => format!("{j}'s gear ratio differs from nominal"),
+                "nonparametric" => {
+                    "a residual no physical effect explains was learnt from the data".to_string()
+                }
+                other => format!("effect {other}"),
+            };
+            let coefs: Vec<String> = st
+                .get("coefficients")
+                .and_then(|c| c.as_array())
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|c| {
+                            let n = c.get("name")?.as_str()?;
+                            let v = c.get("value")?.as_f64()?;
+                            let sd = c.get("std").and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
+                            Some(format!("{n} = {v:.3e} ± {:.1e}", 1.96 * sd))
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            let hb = st.get("heldout_rms_mm_before").and_then(|v| v.as_f64());
+            let ha = st.get("heldout_rms_mm_after").and_then(|v| v.as_f64());
+            let effect_on = match (hb, ha) {
+                (Some(b), Some(a)) if a <= b => {
+                    format!("; compensating it cut the held-out error from {b:.3} to {a:.3} mm")
+                }
+                (Some(b), Some(a)) => format!(
+                    "; compensating it RAISED the held-out error from {b:.3} to {a:.3} mm (WORSE)"
+                ),
+                _ => String::new(),
+            };
+            let coef_text = if coefs.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", coefs.join(", "))
+            };
+            let plot = out.join(format!("effect_{}_{}.svg", i + 1, kind));
+            EffectFound {
+                kind: kind.clone(),
+                words: format!("{what}{coef_text}{effect_on}."),
+                heldout_rms_mm_before: hb,
+                heldout_rms_mm_after: ha,
+                plot: plot.is_file().then(|| rel(dir, &plot)),
+            }
+        })
+        .collect()
+}
+
+fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
+    let (_, train) = load_ds(dir, s, "train")?;
+    let (_, val) = load_ds(dir, s, "validation")?;
+    // "Before": the nominal chain with the tracker → base and flange → marker transforms
+    // fitted (what the robot does today); "after": the diagnosed model (geometry + effects),
+    // whose held-out predictions the diagnosis wrote.
+    let opts = IdentOptions {
+        heldout: Some(val),
+        ..Default::default()
+    };
+    let res = identify(&train, &opts).context("kinematic identification")?;
+    let obs = &res.heldout_obs;
+    if obs.is_empty() {
+        bail!("no usable held-out pose in the validation dataset");
+    }
+    let pred_before: Vec<_> = obs
+        .iter()
+        .map(|o| res.nominal.measured_point(&o.q))
+        .collect();
+    let csv = dir.join("diagnose").join("heldout_predictions.csv");
+    let after: std::collections::HashMap<u64, nalgebra::Point3<f64>> =
+        match std::fs::read_to_string(&csv) {
+            Ok(text) => text
+                .lines()
+                .skip(1)
+                .filter_map(|l| {
+                    let v: Vec<&str> = l.split(',').collect();
+                    let n = |i: usize| v.get(i).and_then(|x| x.parse::<f64>().ok());
+                    Some((
+                        v.first()?.parse().ok()?,
+                        nalgebra::Point3::new(n(1)?, n(2)?, n(3)?),
+                    ))
+                })
+                .collect(),
+            Err(_) => Default::default(),
+        };
+    let pred_after: Vec<_> = obs
+        .iter()
+        .map(|o| {
+            after
+                .get(&o.id)
+                .copied()
+                .unwrap_or_else(|| res.model.measured_point(&o.q))
+        })
+        .collect();
+    if after.is_empty() {
+        s.warnings.push(
+            "no diagnosis predictions: the held-out \"after\" is the geometric calibration".into(),
+        );
+    }
+    let meas: Vec<_> = obs.iter().map(|o| o.p).collect();
+    let err = |pred: &[nalgebra::Point3<f64>]| -> Vec<f64> {
+        pred.iter()
+            .zip(&meas)
+            .map(|(p, m)| (p - m).norm())
+            .collect()
+    };
+    let (eb, ea) = (err(&pred_before), err(&pred_after));
+    let rms = |e: &[f64]| crate::solve::stats::rms(e);
+    let max = |e: &[f64]| e.iter().cloned().fold(0.0, f64::max);
+    let rb = metrics::relative_distance(&pred_before, &meas, 50.0);
+    let ra = metrics::relative_distance(&pred_after, &meas, 50.0);
+    let m = &mut s.measured;
+    m.heldout_poses = obs.len();
+    m.heldout_rms_mm_before = Some(rms(&eb));
+    m.heldout_rms_mm_after = Some(rms(&ea));
+    m.heldout_max_mm_before = Some(max(&eb));
+    m.heldout_max_mm_after = Some(max(&ea));
+    m.relative_distance_pct_before = rb.map(|r| r.mean_pct);
+    m.relative_distance_pct_after = ra.map(|r| r.mean_pct);
+    s.heldout_errors = obs
+        .iter()
+        .zip(eb.iter().zip(&ea))
+        .map(|(o, (b, a))| PoseError {
+            id: o.id,
+            before_mm: *b,
+            after_mm: *a,
+            q_deg: o.q.iter().map(|x| x.to_degrees()).collect(),
+        })
+        .collect();
+    // What to deploy: the calibration file (geometry + effects) and the URDF of the geometry.
+    let ddir = dir.join("deploy");
+    std::fs::create_dir_all(&ddir)?;
+    let final_cal = dir.join("diagnose").join("calibration.json");
+    let cal_src = if final_cal.is_file() {
+        final_cal
+    } else {
+        dir.join("calibrate").join("calibration.json")
+    };
+    let bytes = std::fs::read(&cal_src).with_context(|| format!("{}", cal_src.display()))?;
+    write_atomic(&ddir.join("calibration.json"), &bytes)?;
+    let cal = crate::dataset::CalibrationFile::load(ddir.join("calibration.json"))
+        .context("reading deploy/calibration.json back")?;
+    let mut model = KinematicModel::from_robot_block(&cal.robot)?;
+    model.apply_cal_params(&cal.params)?;
+    let name = format!(
+        "{}-{}",
+        s.cell.robot_model,
+        s.cell.robot_serial.as_deref().unwrap_or("calibrated")
+    );
+    let urdf = deploy::urdf(&model, &name, &s.dataset_hashes());
+    write_atomic(&ddir.join("robot.urdf"), urdf.as_bytes())?;
+    s.deploy = vec!["deploy/calibration.json".into(), "deploy/robot.urdf".into()];
+    Ok(())
+}
