@@ -1,5 +1,6 @@
 //! `robocal calibrate <what>`: one file per calibration under `src/cli/calibrate/`.
 
+pub mod camera;
 pub mod kinematics;
 pub mod laser;
 pub mod nominal;
@@ -23,6 +24,9 @@ pub enum What {
     Pivot(pivot::Args),
     /// Laser range sensor hand-eye calibration from planes (seed 000).
     Laser(laser::Args),
+    /// Camera intrinsics + hand-eye (seed 004): every closed form side by side, then the
+    /// maximum-likelihood refinement on raw corner reprojection.
+    Camera(camera::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -32,5 +36,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Kinematics(a) => kinematics::exec(a),
         What::Pivot(a) => pivot::exec(a),
         What::Laser(a) => laser::exec(a),
+        What::Camera(a) => camera::exec(a),
     }
 }

@@ -43,6 +43,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 
 /// Run and return the short console summary.
 pub fn run(args: &Args) -> anyhow::Result<String> {
+    if super::diagnose_camera::is_camera_dataset(&args.data) {
+        return super::diagnose_camera::run(&args.data, args.heldout.as_deref(), &args.out);
+    }
     // Laser (range sensor) datasets have their own effect library (seed 000 geometry).
     if let Ok(ds) = crate::dataset::Dataset::load(&args.data) {
         if super::calibrate::laser::is_laser_dataset(&ds) {

@@ -8,6 +8,7 @@ use std::ffi::OsString;
 pub mod calibrate;
 pub mod devices;
 pub mod diagnose;
+pub mod diagnose_camera;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;

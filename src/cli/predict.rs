@@ -177,6 +177,9 @@ pub fn predict_files(cal: &Path, data: &Path) -> anyhow::Result<Vec<PredictedPoi
 
 /// Run `robocal predict`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    if CalibrationFile::load(&args.calibration)?.kind() == CalibrationKind::Other("camera".into()) {
+        return camera_exec(&args);
+    }
     let rows = predict_files(&args.calibration, &args.data)?;
     match &args.out {
         Some(path) => {
@@ -189,6 +192,20 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             let stdout = std::io::stdout();
             write_csv(stdout.lock(), &rows).context("writing to stdout")?;
         }
+    }
+    Ok(())
+}
+
+/// `robocal predict` on a camera calibration: CSV `id,corner,u_px,v_px`.
+fn camera_exec(args: &Args) -> anyhow::Result<()> {
+    let rows = crate::cli::calibrate::camera::predict_rows(&args.calibration, &args.data)?;
+    let mut text = String::from("id,corner,u_px,v_px\n");
+    for (id, c, uv) in rows {
+        text += &format!("{id},{c},{:.6},{:.6}\n", uv[0], uv[1]);
+    }
+    match &args.out {
+        Some(p) => std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))?,
+        None => print!("{text}"),
     }
     Ok(())
 }

@@ -18,6 +18,7 @@
 use nalgebra::{DMatrix, DVector, Vector3};
 use serde_json::{json, Value};
 
+pub mod camera;
 pub mod data;
 pub mod effects;
 pub mod fit;

@@ -10,6 +10,7 @@
 //! analytic Jacobian) whose Jacobian is tested against finite differences.
 
 pub mod bootstrap;
+pub mod camera;
 pub mod calfile;
 pub mod identifiability;
 pub mod kinematics;
