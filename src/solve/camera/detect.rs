@@ -112,16 +112,16 @@ pub fn label(
     type Map = Box<dyn Fn(usize, usize) -> (usize, usize)>;
     let mut cands: Vec<Map> = vec![];
     if gw == c && gh == r {
-        cands.push(Box::new(|u, v| (u, v)));
-        cands.push(Box::new(move |u, v| (c - 1 - u, v)));
-        cands.push(Box::new(move |u, v| (u, r - 1 - v)));
-        cands.push(Box::new(move |u, v| (c - 1 - u, r - 1 - v)));
+        cands.push(Box::new(|u: usize, v: usize| (u, v)));
+        cands.push(Box::new(move |u: usize, v: usize| (c - 1 - u, v)));
+        cands.push(Box::new(move |u: usize, v: usize| (u, r - 1 - v)));
+        cands.push(Box::new(move |u: usize, v: usize| (c - 1 - u, r - 1 - v)));
     }
     if gw == r && gh == c {
-        cands.push(Box::new(|u, v| (v, u)));
-        cands.push(Box::new(move |u, v| (c - 1 - v, u)));
-        cands.push(Box::new(move |u, v| (v, r - 1 - u)));
-        cands.push(Box::new(move |u, v| (c - 1 - v, r - 1 - u)));
+        cands.push(Box::new(|u: usize, v: usize| (v, u)));
+        cands.push(Box::new(move |u: usize, v: usize| (c - 1 - v, u)));
+        cands.push(Box::new(move |u: usize, v: usize| (v, r - 1 - u)));
+        cands.push(Box::new(move |u: usize, v: usize| (c - 1 - v, r - 1 - u)));
     }
     let s = board.square_mm;
     let grey = |x: f64, y: f64| -> Option<f64> {

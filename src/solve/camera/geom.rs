@@ -100,7 +100,7 @@ pub fn inv_transform_jac(v: &[f64], p: &Vector3<f64>) -> (Vector3<f64>, SMatrix<
     let mut j = SMatrix::<f64, 3, 6>::zeros();
     j.fixed_view_mut::<3, 3>(0, 0)
         .copy_from(&(rt.matrix() * skew(&d) * left_jacobian(&w)));
-    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-rt.matrix()));
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-*rt.matrix()));
     (y, j)
 }
 
@@ -234,13 +234,15 @@ mod tests {
             DVector::from_vec(uv.to_vec())
         };
         let n = numeric_jacobian(fp, &DVector::from_vec(vec![p.x, p.y, p.z]), 1e-4);
-        assert!((n - jp).abs().max() < 1e-6, "point");
+        let e = (n - jp).abs().max();
+        assert!(e < 1e-6, "point {e}");
         let fi = |x: &DVector<f64>| {
             let uv = project(&Intrinsics::from_slice(x.as_slice()), &p).unwrap();
             DVector::from_vec(uv.to_vec())
         };
         let n = numeric_jacobian(fi, &DVector::from_row_slice(&k.to_vec()), 1e-6);
-        assert!((n - ji).abs().max() < 1e-4, "intrinsics {}", (n - ji).abs().max());
+        let e = (n - ji).abs().max();
+        assert!(e < 1e-4, "intrinsics {e}");
     }
 
     #[test]
@@ -262,7 +264,8 @@ mod tests {
                 transform_jac(&v, &p)
             };
             let n = numeric_jacobian(f, &DVector::from_row_slice(&v), 1e-6);
-            assert!((n - ja).abs().max() < 1e-6, "inv {inv}: {}", (n - ja).abs().max());
+            let e = (n - ja).abs().max();
+            assert!(e < 1e-6, "inv {inv}: {e}");
         }
     }
 

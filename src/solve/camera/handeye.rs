@@ -74,9 +74,9 @@ pub fn solve(method: Method, pairs: &[(Isometry3<f64>, Isometry3<f64>)]) -> Opti
         return None;
     }
     let x = match method {
-        Method::TsaiLenz => with_translation(pairs, tsai_rotation(pairs)?),
-        Method::ParkMartin => with_translation(pairs, park_rotation(pairs)?),
-        Method::Horaud => with_translation(pairs, horaud_rotation(pairs)?),
+        Method::TsaiLenz => with_translation(pairs, tsai_rotation(pairs)?)?,
+        Method::ParkMartin => with_translation(pairs, park_rotation(pairs)?)?,
+        Method::Horaud => with_translation(pairs, horaud_rotation(pairs)?)?,
         Method::Andreff => andreff(pairs)?,
         Method::Daniilidis => daniilidis(pairs)?,
     };

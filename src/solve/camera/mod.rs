@@ -246,7 +246,8 @@ fn pnp(k: &Intrinsics, obs: &[Obs], init: Isometry3<f64>) -> (Isometry3<f64>, f6
         board: BoardModel::default(),
         arm: None,
     };
-    let rep = minimize(&p, p.pack(k, &[init], 1.0, [0.0; 2]), &LmOptions::default());
+    let x0 = p.pack(k, &[init], 1.0, [0.0; 2]);
+    let rep = minimize(&p, x0, &LmOptions::default());
     (p.pose(&rep.x, 0), rms(&rep.residuals), rep.residuals)
 }
 
@@ -437,7 +438,7 @@ pub fn calibrate(
             && (k[(0, 2)] - cx0).abs() < 0.3 * train.width as f64
             && (k[(1, 2)] - cy0).abs() < 0.3 * train.height as f64
     };
-    let k0m = zhang::zhang_k(&hs)
+    let k0m = zhang::zhang_k(&hs, cx0, cy0, train.width as f64)
         .filter(plausible)
         .or_else(|| zhang::focal_centered(&hs, cx0, cy0))
         .ok_or_else(|| CameraError::Intrinsics("no focal length fits the homographies".into()))?;
@@ -590,12 +591,11 @@ pub fn calibrate(
     let bad: Vec<bool> = (0..obs.len())
         .map(|i| rep.residuals[2 * i].hypot(rep.residuals[2 * i + 1]) > 5.0 * sig2 * std::f64::consts::SQRT_2)
         .collect();
-    let mut obs_used = obs.clone();
     let ids_all = corner_ids(&views);
     let mut ids = ids_all.clone();
     if bad.iter().any(|b| *b) {
         rejected_corners += bad.iter().filter(|b| **b).count();
-        obs_used = obs.iter().zip(&bad).filter(|(_, b)| !**b).map(|(o, _)| *o).collect();
+        let obs_used: Vec<Obs> = obs.iter().zip(&bad).filter(|(_, b)| !**b).map(|(o, _)| *o).collect();
         ids = ids_all.iter().zip(&bad).filter(|(_, b)| !**b).map(|(o, _)| *o).collect();
         (kf, xf, tf, sf, cf, rep) = ml_fit(&obs_used, &g, &kf, model.mask(), &xf, &tf, bc, sf, cf);
     }
@@ -833,7 +833,7 @@ mod tests {
             for v in 0..24 {
                 let az = v as f64 * 0.9;
                 let pol = 0.1 + 0.25 * ((v % 3) as f64) / 2.0;
-                let r = 560.0;
+                let r = 480.0 + 40.0 * (v % 5) as f64;
                 let eye = centre
                     + Vector3::new(r * pol.sin() * az.cos(), r * pol.sin() * az.sin(), r * pol.cos());
                 // Camera looking at the centre.
@@ -850,7 +850,7 @@ mod tests {
                     Mount::Flange => (cam * x.inverse(), cam.inverse() * target),
                     // Eye-to-hand: X = camera in base (fixed), target = board in flange.
                     Mount::Base => {
-                        let board_in_base = camb * cam.inverse() * target;
+                        let board_in_base = x * cam.inverse() * target;
                         let tif = Isometry3::from_parts(
                             Translation3::new(10.0, -20.0, 30.0),
                             UnitQuaternion::from_scaled_axis(Vector3::new(0.1, 0.0, 0.2)),
@@ -880,12 +880,15 @@ mod tests {
             };
             let res = calibrate(&data, None, &Options::default()).unwrap();
             let (dt, dr) = geom::pose_error(&res.ml.x, &x);
-            eprintln!("{mount:?}: ML X error {dt:.4} mm {dr:.5} deg, rms {:.4} px, model {:?}", res.ml.train_rms_px, res.distortion);
+            eprintln!("{mount:?}: ML X error {dt:.4} mm {dr:.5} deg, rms {:.4} px, model {:?} {:?} K {:?}", res.ml.train_rms_px, res.distortion, res.model_scores, res.intrinsics_only);
             for e in &res.closed_form {
                 let (dt, dr) = geom::pose_error(&e.x, &x);
                 eprintln!("  {}: {dt:.4} mm {dr:.5} deg rms {:.4}", e.method, e.train_rms_px);
             }
+            let tsai = res.closed_form.iter().find(|e| e.method == "tsai-lenz").unwrap();
+            let (tt, _) = geom::pose_error(&tsai.x, &x);
             assert!(dt < 0.5 && dr < 0.05, "{mount:?}: {dt} mm {dr} deg");
+            assert!(dt < tt, "ML {dt} mm not better than Tsai–Lenz {tt} mm");
             assert!((res.ml.intrinsics.fx - 900.0).abs() < 2.0);
             assert!(res.closed_form.len() == 5);
         }

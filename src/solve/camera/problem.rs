@@ -191,7 +191,11 @@ impl Reproj<'_> {
         for (i, o) in self.obs.iter().enumerate() {
             let mut d_arm: Vec<Vector3<f64>> = vec![];
             // Board point with scale and bend.
-            let (qx, qy) = (((o.pt.x - x0) / rr).powi(2), ((o.pt.y - y0) / rr).powi(2));
+            let (qx, qy) = if self.board.bend || c != [0.0; 2] {
+                (((o.pt.x - x0) / rr).powi(2), ((o.pt.y - y0) / rr).powi(2))
+            } else {
+                (0.0, 0.0)
+            };
             let p = Vector3::new(s * o.pt.x, s * o.pt.y, c[0] * qx + c[1] * qy);
             let dp_ds = Vector3::new(o.pt.x, o.pt.y, 0.0);
             // Camera-frame point and its derivatives w.r.t. pose blocks and the board point.
