@@ -53,7 +53,15 @@ fn plan(dir: &Path, name: &str, strata: &str, seed: u64, jitter: bool) -> PathBu
     std::fs::write(&spec, t).unwrap();
     let out = dir.join(format!("{name}.json"));
     assert_eq!(
-        cli(&["plan", "--spec", s(&spec), "--robot", "ur5e", "--out", s(&out)]),
+        cli(&[
+            "plan",
+            "--spec",
+            s(&spec),
+            "--robot",
+            "ur5e",
+            "--out",
+            s(&out)
+        ]),
         0
     );
     out
@@ -82,14 +90,39 @@ fn run(dir: &Path, plan: &Path, scenario: &Path, name: &str) -> PathBuf {
 fn run_calibrate_predict_camera_on_the_simulated_cell() {
     let tmp = tempfile::tempdir().unwrap();
     let sc = scenario(tmp.path(), 30.0);
-    let train = run(tmp.path(), &plan(tmp.path(), "train", "[2, 2, 5]", 4, false), &sc, "train");
-    let held = run(tmp.path(), &plan(tmp.path(), "held", "[1, 1, 6]", 5, true), &sc, "held");
+    let train = run(
+        tmp.path(),
+        &plan(tmp.path(), "train", "[2, 2, 5]", 4, false),
+        &sc,
+        "train",
+    );
+    let held = run(
+        tmp.path(),
+        &plan(tmp.path(), "held", "[1, 1, 6]", 5, true),
+        &sc,
+        "held",
+    );
     let header = std::fs::read_to_string(&train).unwrap();
     let first = header.lines().next().unwrap();
-    assert!(first.contains("\"camera\"") && first.contains("\"target\""), "{first}");
+    assert!(
+        first.contains("\"camera\"") && first.contains("\"target\""),
+        "{first}"
+    );
     let out = tmp.path().join("cal");
     assert_eq!(
-        cli(&["calibrate", "camera", "--data", s(&train), "--heldout", s(&held), "--out", s(&out), "--quiet", "--bootstrap", "5"]),
+        cli(&[
+            "calibrate",
+            "camera",
+            "--data",
+            s(&train),
+            "--heldout",
+            s(&held),
+            "--out",
+            s(&out),
+            "--quiet",
+            "--bootstrap",
+            "5"
+        ]),
         0
     );
     let cal = CalibrationFile::load(out.join("calibration.json")).unwrap();
@@ -101,7 +134,9 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
         + (b.hand_eye.xyz_mm[2] - t.z).powi(2))
     .sqrt();
     let q = b.hand_eye.quat;
-    let rot = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+    let rot = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        q[0], q[1], q[2], q[3],
+    ));
     let ang = rot.angle_to(&truth.rotation).to_degrees();
     let heldout = cal.metrics["heldout_rms_px"].as_f64().unwrap();
     eprintln!(
@@ -109,15 +144,32 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
         b.intrinsics.fx
     );
     assert!(d < 0.2 && ang < 0.02, "hand-eye {d} mm {ang} deg");
-    assert!((b.intrinsics.fx - 900.0).abs() < 1.0, "fx {}", b.intrinsics.fx);
+    assert!(
+        (b.intrinsics.fx - 900.0).abs() < 1.0,
+        "fx {}",
+        b.intrinsics.fx
+    );
     assert!(heldout < 0.2, "held-out {heldout} px");
     let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("camera_report.json")).unwrap()).unwrap();
-    assert_eq!(report["methods"].as_array().unwrap().len(), 6, "5 closed forms + ML");
+        serde_json::from_str(&std::fs::read_to_string(out.join("camera_report.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        report["methods"].as_array().unwrap().len(),
+        6,
+        "5 closed forms + ML"
+    );
     // predict: one row per corner per pose.
     let csv = tmp.path().join("pred.csv");
     assert_eq!(
-        cli(&["predict", "--calibration", s(&out.join("calibration.json")), "--data", s(&held), "--out", s(&csv)]),
+        cli(&[
+            "predict",
+            "--calibration",
+            s(&out.join("calibration.json")),
+            "--data",
+            s(&held),
+            "--out",
+            s(&csv)
+        ]),
         0
     );
     let text = std::fs::read_to_string(&csv).unwrap();
@@ -131,25 +183,53 @@ fn diagnose_names_an_undeclared_board_scale() {
     let tmp = tempfile::tempdir().unwrap();
     // The board is printed 0.4 % large; the header declares the design (30 mm).
     let sc = scenario(tmp.path(), 30.12);
-    let train = run(tmp.path(), &plan(tmp.path(), "train", "[2, 2, 5]", 4, false), &sc, "train");
-    let held = run(tmp.path(), &plan(tmp.path(), "held", "[1, 1, 6]", 5, true), &sc, "held");
+    let train = run(
+        tmp.path(),
+        &plan(tmp.path(), "train", "[2, 2, 5]", 4, false),
+        &sc,
+        "train",
+    );
+    let held = run(
+        tmp.path(),
+        &plan(tmp.path(), "held", "[1, 1, 6]", 5, true),
+        &sc,
+        "held",
+    );
     for f in [&train, &held] {
         let t = std::fs::read_to_string(f).unwrap();
-        std::fs::write(f, t.replacen("\"square_mm\":30.12", "\"square_mm\":30.0", 1)).unwrap();
-        assert!(std::fs::read_to_string(f).unwrap().contains("\"square_mm\":30.0"));
+        std::fs::write(
+            f,
+            t.replacen("\"square_mm\":30.12", "\"square_mm\":30.0", 1),
+        )
+        .unwrap();
+        assert!(std::fs::read_to_string(f)
+            .unwrap()
+            .contains("\"square_mm\":30.0"));
     }
     let out = tmp.path().join("diag");
     assert_eq!(
-        cli(&["diagnose", "--data", s(&train), "--heldout", s(&held), "--out", s(&out)]),
+        cli(&[
+            "diagnose",
+            "--data",
+            s(&train),
+            "--heldout",
+            s(&held),
+            "--out",
+            s(&out)
+        ]),
         0
     );
     let d: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
+            .unwrap();
     let eff = d["effects"].as_array().unwrap();
     eprintln!("{}", serde_json::to_string_pretty(&d).unwrap());
     assert_eq!(eff[0]["kind"], "target_scale", "{d}");
     let sc = eff[0]["parameters"][0]["value"].as_f64().unwrap();
     assert!((sc - 1.004).abs() < 3e-4, "scale {sc}");
-    let (b, a) = (d["heldout_rms_px_before"].as_f64().unwrap(), d["heldout_rms_px_after"].as_f64().unwrap());
+    let (b, a) = (
+        d["heldout_rms_px_before"].as_f64().unwrap(),
+        d["heldout_rms_px_after"].as_f64().unwrap(),
+    );
     assert!(a < 0.5 * b, "held-out {b} -> {a}");
 }

@@ -113,7 +113,10 @@ pub struct CameraCalBlock {
     pub target_bend_mm: Option<[f64; 2]>,
 }
 
-fn typed<T: for<'de> Deserialize<'de>>(m: &Map<String, Value>, key: &str) -> Result<Option<T>, String> {
+fn typed<T: for<'de> Deserialize<'de>>(
+    m: &Map<String, Value>,
+    key: &str,
+) -> Result<Option<T>, String> {
     match m.get(key) {
         None | Some(Value::Null) => Ok(None),
         Some(v) => serde_json::from_value(v.clone())

@@ -24,8 +24,7 @@ use crate::model::KinematicModel;
 use crate::solve::camera::geom::{Intrinsics, N_INTR};
 use crate::solve::camera::problem::{ArmOffsets, BoardModel, Layout, Obs, Reproj};
 use crate::solve::camera::{
-    self, bend_centre, motion_poses, CameraData, CameraError, DistModel, Estimate, Mount,
-    Options,
+    self, bend_centre, motion_poses, CameraData, CameraError, DistModel, Estimate, Mount, Options,
 };
 use crate::solve::lm::{minimize, LmOptions, LmReport};
 
@@ -186,7 +185,14 @@ fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
             x0[o + k] = *v;
         }
     }
-    let rep = minimize(&p, x0, &LmOptions { max_iter: 200, ..LmOptions::default() });
+    let rep = minimize(
+        &p,
+        x0,
+        &LmOptions {
+            max_iter: 200,
+            ..LmOptions::default()
+        },
+    );
     let (scale, bend) = p.board_params(&rep.x);
     let st = St {
         k: p.intrinsics(&rep.x),
@@ -213,7 +219,9 @@ fn heldout(c: &Ctx, s: &St) -> Option<f64> {
             v.flange = m.flange_pose(&qq);
         }
     }
-    Some(camera::heldout_rms(&h, &s.k, &s.x, &s.target, s.scale, s.bend))
+    Some(camera::heldout_rms(
+        &h, &s.k, &s.x, &s.target, s.scale, s.bend,
+    ))
 }
 
 fn rms(r: &DVector<f64>) -> f64 {
@@ -259,7 +267,10 @@ pub fn diagnose(
         (Some(h), Some(d)) => joints_of(h, d),
         _ => None,
     };
-    let arm_ok = train.mount == Mount::Flange && model.is_some() && q.is_some() && (held.is_none() || held_q.is_some());
+    let arm_ok = train.mount == Mount::Flange
+        && model.is_some()
+        && q.is_some()
+        && (held.is_none() || held_q.is_some());
     let dof = model.as_ref().map_or(0, |m| m.dof());
     let ctx = Ctx {
         obs: {
@@ -284,7 +295,11 @@ pub fn diagnose(
         g: motion_poses(&data.views, data.mount),
         q: q.clone().unwrap_or_default(),
         model: model.as_ref().filter(|_| arm_ok),
-        joints: if dof >= 4 { (1..dof - 1).collect() } else { vec![] },
+        joints: if dof >= 4 {
+            (1..dof - 1).collect()
+        } else {
+            vec![]
+        },
         centre: bend_centre(&data.board),
         held: held.map(|h| (h.clone(), held_q.clone().unwrap_or_default())),
     };
@@ -319,7 +334,11 @@ pub fn diagnose(
                 s.mask = DistModel::K1K2P1P2K3.mask();
             }
             let (s1, r1) = fit(&ctx, &s);
-            let (m, n0, n1) = (r1.residuals.len(), rep.jacobian.ncols(), r1.jacobian.ncols());
+            let (m, n0, n1) = (
+                r1.residuals.len(),
+                rep.jacobian.ncols(),
+                r1.jacobian.ncols(),
+            );
             let p = n1.saturating_sub(n0).max(1);
             let f = ((rep.cost - r1.cost) / p as f64) / (r1.cost / (m - n1).max(1) as f64);
             let h = heldout(&ctx, &s1);
@@ -359,7 +378,10 @@ pub fn diagnose(
                 train_rms_before_px: rms(&rep.residuals),
                 train_rms_after_px: rms(&r1.residuals),
                 f_stat: f,
-                dof: [r1.jacobian.ncols() - rep.jacobian.ncols(), r1.residuals.len() - r1.jacobian.ncols()],
+                dof: [
+                    r1.jacobian.ncols() - rep.jacobian.ncols(),
+                    r1.residuals.len() - r1.jacobian.ncols(),
+                ],
             },
             summary,
             heldout_rms_before_px: cur_held.unwrap_or(f64::NAN),
@@ -443,7 +465,9 @@ fn effect_params(c: Cand, s: &St, std: &[f64], ctx: &Ctx, n: usize) -> Vec<Effec
         o - 2
     });
     let i_arm = has(Cand::Arm).then_some(o);
-    let sd = |i: Option<usize>, k: usize| i.map_or(f64::NAN, |i| std.get(i + k).copied().unwrap_or(f64::NAN));
+    let sd = |i: Option<usize>, k: usize| {
+        i.map_or(f64::NAN, |i| std.get(i + k).copied().unwrap_or(f64::NAN))
+    };
     let _ = n;
     match c {
         Cand::Scale => vec![p("scale".into(), s.scale, sd(i_scale, 0), "1")],
@@ -456,7 +480,14 @@ fn effect_params(c: Cand, s: &St, std: &[f64], ctx: &Ctx, n: usize) -> Vec<Effec
             .iter()
             .zip(&s.offsets)
             .enumerate()
-            .map(|(k, (j, v))| p(format!("offset_j{}", j + 1), v.to_degrees(), sd(i_arm, k).to_degrees(), "deg"))
+            .map(|(k, (j, v))| {
+                p(
+                    format!("offset_j{}", j + 1),
+                    v.to_degrees(),
+                    sd(i_arm, k).to_degrees(),
+                    "deg",
+                )
+            })
             .collect(),
         Cand::Distortion => ["k1", "k2", "p1", "p2", "k3"]
             .iter()

@@ -10,8 +10,8 @@
 //! analytic Jacobian) whose Jacobian is tested against finite differences.
 
 pub mod bootstrap;
-pub mod camera;
 pub mod calfile;
+pub mod camera;
 pub mod identifiability;
 pub mod kinematics;
 pub mod laser;

@@ -54,7 +54,9 @@ pub struct Args {
 
 fn parse_dist(s: &str) -> anyhow::Result<DistModel> {
     serde_json::from_value(json!(s)).map_err(|_| {
-        anyhow::anyhow!("--distortion {s:?}: expected none, k1, k1-k2, k1-k2-p1-p2 or k1-k2-p1-p2-k3")
+        anyhow::anyhow!(
+            "--distortion {s:?}: expected none, k1, k1-k2, k1-k2-p1-p2 or k1-k2-p1-p2-k3"
+        )
     })
 }
 
@@ -63,7 +65,13 @@ pub fn overrides(board: Option<(u32, u32)>, square: Option<f64>, mount: Option<&
     Overrides {
         board,
         square_mm: square,
-        mount: mount.map(|m| if m == "base" { Mount::Base } else { Mount::Flange }),
+        mount: mount.map(|m| {
+            if m == "base" {
+                Mount::Base
+            } else {
+                Mount::Flange
+            }
+        }),
     }
 }
 
@@ -71,9 +79,12 @@ pub fn overrides(board: Option<(u32, u32)>, square: Option<f64>, mount: Option<&
 pub fn exec(a: Args) -> anyhow::Result<()> {
     let ov = overrides(a.board, a.square, a.mount.as_deref());
     let t0 = std::time::Instant::now();
-    let train = load(&a.data, &ov, !a.quiet).with_context(|| format!("reading {}", a.data.display()))?;
+    let train =
+        load(&a.data, &ov, !a.quiet).with_context(|| format!("reading {}", a.data.display()))?;
     let held = match &a.heldout {
-        Some(h) => Some(load(h, &ov, !a.quiet).with_context(|| format!("reading {}", h.display()))?),
+        Some(h) => {
+            Some(load(h, &ov, !a.quiet).with_context(|| format!("reading {}", h.display()))?)
+        }
         None => None,
     };
     let t_detect = t0.elapsed().as_secs_f64();
@@ -96,13 +107,20 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     )
     .with_context(|| format!("writing {}", a.out.join("camera_report.json").display()))?;
     print!("{}", table(&train, held.as_ref(), &res));
-    println!("detection {t_detect:.2} s, total {t_total:.2} s; wrote {}", a.out.display());
+    println!(
+        "detection {t_detect:.2} s, total {t_total:.2} s; wrote {}",
+        a.out.display()
+    );
     Ok(())
 }
 
 fn quat(p: &Isometry3<f64>) -> [f64; 4] {
     let q = p.rotation;
-    let q = if q.w < 0.0 { -q.into_inner() } else { q.into_inner() };
+    let q = if q.w < 0.0 {
+        -q.into_inner()
+    } else {
+        q.into_inner()
+    };
     [q.w, q.i, q.j, q.k]
 }
 
@@ -162,18 +180,26 @@ pub fn calibration_file(train: &Loaded, res: &CameraResult) -> CalibrationFile {
     };
     let mut cal = CalibrationFile::new(train.dataset.header.robot.clone(), vec![]);
     cal.set_camera(&block);
-    cal.metrics.insert("train_rms_px".into(), json!(res.ml.train_rms_px));
+    cal.metrics
+        .insert("train_rms_px".into(), json!(res.ml.train_rms_px));
     if let Some(h) = res.ml.heldout_rms_px {
         cal.metrics.insert("heldout_rms_px".into(), json!(h));
     }
-    cal.metrics.insert("views_used".into(), json!(res.used_views.len()));
+    cal.metrics
+        .insert("views_used".into(), json!(res.used_views.len()));
     cal
 }
 
 /// The intrinsics and hand-eye of a camera calibration file.
 pub fn from_calibration(
     cal: &CalibrationFile,
-) -> anyhow::Result<(Intrinsics, Isometry3<f64>, Isometry3<f64>, Mount, TargetHeader)> {
+) -> anyhow::Result<(
+    Intrinsics,
+    Isometry3<f64>,
+    Isometry3<f64>,
+    Mount,
+    TargetHeader,
+)> {
     let b = cal
         .camera()
         .map_err(|e| anyhow::anyhow!("calibration: {e}"))?
@@ -187,8 +213,9 @@ pub fn from_calibration(
         dist: i.dist,
     };
     let pose = |xyz: [f64; 3], q: [f64; 4], what: &str| {
-        crate::solve::laser::file_pose(&xyz, &q)
-            .ok_or_else(|| anyhow::anyhow!("calibration: camera.{what}: not a finite pose with a unit quaternion"))
+        crate::solve::laser::file_pose(&xyz, &q).ok_or_else(|| {
+            anyhow::anyhow!("calibration: camera.{what}: not a finite pose with a unit quaternion")
+        })
     };
     let x = pose(b.hand_eye.xyz_mm, b.hand_eye.quat, "hand_eye")?;
     let (mount, t) = match b.hand_eye.mount.as_str() {
@@ -223,7 +250,11 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
         });
     }
     let cd = camera::CameraData {
-        width: cal.camera().ok().flatten().map_or(0, |c| c.intrinsics.width),
+        width: cal
+            .camera()
+            .ok()
+            .flatten()
+            .map_or(0, |c| c.intrinsics.width),
         height: 0,
         board: camera::detect::BoardSpec {
             cols: tgt.cols as usize,
@@ -301,7 +332,10 @@ pub fn table(train: &Loaded, held: Option<&Loaded>, res: &CameraResult) -> Strin
         k.fx, k.fy, k.cx, k.cy, k.dist[0], k.dist[1], k.dist[2], k.dist[3], k.dist[4]
     );
     let _ = N_INTR;
-    s += &format!("{:<24} {:>10} {:>12} {:>12}\n", "method", "train px", "held-out px", "X xyz mm");
+    s += &format!(
+        "{:<24} {:>10} {:>12} {:>12}\n",
+        "method", "train px", "held-out px", "X xyz mm"
+    );
     let mut rows: Vec<&camera::Estimate> = res.closed_form.iter().collect();
     if let Some(i) = &res.incremental {
         rows.push(&i.estimate);

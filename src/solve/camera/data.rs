@@ -62,12 +62,10 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
             marker_mm: None,
             dictionary: None,
         },
-        (None, _, _) => {
-            return Err(herr(
-                "no \"target\" block in the header: give the board with --board COLSxROWS --square MM"
-                    .into(),
-            ))
-        }
+        (None, _, _) => return Err(herr(
+            "no \"target\" block in the header: give the board with --board COLSxROWS --square MM"
+                .into(),
+        )),
     };
     if let Some((c, r)) = ov.board {
         target.cols = c;
@@ -82,7 +80,10 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
             target.kind
         )));
     }
-    if !(target.square_mm.is_finite() && target.square_mm > 0.0) || target.cols < 2 || target.rows < 2 {
+    if !(target.square_mm.is_finite() && target.square_mm > 0.0)
+        || target.cols < 2
+        || target.rows < 2
+    {
         return Err(herr(format!(
             "field \"target\": a board needs ≥ 2×2 inner corners and a positive square_mm, got {}×{} and {}",
             target.cols, target.rows, target.square_mm
@@ -110,8 +111,10 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
     let bar = progress.then(|| {
         let b = indicatif::ProgressBar::new(recs.len() as u64);
         b.set_style(
-            indicatif::ProgressStyle::with_template("detecting {bar:30} {pos}/{len} images {elapsed}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            indicatif::ProgressStyle::with_template(
+                "detecting {bar:30} {pos}/{len} images {elapsed}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         );
         b
     });
@@ -159,7 +162,8 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
             Err(e) => no_board.push((r.id, e)),
         }
     }
-    let (w, h) = size.ok_or_else(|| herr("no \"camera\" block and no image to take the size from".into()))?;
+    let (w, h) =
+        size.ok_or_else(|| herr("no \"camera\" block and no image to take the size from".into()))?;
     let camera = cam.unwrap_or(CameraHeader {
         kind: "mono".into(),
         width: w,
@@ -204,8 +208,12 @@ fn corners_of(
         let p: PathBuf = base.join(img);
         let im = robocal_drivers::camera::read_image_file(&p)
             .map_err(|e| format!("image {}: {e}", p.display()))?;
-        let c = detect_chessboard(&im.data, im.width, im.height, board).map_err(|e| e.to_string())?;
-        return Ok((c.into_iter().map(Some).collect(), Some((im.width, im.height))));
+        let c =
+            detect_chessboard(&im.data, im.width, im.height, board).map_err(|e| e.to_string())?;
+        return Ok((
+            c.into_iter().map(Some).collect(),
+            Some((im.width, im.height)),
+        ));
     }
     match &r.corners {
         Some(c) if c.len() == n => Ok((

@@ -93,7 +93,14 @@ pub fn detect_chessboard(
             )
         })
         .collect();
-    label(&grid, (gw as usize, gh as usize), data, width, height, board)
+    label(
+        &grid,
+        (gw as usize, gh as usize),
+        data,
+        width,
+        height,
+        board,
+    )
 }
 
 /// Assign board indices to a whole labelled grid (see the module docs).

@@ -23,7 +23,9 @@ impl Intrinsics {
     /// As the parameter vector `[fx, fy, cx, cy, k1, k2, p1, p2, k3]`.
     pub fn to_vec(&self) -> [f64; N_INTR] {
         let d = self.dist;
-        [self.fx, self.fy, self.cx, self.cy, d[0], d[1], d[2], d[3], d[4]]
+        [
+            self.fx, self.fy, self.cx, self.cy, d[0], d[1], d[2], d[3], d[4],
+        ]
     }
     /// From the parameter vector of [`Self::to_vec`].
     pub fn from_slice(v: &[f64]) -> Self {
@@ -135,12 +137,7 @@ pub fn project_jac(
     let iz = 1.0 / p.z;
     // ∂(x, y)/∂p
     let dn = Matrix2x3::new(iz, 0.0, -x * iz, 0.0, iz, -y * iz);
-    let dd = nalgebra::Matrix2::new(
-        k.fx * dxd_dx,
-        k.fx * dxd_dy,
-        k.fy * dyd_dx,
-        k.fy * dyd_dy,
-    );
+    let dd = nalgebra::Matrix2::new(k.fx * dxd_dx, k.fx * dxd_dy, k.fy * dyd_dx, k.fy * dyd_dy);
     let jp = dd * dn;
     let mut ji = SMatrix::<f64, 2, N_INTR>::zeros();
     ji[(0, 0)] = xd;

@@ -108,7 +108,11 @@ fn with_translation(
 fn tsai_rotation(pairs: &[(Isometry3<f64>, Isometry3<f64>)]) -> Option<Rotation3<f64>> {
     // Modified Rodrigues vector P = 2 sin(θ/2) n.
     let pr = |q: &UnitQuaternion<f64>| {
-        let q = if q.w < 0.0 { -q.into_inner() } else { q.into_inner() };
+        let q = if q.w < 0.0 {
+            -q.into_inner()
+        } else {
+            q.into_inner()
+        };
         2.0 * q.imag()
     };
     let mut ata = Matrix3::zeros();
@@ -252,16 +256,17 @@ fn daniilidis(pairs: &[(Isometry3<f64>, Isometry3<f64>)]) -> Option<Isometry3<f6
         let ((qa, qad), (qb, qbd)) = (dq(a), dq(b));
         let (av, bv, adv, bdv) = (qa.imag(), qb.imag(), qad.imag(), qbd.imag());
         let mut s = DMatrix::<f64>::zeros(6, 8);
-        let blk = |s: &mut DMatrix<f64>, r0: usize, c0: usize, x: &Vector3<f64>, y: &Vector3<f64>| {
-            let d = x - y;
-            let k = skew(&(x + y));
-            for r in 0..3 {
-                s[(r0 + r, c0)] = d[r];
-                for c in 0..3 {
-                    s[(r0 + r, c0 + 1 + c)] = k[(r, c)];
+        let blk =
+            |s: &mut DMatrix<f64>, r0: usize, c0: usize, x: &Vector3<f64>, y: &Vector3<f64>| {
+                let d = x - y;
+                let k = skew(&(x + y));
+                for r in 0..3 {
+                    s[(r0 + r, c0)] = d[r];
+                    for c in 0..3 {
+                        s[(r0 + r, c0 + 1 + c)] = k[(r, c)];
+                    }
                 }
-            }
-        };
+            };
         blk(&mut s, 0, 0, &av, &bv);
         blk(&mut s, 3, 0, &adv, &bdv);
         blk(&mut s, 3, 4, &av, &bv);
@@ -320,7 +325,11 @@ mod tests {
         let mut tc = vec![];
         for k in 0..8 {
             let f = pose(
-                [3.0 + 0.2 * (k as f64).sin(), 0.3 * (k as f64 * 1.3).cos(), 0.7 * k as f64],
+                [
+                    3.0 + 0.2 * (k as f64).sin(),
+                    0.3 * (k as f64 * 1.3).cos(),
+                    0.7 * k as f64,
+                ],
                 [-400.0 + 20.0 * k as f64, -100.0, 500.0 - 10.0 * k as f64],
             );
             fl.push(f);

@@ -293,7 +293,11 @@ pub fn predict(
     for (v, view) in data.views.iter().enumerate() {
         let cam_from_board = (g[v] * x).inverse() * target;
         for k_i in 0..data.board.cols * data.board.rows {
-            let p = board_point(k_i % data.board.cols, k_i / data.board.cols, data.board.square_mm);
+            let p = board_point(
+                k_i % data.board.cols,
+                k_i / data.board.cols,
+                data.board.square_mm,
+            );
             if let Some(uv) = geom::project(k, &(cam_from_board * p).coords) {
                 out.push((view.id, k_i, uv));
             }
@@ -349,7 +353,10 @@ fn corner_ids(views: &[View]) -> Vec<(u64, usize)> {
 
 /// Centre and radius of the bend model: the board's centre and its corner radius.
 pub fn bend_centre(b: &detect::BoardSpec) -> [f64; 3] {
-    let (w, h) = ((b.cols + 1) as f64 * b.square_mm, (b.rows + 1) as f64 * b.square_mm);
+    let (w, h) = (
+        (b.cols + 1) as f64 * b.square_mm,
+        (b.rows + 1) as f64 * b.square_mm,
+    );
     [w / 2.0, h / 2.0, (w * w + h * h).sqrt() / 2.0]
 }
 
@@ -375,7 +382,14 @@ fn ml_fit(
     board: BoardModel,
     scale: f64,
     bend: [f64; 2],
-) -> (Intrinsics, Isometry3<f64>, Isometry3<f64>, f64, [f64; 2], crate::solve::lm::LmReport) {
+) -> (
+    Intrinsics,
+    Isometry3<f64>,
+    Isometry3<f64>,
+    f64,
+    [f64; 2],
+    crate::solve::lm::LmReport,
+) {
     let p = Reproj {
         obs,
         flange: g,
@@ -391,7 +405,14 @@ fn ml_fit(
     };
     let rep = minimize(&p, p.pack(k, &[*x, *target], scale, bend), &opts);
     let (s, c) = p.board_params(&rep.x);
-    (p.intrinsics(&rep.x), p.pose(&rep.x, 0), p.pose(&rep.x, 1), s, c, rep)
+    (
+        p.intrinsics(&rep.x),
+        p.pose(&rep.x, 0),
+        p.pose(&rep.x, 1),
+        s,
+        c,
+        rep,
+    )
 }
 
 /// Target pose from X and the per-view board poses: mean of `G_i X T_i`.
@@ -429,7 +450,10 @@ pub fn calibrate(
         .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
         .collect();
     let hs: Vec<Matrix3<f64>> = per_view.iter().filter_map(|o| view_h(o)).collect();
-    let (cx0, cy0) = (train.width as f64 / 2.0 - 0.5, train.height as f64 / 2.0 - 0.5);
+    let (cx0, cy0) = (
+        train.width as f64 / 2.0 - 0.5,
+        train.height as f64 / 2.0 - 0.5,
+    );
     let plausible = |k: &Matrix3<f64>| {
         let f = (k[(0, 0)] * k[(1, 1)]).sqrt();
         f > 0.1 * train.width as f64
@@ -454,7 +478,11 @@ pub fn calibrate(
     let nsub = n.min(20);
     let sub: Vec<usize> = (0..nsub).map(|i| i * n / nsub).collect();
     let val: Vec<usize> = (0..n).filter(|i| !sub.contains(i)).collect();
-    let val = if val.len() >= 3 { val } else { (0..n).collect() };
+    let val = if val.len() >= 3 {
+        val
+    } else {
+        (0..n).collect()
+    };
     let sub_obs: Vec<Obs> = sub
         .iter()
         .enumerate()
@@ -483,7 +511,11 @@ pub fn calibrate(
             board: BoardModel::default(),
             arm: None,
         };
-        let rep = minimize(&p, p.pack(&k0, &init_poses, 1.0, [0.0; 2]), &LmOptions::default());
+        let rep = minimize(
+            &p,
+            p.pack(&k0, &init_poses, 1.0, [0.0; 2]),
+            &LmOptions::default(),
+        );
         let k = p.intrinsics(&rep.x);
         let train_rms = rms(&rep.residuals);
         // Validation: other views' poses fitted with k held.
@@ -527,13 +559,22 @@ pub fn calibrate(
         s.sort_by(f64::total_cmp);
         s[s.len() / 2]
     };
-    let all_res: Vec<f64> = t_views.iter().flat_map(|(_, r)| r.iter().copied()).collect();
+    let all_res: Vec<f64> = t_views
+        .iter()
+        .flat_map(|(_, r)| r.iter().copied())
+        .collect();
     let sig = robust_sigma(&all_res).max(1e-3);
     let mut keep_views = vec![];
     let mut rejected_corners = 0;
     for (i, v) in views.iter_mut().enumerate() {
         if !(view_rms[i].is_finite()) || view_rms[i] > (4.0 * med).max(med + 0.5) {
-            rejected_views.push((v.id, format!("reprojection RMS {:.3} px vs median {:.3} px", view_rms[i], med)));
+            rejected_views.push((
+                v.id,
+                format!(
+                    "reprojection RMS {:.3} px vs median {:.3} px",
+                    view_rms[i], med
+                ),
+            ));
             continue;
         }
         // Corner rejection (5 σ).
@@ -585,18 +626,40 @@ pub fn calibrate(
         centre: bend_centre(&board),
         ..opts.board
     };
-    let (mut kf, mut xf, mut tf, mut sf, mut cf, mut rep) =
-        ml_fit(&obs, &g, &k1, model.mask(), &best.x, &best.target, bc, 1.0, [0.0; 2]);
+    let (mut kf, mut xf, mut tf, mut sf, mut cf, mut rep) = ml_fit(
+        &obs,
+        &g,
+        &k1,
+        model.mask(),
+        &best.x,
+        &best.target,
+        bc,
+        1.0,
+        [0.0; 2],
+    );
     let sig2 = robust_sigma(rep.residuals.as_slice()).max(1e-4);
     let bad: Vec<bool> = (0..obs.len())
-        .map(|i| rep.residuals[2 * i].hypot(rep.residuals[2 * i + 1]) > 5.0 * sig2 * std::f64::consts::SQRT_2)
+        .map(|i| {
+            rep.residuals[2 * i].hypot(rep.residuals[2 * i + 1])
+                > 5.0 * sig2 * std::f64::consts::SQRT_2
+        })
         .collect();
     let ids_all = corner_ids(&views);
     let mut ids = ids_all.clone();
     if bad.iter().any(|b| *b) {
         rejected_corners += bad.iter().filter(|b| **b).count();
-        let obs_used: Vec<Obs> = obs.iter().zip(&bad).filter(|(_, b)| !**b).map(|(o, _)| *o).collect();
-        ids = ids_all.iter().zip(&bad).filter(|(_, b)| !**b).map(|(o, _)| *o).collect();
+        let obs_used: Vec<Obs> = obs
+            .iter()
+            .zip(&bad)
+            .filter(|(_, b)| !**b)
+            .map(|(o, _)| *o)
+            .collect();
+        ids = ids_all
+            .iter()
+            .zip(&bad)
+            .filter(|(_, b)| !**b)
+            .map(|(o, _)| *o)
+            .collect();
         (kf, xf, tf, sf, cf, rep) = ml_fit(&obs_used, &g, &kf, model.mask(), &xf, &tf, bc, sf, cf);
     }
     let ml = Estimate {
@@ -613,7 +676,9 @@ pub fn calibrate(
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
         let mut xs = vec![];
         for _ in 0..opts.bootstrap {
-            let pick: Vec<usize> = (0..views.len()).map(|_| rng.random_range(0..views.len())).collect();
+            let pick: Vec<usize> = (0..views.len())
+                .map(|_| rng.random_range(0..views.len()))
+                .collect();
             let bv: Vec<View> = pick.iter().map(|&i| views[i].clone()).collect();
             let bo = obs_of(&bv, &board);
             let bg = motion_poses(&bv, train.mount);
@@ -623,7 +688,10 @@ pub fn calibrate(
         let (mut st, mut sr) = ([0.0; 3], [0.0; 3]);
         for x in &xs {
             let d = xf.inverse() * x;
-            let (t, r) = (x.translation.vector - xf.translation.vector, d.rotation.scaled_axis());
+            let (t, r) = (
+                x.translation.vector - xf.translation.vector,
+                d.rotation.scaled_axis(),
+            );
             for a in 0..3 {
                 st[a] += t[a] * t[a];
                 sr[a] += r[a].to_degrees().powi(2);
@@ -682,7 +750,11 @@ fn estimate(
     }
 }
 
-fn covariance(rep: &crate::solve::lm::LmReport, mask: &[bool; N_INTR], b: BoardModel) -> Uncertainty {
+fn covariance(
+    rep: &crate::solve::lm::LmReport,
+    mask: &[bool; N_INTR],
+    b: BoardModel,
+) -> Uncertainty {
     let j: &DMatrix<f64> = &rep.jacobian;
     let (m, n) = (j.nrows(), j.ncols());
     let mut u = Uncertainty::default();
@@ -773,7 +845,11 @@ fn incremental(
             xs.push(x);
         }
     }
-    let xa = if xs.is_empty() { x } else { geom::mean_pose(&xs) };
+    let xa = if xs.is_empty() {
+        x
+    } else {
+        geom::mean_pose(&xs)
+    };
     let gk: Vec<Isometry3<f64>> = keep.iter().map(|&i| g[i]).collect();
     let tk: Vec<Isometry3<f64>> = keep.iter().map(|&i| t[i]).collect();
     let ta = target_from(&gk, &xa, &tk);
@@ -835,13 +911,20 @@ mod tests {
                 let pol = 0.1 + 0.25 * ((v % 3) as f64) / 2.0;
                 let r = 480.0 + 40.0 * (v % 5) as f64;
                 let eye = centre
-                    + Vector3::new(r * pol.sin() * az.cos(), r * pol.sin() * az.sin(), r * pol.cos());
+                    + Vector3::new(
+                        r * pol.sin() * az.cos(),
+                        r * pol.sin() * az.sin(),
+                        r * pol.cos(),
+                    );
                 // Camera looking at the centre.
                 let z = (centre - eye).normalize();
                 let xa = Vector3::new(-az.sin(), az.cos(), 0.0);
                 let xa = (xa - z * xa.dot(&z)).normalize();
                 let y = z.cross(&xa);
-                let rot = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[xa, y, z]));
+                let rot =
+                    nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
+                        xa, y, z,
+                    ]));
                 let cam = Isometry3::from_parts(
                     Translation3::from(eye.coords),
                     UnitQuaternion::from_rotation_matrix(&rot),
@@ -861,8 +944,15 @@ mod tests {
                 let corners = board_points(&board)
                     .iter()
                     .map(|p| {
-                        let uv = geom::project(&k, &(cam_from_board * nalgebra::Point3::from(*p)).coords).unwrap();
-                        Some([uv[0] + noise.sample(&mut rng), uv[1] + noise.sample(&mut rng)])
+                        let uv = geom::project(
+                            &k,
+                            &(cam_from_board * nalgebra::Point3::from(*p)).coords,
+                        )
+                        .unwrap();
+                        Some([
+                            uv[0] + noise.sample(&mut rng),
+                            uv[1] + noise.sample(&mut rng),
+                        ])
                     })
                     .collect();
                 views.push(View {
@@ -883,9 +973,16 @@ mod tests {
             eprintln!("{mount:?}: ML X error {dt:.4} mm {dr:.5} deg, rms {:.4} px, model {:?} {:?} K {:?}", res.ml.train_rms_px, res.distortion, res.model_scores, res.intrinsics_only);
             for e in &res.closed_form {
                 let (dt, dr) = geom::pose_error(&e.x, &x);
-                eprintln!("  {}: {dt:.4} mm {dr:.5} deg rms {:.4}", e.method, e.train_rms_px);
+                eprintln!(
+                    "  {}: {dt:.4} mm {dr:.5} deg rms {:.4}",
+                    e.method, e.train_rms_px
+                );
             }
-            let tsai = res.closed_form.iter().find(|e| e.method == "tsai-lenz").unwrap();
+            let tsai = res
+                .closed_form
+                .iter()
+                .find(|e| e.method == "tsai-lenz")
+                .unwrap();
             let (tt, _) = geom::pose_error(&tsai.x, &x);
             assert!(dt < 0.5 && dr < 0.05, "{mount:?}: {dt} mm {dr} deg");
             assert!(dt < tt, "ML {dt} mm not better than Tsai–Lenz {tt} mm");

@@ -125,7 +125,11 @@ impl Reproj<'_> {
         } else {
             1.0
         };
-        let c = if self.board.bend { [x[o], x[o + 1]] } else { [0.0; 2] };
+        let c = if self.board.bend {
+            [x[o], x[o + 1]]
+        } else {
+            [0.0; 2]
+        };
         (s, c)
     }
     /// Initial parameter vector.
@@ -137,7 +141,10 @@ impl Reproj<'_> {
         bend: [f64; 2],
     ) -> DVector<f64> {
         let kv = k.to_vec();
-        let mut v: Vec<f64> = (0..N_INTR).filter(|i| self.intr_free[*i]).map(|i| kv[i]).collect();
+        let mut v: Vec<f64> = (0..N_INTR)
+            .filter(|i| self.intr_free[*i])
+            .map(|i| kv[i])
+            .collect();
         for p in poses {
             v.extend(super::geom::pose_to_vec(p));
         }
@@ -158,7 +165,11 @@ impl Reproj<'_> {
         let n = self.n_params();
         let m = 2 * self.obs.len();
         let mut r = DVector::zeros(m);
-        let mut j = if jac { DMatrix::zeros(m, n) } else { DMatrix::zeros(0, 0) };
+        let mut j = if jac {
+            DMatrix::zeros(m, n)
+        } else {
+            DMatrix::zeros(0, 0)
+        };
         let k = self.intrinsics(x);
         let (s, c) = self.board_params(x);
         let [x0, y0, rr] = self.board.centre;
@@ -199,38 +210,47 @@ impl Reproj<'_> {
             let p = Vector3::new(s * o.pt.x, s * o.pt.y, c[0] * qx + c[1] * qy);
             let dp_ds = Vector3::new(o.pt.x, o.pt.y, 0.0);
             // Camera-frame point and its derivatives w.r.t. pose blocks and the board point.
-            let (pc, blocks, dpc_dp): (Vector3<f64>, Vec<(usize, nalgebra::SMatrix<f64, 3, 6>)>, nalgebra::Matrix3<f64>) =
-                match self.layout {
-                    Layout::Views(_) => {
-                        let off = self.pose_offset(o.view);
-                        let (y, jp) = transform_jac(&xs[off..off + 6], &p);
-                        let rot = pose_from_slice(&xs[off..off + 6]).rotation.to_rotation_matrix();
-                        (y, vec![(off, jp)], *rot.matrix())
+            let (pc, blocks, dpc_dp): (
+                Vector3<f64>,
+                Vec<(usize, nalgebra::SMatrix<f64, 3, 6>)>,
+                nalgebra::Matrix3<f64>,
+            ) = match self.layout {
+                Layout::Views(_) => {
+                    let off = self.pose_offset(o.view);
+                    let (y, jp) = transform_jac(&xs[off..off + 6], &p);
+                    let rot = pose_from_slice(&xs[off..off + 6])
+                        .rotation
+                        .to_rotation_matrix();
+                    (y, vec![(off, jp)], *rot.matrix())
+                }
+                Layout::HandEye => {
+                    let (ox, ob) = (self.pose_offset(0), self.pose_offset(1));
+                    let (y1, jb) = transform_jac(&xs[ob..ob + 6], &p);
+                    let f = match &arm_frames {
+                        Some(af) => &af[o.view].0,
+                        None => &self.flange[o.view],
+                    };
+                    let y2 = f.inverse_transform_vector(&(y1 - f.translation.vector));
+                    let (y3, jx) = inv_transform_jac(&xs[ox..ox + 6], &y2);
+                    let rf = f.rotation.to_rotation_matrix();
+                    let rx = pose_from_slice(&xs[ox..ox + 6])
+                        .rotation
+                        .to_rotation_matrix();
+                    let rb = pose_from_slice(&xs[ob..ob + 6])
+                        .rotation
+                        .to_rotation_matrix();
+                    let chain = rx.matrix().transpose() * rf.matrix().transpose();
+                    if let Some(af) = &arm_frames {
+                        // F(δ) = Exp(ω_k δ_k about p_k) F: F⁻¹y changes by −F_R⁻¹ (ω × (y − p)).
+                        d_arm = af[o.view]
+                            .1
+                            .iter()
+                            .map(|(w, pk)| -(chain * w.cross(&(y1 - pk))))
+                            .collect();
                     }
-                    Layout::HandEye => {
-                        let (ox, ob) = (self.pose_offset(0), self.pose_offset(1));
-                        let (y1, jb) = transform_jac(&xs[ob..ob + 6], &p);
-                        let f = match &arm_frames {
-                            Some(af) => &af[o.view].0,
-                            None => &self.flange[o.view],
-                        };
-                        let y2 = f.inverse_transform_vector(&(y1 - f.translation.vector));
-                        let (y3, jx) = inv_transform_jac(&xs[ox..ox + 6], &y2);
-                        let rf = f.rotation.to_rotation_matrix();
-                        let rx = pose_from_slice(&xs[ox..ox + 6]).rotation.to_rotation_matrix();
-                        let rb = pose_from_slice(&xs[ob..ob + 6]).rotation.to_rotation_matrix();
-                        let chain = rx.matrix().transpose() * rf.matrix().transpose();
-                        if let Some(af) = &arm_frames {
-                            // F(δ) = Exp(ω_k δ_k about p_k) F: F⁻¹y changes by −F_R⁻¹ (ω × (y − p)).
-                            d_arm = af[o.view]
-                                .1
-                                .iter()
-                                .map(|(w, pk)| -(chain * w.cross(&(y1 - pk))))
-                                .collect();
-                        }
-                        (y3, vec![(ox, jx), (ob, chain * jb)], chain * rb.matrix())
-                    }
-                };
+                    (y3, vec![(ox, jx), (ob, chain * jb)], chain * rb.matrix())
+                }
+            };
             let Some((uv, jp, ji)) = project_jac(&k, &pc) else {
                 // Behind the camera: a large constant residual, no gradient.
                 r[2 * i] = 1e4;

@@ -186,9 +186,14 @@ mod tests {
             .flat_map(|j| (0..8).map(move |i| [i as f64 * 30.0, j as f64 * 30.0]))
             .collect();
         let mut hs = vec![];
-        for (n, rv) in [[0.3, 0.1, 0.2], [-0.2, 0.35, 1.0], [0.1, -0.3, 2.5], [0.25, 0.25, -1.0]]
-            .iter()
-            .enumerate()
+        for (n, rv) in [
+            [0.3, 0.1, 0.2],
+            [-0.2, 0.35, 1.0],
+            [0.1, -0.3, 2.5],
+            [0.25, 0.25, -1.0],
+        ]
+        .iter()
+        .enumerate()
         {
             let pose = Isometry3::from_parts(
                 Translation3::new(-100.0 + n as f64 * 10.0, -70.0, 600.0),
