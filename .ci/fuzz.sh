@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Coverage-guided fuzzing of every wire decoder, a short fixed time each (total < ~3 min).
+# Coverage-guided fuzzing of every wire decoder and file reader (dataset, calibration, plan,
+# plan spec, scenario, device file), a short fixed time each (12 targets, total < ~6 min).
 # Installs cargo-fuzz when missing. `--sanitizer none` works on the stable toolchain.
 # Usage: bash .ci/fuzz.sh [seconds-per-target]   (default 25)
 set -euo pipefail
@@ -11,6 +12,22 @@ if ! cargo fuzz --version >/dev/null 2>&1; then
 fi
 cd fuzz
 targets=$(cargo fuzz list)
+# Seed the file-reader targets with the project's own files (first 4 KB: -max_len) and the
+# small hand-picked seeds in fuzz/seeds/<target>/, so the short runs start from valid input.
+seed() {
+  local t=$1; shift
+  mkdir -p "corpus/$t"
+  for f in "$@"; do
+    [ -f "$f" ] && head -c 4000 "$f" > "corpus/$t/seed-$(echo "$f" | tr '/.' '__')"
+  done
+  return 0
+}
+seed dataset ../tests/data/*/heldout.jsonl ../tests/data/*/train.jsonl seeds/dataset/*
+seed calibration seeds/calibration/*
+seed plan seeds/plan/*
+seed spec ../plans/*.toml
+seed scenario ../mocks/scenarios/*.toml
+seed devices seeds/devices/*
 for t in $targets; do
   echo "== fuzz $t (${secs}s)"
   mkdir -p "corpus/$t"

@@ -13,5 +13,6 @@ pub mod dataset;
 pub mod diagnose;
 pub mod model;
 pub mod plan;
+pub mod plausible;
 pub mod report;
 pub mod solve;

@@ -1,6 +1,7 @@
 //! The one integration-test binary (see `Cargo.toml`: `autotests = false`).
 //! Each area adds a module here.
 mod acquire;
+mod bad_input;
 mod camera_calib;
 mod camera_run;
 mod cli;

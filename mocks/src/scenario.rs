@@ -585,7 +585,70 @@ pub struct Scenario {
 impl Scenario {
     /// Parse TOML text.
     pub fn from_toml(text: &str) -> Result<Self, ScenarioError> {
-        Ok(toml::from_str(text)?)
+        let s: Scenario = toml::from_str(text)?;
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Value checks a simulation needs to terminate and to mean something: every number
+    /// finite (a `nan` settling time never settles), rates, caps and times positive and
+    /// bounded, image sizes bounded (issue 14 §5). Called by [`Scenario::from_toml`].
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        let bad = |m: String| Err(ScenarioError::Invalid(m));
+        if let Ok(v) = toml::Value::try_from(self) {
+            if let Some(path) = non_finite(&v, String::new()) {
+                return bad(format!("{path}: not a finite number"));
+            }
+        }
+        let within = |name: String, v: f64, lo: f64, hi: f64, open_lo: bool| {
+            let ok = (if open_lo { v > lo } else { v >= lo }) && v <= hi;
+            if ok {
+                Ok(())
+            } else {
+                let l = if open_lo { "(" } else { "[" };
+                Err(ScenarioError::Invalid(format!(
+                    "{name} = {v} is outside {l}{lo}, {hi}]"
+                )))
+            }
+        };
+        for a in &self.arms {
+            let n = |k: &str| format!("arm \"{}\" motion.{k}", a.name);
+            within(
+                n("max_vel_deg_s"),
+                a.motion.max_vel_deg_s,
+                0.0,
+                10_000.0,
+                true,
+            )?;
+            within(
+                n("max_acc_deg_s2"),
+                a.motion.max_acc_deg_s2,
+                0.0,
+                100_000.0,
+                true,
+            )?;
+            within(n("settle_s"), a.motion.settle_s, 0.0, 600.0, false)?;
+        }
+        for t in &self.trackers {
+            let n = |k: &str| format!("tracker \"{}\" {k}", t.name);
+            within(n("rate_hz"), t.rate_hz, 0.0, 100_000.0, true)?;
+            within(n("fit_rms_mm"), t.fit_rms_mm, 0.0, 100.0, false)?;
+        }
+        for l in &self.lasers {
+            let n = |k: &str| format!("laser \"{}\" {k}", l.name);
+            within(n("rate_hz"), l.rate_hz, 0.0, 100_000.0, true)?;
+            within(n("min_mm"), l.min_mm, 0.0, 100_000.0, false)?;
+            within(n("max_mm"), l.max_mm, l.min_mm, 100_000.0, true)?;
+        }
+        for c in &self.cameras {
+            if c.width == 0 || c.height == 0 || c.width > 20_000 || c.height > 20_000 {
+                return bad(format!(
+                    "camera \"{}\": {}×{} pixels is outside 1..20000 each way",
+                    c.name, c.width, c.height
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Read and parse a file.
@@ -662,5 +725,25 @@ impl Scenario {
             cameras: Vec::new(),
             scene: SceneConfig::default(),
         }
+    }
+}
+
+/// The dotted path of the first non-finite float in a TOML value, if any.
+fn non_finite(v: &toml::Value, path: String) -> Option<String> {
+    match v {
+        toml::Value::Float(f) if !f.is_finite() => Some(path),
+        toml::Value::Table(t) => t.iter().find_map(|(k, x)| {
+            let p = if path.is_empty() {
+                k.clone()
+            } else {
+                format!("{path}.{k}")
+            };
+            non_finite(x, p)
+        }),
+        toml::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .find_map(|(i, x)| non_finite(x, format!("{path}[{i}]"))),
+        _ => None,
     }
 }

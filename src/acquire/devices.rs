@@ -13,6 +13,8 @@
 //! # serial = "/dev/ttyUSB0"      # ndi-serial, dl-rs1a
 //! # path = "images/"             # pgm-folder
 //! # ports = { rtde = 30004, dashboard = 29999, script = 30003 }   # rtde only
+//! # max_speed_deg_s = 90.0       # arms: the cell's speed limit (caps --speed-deg-s)
+//! # max_accel_deg_s2 = 180.0     # arms: the cell's acceleration limit (caps --accel-deg-s2)
 //! ```
 use std::path::Path;
 
@@ -118,6 +120,12 @@ pub struct DeviceEntry {
     /// Tracker tool definitions (`.rom` files, relative to the device file), for NDI trackers.
     #[serde(default)]
     pub tools: Vec<String>,
+    /// Arms: the cell's joint speed limit (deg/s); `robocal run --speed-deg-s` may not exceed it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_speed_deg_s: Option<f64>,
+    /// Arms: the cell's joint acceleration limit (deg/s²); `--accel-deg-s2` may not exceed it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_accel_deg_s2: Option<f64>,
 }
 
 impl DeviceEntry {
@@ -227,6 +235,21 @@ impl DevicesFile {
                         "`{f}` does not apply to protocol {:?} (give `{field}`)",
                         d.protocol
                     )));
+                }
+            }
+            for (f, v) in [
+                ("max_speed_deg_s", d.max_speed_deg_s),
+                ("max_accel_deg_s2", d.max_accel_deg_s2),
+            ] {
+                if let Some(v) = v {
+                    if d.role != Role::Arm {
+                        return Err(bad(format!("`{f}` is for arms only")));
+                    }
+                    if !(v.is_finite() && v > 0.0 && v <= 1.0e5) {
+                        return Err(bad(format!(
+                            "`{f}` = {v}: a limit is a finite number > 0 (deg/s, deg/s²)"
+                        )));
+                    }
                 }
             }
             if d.ports.is_some() && d.protocol != Protocol::Rtde {

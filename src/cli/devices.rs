@@ -153,6 +153,10 @@ async fn arm_probe<A: robocal_drivers::Arm>(arm: &A) -> Probe {
 
 /// Run `robocal devices`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    // A NaN / negative / infinite deadline is refused, not clamped (NaN used to panic).
+    let timeout = crate::plausible::limits::seconds("--timeout-s", args.timeout_s, 600.0)
+        .map_err(anyhow::Error::msg)?
+        .max(Duration::from_millis(100));
     let file = DevicesFile::read(&args.devices)?;
     if file.devices.is_empty() {
         println!("{}: no devices", args.devices.display());
@@ -167,7 +171,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     } else {
         None
     };
-    let timeout = Duration::from_secs_f64(args.timeout_s.clamp(0.1, 600.0));
     let mut failures = 0;
     for d in &file.devices {
         let role = format!("{:?}", d.role).to_lowercase();

@@ -46,15 +46,15 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     if super::diagnose_camera::is_camera_dataset(&args.data) {
         return super::diagnose_camera::run(&args.data, args.heldout.as_deref(), &args.out);
     }
+    // Bad input is refused at the boundary: strict reader + plausibility (issue 14 §5).
+    let (ds, _) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     // Laser (range sensor) datasets have their own effect library (seed 000 geometry).
-    if let Ok(ds) = crate::dataset::Dataset::load(&args.data) {
-        if super::calibrate::laser::is_laser_dataset(&ds) {
-            return super::calibrate::laser::diagnose_laser(
-                &args.data,
-                args.heldout.as_deref(),
-                &args.out,
-            );
-        }
+    if super::calibrate::laser::is_laser_dataset(&ds) {
+        return super::calibrate::laser::diagnose_laser(
+            &args.data,
+            args.heldout.as_deref(),
+            &args.out,
+        );
     }
     let main = data::load_jsonl(&args.data)?;
     for w in &main.warnings {
@@ -67,9 +67,7 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     let mut model = KinematicModel::from_robot_block(&main.header.robot)
         .with_context(|| format!("{}: robot block", args.data.display()))?;
     if let Some(c) = &args.calibration {
-        let text = std::fs::read_to_string(c).with_context(|| format!("{}", c.display()))?;
-        let cal: CalibrationFile =
-            serde_json::from_str(&text).with_context(|| format!("{}", c.display()))?;
+        let cal = crate::plausible::calibration::load_for(c, &ds.header.robot, &args.data)?;
         model
             .apply_cal_params(&cal.params)
             .with_context(|| format!("{}: params", c.display()))?;
@@ -87,6 +85,15 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     }
     let train = data::observations(&train_recs, &session, dof);
     let held = data::observations(&held_recs, &session, dof);
+    if let (Some(x), Some(h)) = (&extra, &args.heldout) {
+        let recs: Vec<&PoseRecord> = x.poses.iter().collect();
+        anyhow::ensure!(
+            !data::observations(&recs, &session, dof).is_empty(),
+            "{}: no usable held-out poses (pose records with `q` and a visible marker `p`): a \
+             --heldout file must hold poses to score on",
+            h.display()
+        );
+    }
     if train.len() < 20 {
         anyhow::bail!(
             "{}: only {} usable training poses (need ≥ 20)",

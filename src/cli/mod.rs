@@ -15,6 +15,7 @@ pub mod plan;
 pub mod predict;
 pub mod report;
 pub mod run;
+pub mod run_checks;
 pub mod sim;
 pub mod wire_cell;
 

@@ -136,8 +136,26 @@ fn write(path: &PathBuf, text: &str) -> anyhow::Result<()> {
 
 /// Run `robocal plan`.
 pub fn exec(a: Args) -> anyhow::Result<()> {
+    if a.select == Some(0) {
+        bail!("--select 0: keep at least 1 pose (or leave --select out to keep every pose)");
+    }
+    if !(a.pac_speed.is_finite() && a.pac_speed > 0.0 && a.pac_speed <= 100.0) {
+        bail!(
+            "--pac-speed {}: a PacScript speed is a percentage in (0, 100]",
+            a.pac_speed
+        );
+    }
     let plan = if let Some(path) = &a.check {
-        PlanFile::read(path).with_context(|| format!("checking {}", path.display()))?
+        let plan = PlanFile::read(path).with_context(|| format!("checking {}", path.display()))?;
+        // Re-check every pose against the plan's constraints (table, envelope, joint
+        // limits, self-collision): the file may have been edited since it was planned.
+        let n = crate::plan::recheck::recheck(&plan, None)
+            .with_context(|| format!("checking {}", path.display()))?;
+        println!(
+            "{}: {n} poses re-checked against the plan's constraints: all pass",
+            path.display()
+        );
+        plan
     } else {
         let spec_path = a.spec.as_ref().context("--spec is required")?;
         let spec = PlanSpec::from_file(spec_path)

@@ -167,9 +167,10 @@ pub fn write_csv<W: Write>(mut w: W, rows: &[PredictedPoint]) -> std::io::Result
 
 /// `robocal predict` as a library call: reads both files and predicts.
 pub fn predict_files(cal: &Path, data: &Path) -> anyhow::Result<Vec<PredictedPoint>> {
-    let cal = CalibrationFile::load(cal)?;
+    // Strict reader + plausibility of both files, and one robot model (issue 14 §5).
+    let ds = crate::plausible::load_checked(data)?;
+    let cal = crate::plausible::calibration::load_for(cal, &ds.header.robot, data)?;
     let predictor = Predictor::new(&cal)?;
-    let ds = Dataset::load(data)?;
     predictor
         .predict_dataset(&ds)
         .with_context(|| format!("predicting {}", data.display()))

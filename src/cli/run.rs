@@ -434,6 +434,15 @@ fn acquire_in(dir: &Path, cfg: &RunConfig, args: &Args) -> anyhow::Result<RunSum
     let plan_path = dir.join(&cfg.plan);
     let plan = PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
     let config_path = dir.join(&cfg.config);
+    super::run_checks::check_run_inputs(
+        &plan,
+        &plan_path,
+        &cfg.mode,
+        &config_path,
+        cfg.speed.max_vel.to_degrees(),
+        cfg.speed.max_acc.to_degrees(),
+        cfg.sample.frames,
+    )?;
     // One runtime for the whole run: the wire clients (and, in dry runs, the simulators'
     // servers) live on it.
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -526,6 +535,15 @@ fn new_run(args: &Args) -> anyhow::Result<(PathBuf, RunConfig)> {
     }
     // Check the plan before creating anything.
     let plan = PlanFile::read(plan_path).with_context(|| format!("{}", plan_path.display()))?;
+    super::run_checks::check_run_inputs(
+        &plan,
+        plan_path,
+        mode,
+        config_src,
+        args.speed_deg_s,
+        args.accel_deg_s2,
+        args.frames,
+    )?;
     if dir.join(DATASET).exists() {
         bail!(
             "{} already holds a dataset: continue it with `robocal run --resume {}`",

@@ -25,6 +25,7 @@ pub mod export;
 pub mod file;
 pub mod gen;
 pub mod observe;
+pub mod recheck;
 pub mod spec;
 pub mod timing;
 

@@ -400,6 +400,24 @@ impl PlanSpec {
                 "exactly one of [annulus], [shell], [planes], [validation] is required, got {n}"
             ));
         }
+        // Every number finite and within a plausible magnitude (mm, deg, s): a NaN or 1e308
+        // would otherwise loop or allocate without bound further down.
+        if let Ok(v) = toml::Value::try_from(self) {
+            if let Some((path, x)) = implausible_float(&v, String::new()) {
+                return bad(format!(
+                    "{path} = {x}: not a finite number within ±{MAX_MAGNITUDE:e} (files use mm, \
+                     degrees, seconds)"
+                ));
+            }
+        }
+        let count = self.target_count();
+        if count > MAX_TARGETS {
+            return bad(format!(
+                "{} targets requested (points / strata / blocks): more than {MAX_TARGETS}; a \
+                 calibration needs a few hundred (seed 001: 200 points)",
+                count
+            ));
+        }
         let range = |name: &str, r: [f64; 2]| -> Result<(), PlanError> {
             if !(r[0].is_finite() && r[1].is_finite() && r[0] <= r[1]) {
                 return Err(PlanError::Spec {
@@ -449,6 +467,12 @@ impl PlanSpec {
             range("laser.range_mm", l.range_mm)?;
         }
         let t = &self.timing;
+        if t.settle_s > MAX_WAIT_S || t.sample_s > MAX_WAIT_S {
+            return bad(format!(
+                "timing: settle_s {} / sample_s {}: at most {MAX_WAIT_S} s per pose",
+                t.settle_s, t.sample_s
+            ));
+        }
         if t.speed_deg_s.is_empty()
             || t.accel_deg_s2.is_empty()
             || t.speed_deg_s
@@ -460,6 +484,59 @@ impl PlanSpec {
             return bad("timing: speeds and accelerations must be > 0, times ≥ 0".into());
         }
         Ok(())
+    }
+}
+
+/// Most targets a spec may request (the seed papers use 200; the plan is kept in memory).
+pub const MAX_TARGETS: usize = 100_000;
+/// Largest magnitude of any number in a spec (mm, deg, s).
+pub const MAX_MAGNITUDE: f64 = 1.0e6;
+/// Longest settle / sample time per pose (s).
+pub const MAX_WAIT_S: f64 = 600.0;
+
+impl PlanSpec {
+    /// Number of targets the generator will draw (saturating).
+    pub fn target_count(&self) -> usize {
+        let prod = |v: &[usize]| v.iter().fold(1usize, |a, &b| a.saturating_mul(b));
+        let mut n = 0usize;
+        if let Some(a) = &self.annulus {
+            n = n.saturating_add(a.points);
+        }
+        if let Some(s) = &self.shell {
+            n = n.saturating_add(prod(&s.strata));
+        }
+        if let Some(p) = &self.planes {
+            n = n.saturating_add(prod(&[p.planes.len(), p.blocks[0], p.blocks[1], 10]));
+        }
+        if let Some(v) = &self.validation {
+            if let Some(f) = &v.five_direction {
+                n = n.saturating_add(prod(&[f.targets[0], f.targets[1], 5]));
+            }
+            if let Some(c) = &v.coincidence {
+                n = n.saturating_add(c.points);
+            }
+        }
+        n
+    }
+}
+
+/// The first float of a TOML tree that is not finite or beyond [`MAX_MAGNITUDE`].
+fn implausible_float(v: &toml::Value, path: String) -> Option<(String, f64)> {
+    match v {
+        toml::Value::Float(f) if !f.is_finite() || f.abs() > MAX_MAGNITUDE => Some((path, *f)),
+        toml::Value::Table(t) => t.iter().find_map(|(k, x)| {
+            let p = if path.is_empty() {
+                k.clone()
+            } else {
+                format!("{path}.{k}")
+            };
+            implausible_float(x, p)
+        }),
+        toml::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .find_map(|(i, x)| implausible_float(x, format!("{path}[{i}]"))),
+        _ => None,
     }
 }
 

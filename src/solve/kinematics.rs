@@ -544,6 +544,15 @@ pub fn identify(ds: &Dataset, opts: &IdentOptions) -> Result<IdentResult, SolveE
     let (heldout, source) = match &opts.heldout {
         Some(h) => {
             let (o, s) = observations(h, dof, Split::All);
+            if o.is_empty() {
+                // Never silently replaced by cross-validation.
+                return Err(SolveError::Invalid(format!(
+                    "no usable held-out poses in the --heldout file ({} pose records skipped: {}): a \
+                     held-out file must hold poses with `q` and a visible marker `p`",
+                    s.len(),
+                    s.first().map_or("no pose records".into(), |x| x.reason.clone())
+                )));
+            }
             skipped.extend(s);
             (o, Some(HeldoutSource::HeldoutFile))
         }
@@ -571,6 +580,7 @@ pub fn identify_obs(
     skipped: Vec<Skipped>,
     opts: &IdentOptions,
 ) -> Result<IdentResult, SolveError> {
+    check_enough_poses(chain, &train, opts)?;
     let fit = core_fit(chain, &train, opts)?;
     let mut prob = KinProblem::new(fit.model.clone(), &train, &opts.effects);
     prob.free = fit.free.clone();
@@ -676,6 +686,109 @@ pub fn identify_obs(
             .orientation
             .then_some(opts.orientation_weight_mm_per_rad),
     })
+}
+
+/// Poses needed for `n` parameters at `rows_per_pose` equations each: twice as many
+/// equations as parameters (so the residual keeps as many degrees of freedom as the fit
+/// uses, and σ and the parameter covariance mean something).
+pub fn poses_needed(n: usize, rows_per_pose: usize) -> usize {
+    (2 * n).div_ceil(rows_per_pose.max(1))
+}
+
+/// Structural identifiability of the candidate free set: the parameters the model can
+/// determine from *well spread* poses (deterministic pseudo-random joint angles within the
+/// limits), as names. Data-independent, so it says how many parameters a fit of this model
+/// really has, whatever the (possibly too few) poses given.
+pub fn structural_parameters(
+    chain: &KinematicModel,
+    opts: &IdentOptions,
+) -> Result<Vec<String>, SolveError> {
+    let mut start = candidate_model(chain, opts)?;
+    // A generic tool point (off the last joint's axis) so no parameter is lost to a
+    // special geometry of the nominal tool.
+    start.set_tool(&nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::new(37.0, 23.0, 110.0),
+        UnitQuaternion::identity(),
+    ));
+    let limits = chain.joint_limits();
+    let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut unit = || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let synth: Vec<PoseObs> = (0..60)
+        .map(|i| {
+            let q: Vec<f64> = limits
+                .iter()
+                .map(|&(lo, hi)| {
+                    let (lo, hi) = (lo.max(-std::f64::consts::PI), hi.min(std::f64::consts::PI));
+                    lo + (hi - lo) * unit()
+                })
+                .collect();
+            let pose = start.flange_pose(&q);
+            PoseObs {
+                id: i,
+                t: i as f64,
+                p: start.measured_point(&q),
+                quat: Some(pose.rotation),
+                q,
+                q_cmd: None,
+                point: None,
+                branch: None,
+                group: None,
+                temp_c: None,
+            }
+        })
+        .collect();
+    let none: [Arc<dyn Effect>; 0] = [];
+    let mut prob = KinProblem::new(start.clone(), &synth, &none);
+    prob.orientation = opts
+        .orientation
+        .then_some(opts.orientation_weight_mm_per_rad);
+    let (_, j) = prob.residuals_jacobian(&prob.x0());
+    let names = prob.x_names();
+    let priority = identifiability::priority_order(&start, &prob.free, names.len());
+    let idf = identifiability::analyse(&j, &names, &priority, opts.identifiability_tol);
+    let dropped: std::collections::HashSet<usize> = idf.dropped.iter().map(|d| d.index).collect();
+    Ok(names
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !dropped.contains(i))
+        .map(|(_, n)| n)
+        .collect())
+}
+
+/// Refuses an under-determined fit: fewer poses than [`poses_needed`] for the structurally
+/// identifiable parameters (plus the effects' parameters), saying how many more are needed.
+pub fn check_enough_poses(
+    chain: &KinematicModel,
+    train: &[PoseObs],
+    opts: &IdentOptions,
+) -> Result<(), SolveError> {
+    let params = structural_parameters(chain, opts)?;
+    let n_effect: usize = opts.effects.iter().map(|e| e.param_names().len()).sum();
+    let n = params.len() + n_effect;
+    let rpo = if opts.orientation { 6 } else { 3 };
+    let need = poses_needed(n, rpo);
+    if train.len() < need {
+        return Err(SolveError::Invalid(format!(
+            "under-determined fit: {} usable training poses give {} equations for {n} \
+             identifiable parameters ({} of the model{}): at least {need} poses are needed \
+             (twice as many equations as parameters); measure {} more poses",
+            train.len(),
+            rpo * train.len(),
+            params.len(),
+            if n_effect > 0 {
+                format!(", {n_effect} of the effects")
+            } else {
+                String::new()
+            },
+            need - train.len()
+        )));
+    }
+    Ok(())
 }
 
 /// k-fold cross-validated held-out scores (folds by position modulo k).

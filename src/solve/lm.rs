@@ -101,12 +101,22 @@ fn finite_all(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
 
-/// Solve `(A + λ·diag) δ = b` for symmetric PSD `A`; pseudo-inverse fallback.
+/// Iteration bound of the SVD fallback (nalgebra's default is unbounded).
+pub const SVD_MAX_ITER: usize = 1000;
+
+/// Solve `(A + λ·diag) δ = b` for symmetric PSD `A`; pseudo-inverse fallback. Non-finite
+/// input gives a zero step (never an unbounded SVD iteration).
 pub fn solve_spd(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
+    if !finite_all(a.as_slice()) || !finite_all(b.as_slice()) {
+        return DVector::zeros(b.len());
+    }
     if let Some(ch) = a.clone().cholesky() {
         return ch.solve(b);
     }
-    let svd = a.clone().svd(true, true);
+    let Some(svd) = nalgebra::SVD::try_new(a.clone(), true, true, f64::EPSILON, SVD_MAX_ITER)
+    else {
+        return DVector::zeros(b.len());
+    };
     let smax = svd.singular_values.max();
     svd.solve(b, smax * 1e-14)
         .unwrap_or_else(|_| DVector::zeros(b.len()))
@@ -119,7 +129,8 @@ pub fn minimize<P: LsqProblem + ?Sized>(p: &P, x0: DVector<f64>, o: &LmOptions) 
     let (mut r, mut j) = p.residuals_jacobian(&x);
     let mut evals = 1;
     let initial_cost = 0.5 * r.norm_squared();
-    if !finite_all(r.as_slice()) || !finite_all(j.as_slice()) {
+    // Finite residuals can still overflow the cost (|r| ~ 1e308): refuse those too.
+    if !finite_all(r.as_slice()) || !finite_all(j.as_slice()) || !initial_cost.is_finite() {
         return LmReport {
             x,
             cost: f64::INFINITY,
@@ -158,6 +169,10 @@ pub fn minimize<P: LsqProblem + ?Sized>(p: &P, x0: DVector<f64>, o: &LmOptions) 
         // JᵀJ through a GEMM (`tr_mul` walks column dot products and is ~3× slower here).
         let jtj = j.transpose() * &j;
         let g = j.tr_mul(&r);
+        if !finite_all(jtj.as_slice()) || !finite_all(g.as_slice()) {
+            term = Termination::NonFinite;
+            break;
+        }
         for k in 0..n {
             let c = jtj[(k, k)].sqrt();
             if c > dscale[k] {
@@ -339,6 +354,19 @@ mod tests {
         assert!(rep.termination.converged(), "{:?}", rep.termination);
         assert!((rep.x[0] / 12_000.0 - 1.0).abs() < 1e-9, "{}", rep.x[0]);
         assert!((rep.x[1] / 0.0013 - 1.0).abs() < 1e-9, "{}", rep.x[1]);
+    }
+
+    #[test]
+    fn overflowing_start_is_reported_not_iterated() {
+        // Finite residuals whose square overflows: NonFinite at once, no SVD of infinities.
+        let p = Expo {
+            t: vec![1.0, 2.0],
+            y: vec![1e308, -1e308],
+        };
+        let rep = minimize(&p, DVector::from_vec(vec![1.0, 1.0]), &LmOptions::default());
+        assert_eq!(rep.termination, Termination::NonFinite);
+        let a = DMatrix::from_element(2, 2, f64::INFINITY);
+        assert_eq!(solve_spd(&a, &DVector::zeros(2)), DVector::zeros(2));
     }
 
     #[test]

@@ -164,6 +164,26 @@ pub fn fit_nominal(ds: &Dataset, opts: &NominalOptions) -> Result<NominalFit, So
         None => observations(ds, dof, Split::Validation),
     };
     skipped.extend(s2);
+    if opts.heldout.is_some() && held.is_empty() {
+        return Err(SolveError::Invalid(format!(
+            "no usable held-out poses in the --heldout file ({} pose records skipped: {}): a held-out \
+             file must hold poses with `q` and a visible marker `p`",
+            skipped.len(),
+            skipped.first().map_or("no pose records".into(), |s| s.reason.clone())
+        )));
+    }
+    // Count rule: 6 base + 3 tool parameters need twice as many equations (3 per pose).
+    let need = super::kinematics::poses_needed(9, 3);
+    if train.len() < need {
+        return Err(SolveError::Invalid(format!(
+            "{} usable training poses give {} equations for the 9 parameters of the nominal fit \
+             (tracker → base 6, marker 3): at least {need} poses are needed (twice as many \
+             equations as parameters); measure {} more poses",
+            train.len(),
+            3 * train.len(),
+            need - train.len()
+        )));
+    }
     let mut fit = fit_nominal_obs(&chain, &train, false)?;
     if !held.is_empty() {
         let e = kinematics::model_errors(&fit.model, &held);

@@ -6,7 +6,14 @@ use super::SolveError;
 
 /// Nearest rotation (Frobenius) to a 3×3 matrix, det = +1.
 pub fn project_rotation(m: &Matrix3<f64>) -> Rotation3<f64> {
-    let svd = m.svd(true, true);
+    // Non-finite input would never converge in an unbounded SVD: identity instead (callers
+    // check their inputs are finite; this is the last line of defence).
+    if !m.iter().all(|x| x.is_finite()) {
+        return Rotation3::identity();
+    }
+    let Some(svd) = nalgebra::SVD::try_new(*m, true, true, f64::EPSILON, 1000) else {
+        return Rotation3::identity();
+    };
     let (u, vt) = match (svd.u, svd.v_t) {
         (Some(u), Some(v)) => (u, v),
         _ => return Rotation3::identity(),

@@ -9,7 +9,6 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use serde_json::json;
 
-use crate::dataset::Dataset;
 use crate::model::Unit;
 use crate::solve::bootstrap::{bootstrap, BootstrapOptions, SubsetSize};
 use crate::solve::kinematics::{identify, IdentOptions};
@@ -56,12 +55,8 @@ fn show(v: f64, unit: Unit) -> (f64, &'static str) {
 
 /// Run `robocal calibrate kinematics`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let ds =
-        Dataset::load(&args.data).with_context(|| format!("reading {}", args.data.display()))?;
-    let held = match &args.heldout {
-        Some(p) => Some(Dataset::load(p).with_context(|| format!("reading {}", p.display()))?),
-        None => None,
-    };
+    // Strict reader + plausibility; a held-out file must be for the same robot (issue 14).
+    let (ds, held) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     if let Some(c) = args.huber {
         anyhow::ensure!(
             c.is_finite() && c > 0.0,

@@ -149,22 +149,43 @@ pub fn read_points_csv(path: &Path) -> anyhow::Result<HashMap<u64, Point3<f64>>>
     Ok(out)
 }
 
+/// The validation (target) poses of a `--heldout` file: read strictly, checked for
+/// plausibility and for the robot of `ds`; an error when it has none (never silently
+/// dropped).
+fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<laser::LaserObs>> {
+    let hd = Dataset::load(h)?;
+    crate::plausible::check_same_robot(
+        &ds.header.robot,
+        data,
+        &hd.header.robot,
+        h,
+        "held-out file",
+    )?;
+    crate::plausible::check_dataset(&hd, h)?;
+    let v: Vec<laser::LaserObs> = laser::observations(&hd)
+        .with_context(|| format!("reading laser poses of {}", h.display()))?
+        .into_iter()
+        .filter(|o| o.target.is_some())
+        .collect();
+    anyhow::ensure!(
+        !v.is_empty(),
+        "{}: no usable held-out poses (laser poses with a `target` label and a range reading)",
+        h.display()
+    );
+    Ok(v)
+}
+
 /// Run `robocal calibrate laser`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let ds = Dataset::load(&args.data)?;
+    let ds = crate::plausible::load_checked(&args.data)?;
     let obs = laser::observations(&ds)
         .with_context(|| format!("reading laser poses of {}", args.data.display()))?;
     let mut validation: Vec<laser::LaserObs> =
         obs.iter().filter(|o| o.target.is_some()).cloned().collect();
     let train: Vec<laser::LaserObs> = obs.iter().filter(|o| o.plane.is_some()).cloned().collect();
     if let Some(h) = &args.heldout {
-        let hd = Dataset::load(h)?;
-        validation.extend(
-            laser::observations(&hd)
-                .with_context(|| format!("reading laser poses of {}", h.display()))?
-                .into_iter()
-                .filter(|o| o.target.is_some()),
-        );
+        let hd = load_heldout(h, &ds, &args.data)?;
+        validation.extend(hd);
     }
     let truth = match &args.truth {
         Some(p) => Some(read_points_csv(p)?),
@@ -252,19 +273,14 @@ pub fn is_laser_dataset(ds: &Dataset) -> bool {
 /// Writes `DIR/diagnosis.json` and `DIR/calibration.json` (with the effects); returns the
 /// console summary.
 pub fn diagnose_laser(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<String> {
-    let ds = Dataset::load(data)?;
+    let ds = crate::plausible::load_checked(data)?;
     let obs = laser::observations(&ds)
         .with_context(|| format!("reading laser poses of {}", data.display()))?;
     let train: Vec<laser::LaserObs> = obs.iter().filter(|o| o.plane.is_some()).cloned().collect();
     let mut validation: Vec<laser::LaserObs> =
         obs.iter().filter(|o| o.target.is_some()).cloned().collect();
     if let Some(h) = heldout {
-        let hd = Dataset::load(h)?;
-        validation.extend(
-            laser::observations(&hd)?
-                .into_iter()
-                .filter(|o| o.target.is_some()),
-        );
+        validation.extend(load_heldout(h, &ds, data)?);
     }
     let cmp = laser::compare(&train, &validation, None, None).context("laser base fit")?;
     let beam = cmp.final_beam.context("no beam")?;

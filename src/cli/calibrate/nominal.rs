@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 
-use crate::dataset::Dataset;
 use crate::solve::calfile;
 use crate::solve::nominal::{fit_nominal, NominalOptions};
 
@@ -25,12 +24,8 @@ pub struct Args {
 
 /// Run `robocal calibrate nominal`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let ds =
-        Dataset::load(&args.data).with_context(|| format!("reading {}", args.data.display()))?;
-    let held = match &args.heldout {
-        Some(p) => Some(Dataset::load(p).with_context(|| format!("reading {}", p.display()))?),
-        None => None,
-    };
+    // Strict reader + plausibility; a held-out file must be for the same robot (issue 14).
+    let (ds, held) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     let fit = fit_nominal(
         &ds,
         &NominalOptions {

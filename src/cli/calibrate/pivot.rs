@@ -6,7 +6,6 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use serde_json::json;
 
-use crate::dataset::Dataset;
 use crate::solve::tool::{pivot_algebraic, pivot_frames, pivot_sphere};
 
 /// Arguments of `robocal calibrate pivot`.
@@ -25,8 +24,8 @@ pub struct Args {
 
 /// Run `robocal calibrate pivot`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    let ds =
-        Dataset::load(&args.data).with_context(|| format!("reading {}", args.data.display()))?;
+    let ds = crate::plausible::load_checked(&args.data)
+        .with_context(|| format!("reading {}", args.data.display()))?;
     let frames = pivot_frames(&ds, args.tool.as_deref());
     anyhow::ensure!(
         !frames.is_empty(),
@@ -35,6 +34,16 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             .as_ref()
             .map(|t| format!(" for tool `{t}`"))
             .unwrap_or_default()
+    );
+    // Count rule: tip (3) + pivot point (3) from 3 equations per frame, twice over.
+    let need = crate::solve::kinematics::poses_needed(6, 3);
+    anyhow::ensure!(
+        frames.len() >= need,
+        "under-determined pivot calibration: {} usable pivot frames give {} equations for 6 \
+         unknowns (tip 3, pivot point 3): at least {need} frames are needed; record {} more",
+        frames.len(),
+        3 * frames.len(),
+        need - frames.len()
     );
     let alg = pivot_algebraic(&frames).context("algebraic pivot calibration")?;
     let sph = pivot_sphere(&frames).context("sphere-fit pivot calibration")?;

@@ -1,0 +1,52 @@
+//! Dataset reader (`robocal-dataset/1` JSON Lines) and its plausibility checks: never panic,
+//! never hang, and a dataset the strict reader accepts re-encodes to a file that reads back
+//! to the same dataset. The diagnosis' own reader must not panic either.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use std::path::Path;
+
+fuzz_target!(|data: &[u8]| {
+    let file = Path::new("fuzz.jsonl");
+    if let Ok(loaded) = robocal::dataset::parse_dataset(data, file) {
+        let ds = &loaded.dataset;
+        let _ = robocal::plausible::check_dataset(ds, file);
+        let _ = robocal::dataset::Summary::of(ds, Vec::new());
+        let again = robocal::dataset::parse_dataset(ds.to_jsonl().as_bytes(), file)
+            .expect("a dataset robocal accepted re-encodes to a file robocal reads");
+        let (a, b) = (
+            serde_json::to_value(&again.dataset.records).expect("records serialise"),
+            serde_json::to_value(&ds.records).expect("records serialise"),
+        );
+        assert!(same_json(&a, &b), "re-read dataset differs");
+        assert!(again.warnings.is_empty());
+    }
+    if let Ok(text) = std::str::from_utf8(data) {
+        let _ = robocal::diagnose::data::parse_jsonl(text, "fuzz.jsonl");
+    }
+});
+
+/// Equal JSON values, floats within a relative 1e-12 (serde_json is built without its
+/// `float_roundtrip` feature: its fast float parser may land an ulp off on re-read).
+fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => match (x.as_f64(), y.as_f64()) {
+            (Some(x), Some(y)) => {
+                x == y
+                    || (x - y).abs() <= 1e-12 * x.abs().max(y.abs())
+                    || x.abs().max(y.abs()) < 1e-300
+            }
+            _ => x == y,
+        },
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_json(p, q))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w)))
+        }
+        _ => a == b,
+    }
+}

@@ -1,0 +1,139 @@
+//! Plausibility of a calibration file for the robot it is applied to: the same robot model,
+//! and arm parameters within reach of the nominal geometry. A calibration whose `a3` is 1e308
+//! (or 400 mm off the nominal) is not a calibration of this robot; a prediction from it would
+//! be a confident wrong answer, and a fit started from it never converges.
+use std::path::Path;
+
+use crate::dataset::{CalibrationFile, CalibrationKind, DatasetError, Location, RobotBlock};
+use crate::model::{KinematicModel, ParamGroup, Unit};
+
+use super::dataset::{check_same_robot, MAX_COORD_MM};
+
+/// Largest plausible correction of an arm length parameter from its nominal value (mm).
+pub const MAX_ARM_CORRECTION_MM: f64 = 50.0;
+/// Largest plausible correction of an arm angle parameter from its nominal value (deg).
+pub const MAX_ARM_CORRECTION_DEG: f64 = 10.0;
+/// Largest plausible tool (marker / tip in the flange) offset (mm).
+pub const MAX_TOOL_MM: f64 = 2000.0;
+
+fn err(file: &Path, field: String, msg: String) -> DatasetError {
+    DatasetError::Field {
+        at: Location {
+            file: file.to_path_buf(),
+            line: None,
+        },
+        field,
+        msg,
+    }
+}
+
+/// Checks the values of a calibration file on their own: every `value` and `std` finite,
+/// `std ≥ 0`, and for a kinematic calibration every arm parameter within
+/// [`MAX_ARM_CORRECTION_MM`] / [`MAX_ARM_CORRECTION_DEG`] of the nominal chain of the file's
+/// own robot block, the tool within [`MAX_TOOL_MM`] and the base within 100 m.
+pub fn check_values(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetError> {
+    for (i, p) in cal.params.iter().enumerate() {
+        if !p.value.is_finite() || p.value.abs() > MAX_COORD_MM {
+            return Err(err(
+                file,
+                format!("params[{i}].value"),
+                format!(
+                    "parameter \"{}\" = {:e} {} is not a plausible calibration value: a corrupted \
+                     or mistyped file",
+                    p.name, p.value, p.unit
+                ),
+            ));
+        }
+        if let Some(s) = p.std {
+            if !s.is_finite() || s < 0.0 {
+                return Err(err(
+                    file,
+                    format!("params[{i}].std"),
+                    format!(
+                        "parameter \"{}\": a standard deviation is ≥ 0, got {s}",
+                        p.name
+                    ),
+                ));
+            }
+        }
+    }
+    if cal.kind() != CalibrationKind::Kinematic {
+        return Ok(());
+    }
+    let Ok(nominal) = KinematicModel::from_robot_block(&cal.robot) else {
+        return Ok(()); // reported by the caller when it builds the model
+    };
+    let mut m = nominal.clone();
+    if m.apply_cal_params(&cal.params).is_err() {
+        return Ok(()); // unknown names / units: reported by the caller with its context
+    }
+    for (p, n) in m.params().iter().zip(nominal.params()) {
+        let idx = cal
+            .params
+            .iter()
+            .position(|c| c.name == p.name)
+            .map(|i| format!("params[{i}].value"))
+            .unwrap_or_else(|| format!("params \"{}\"", p.name));
+        let d = p.value - n.value;
+        match (p.group, p.unit) {
+            (ParamGroup::Joint(_) | ParamGroup::Flange, Unit::Mm)
+                if d.abs() > MAX_ARM_CORRECTION_MM =>
+            {
+                return Err(err(
+                    file,
+                    idx,
+                    format!(
+                        "arm parameter \"{}\" = {:.3} mm is {:.1} mm from the nominal {:.3} mm of \
+                         robot \"{}\" (a calibration corrects by at most {MAX_ARM_CORRECTION_MM} \
+                         mm): a calibration of another robot, or a corrupted value",
+                        p.name, p.value, d, n.value, cal.robot.model
+                    ),
+                ));
+            }
+            (ParamGroup::Joint(_) | ParamGroup::Flange, Unit::Rad)
+                if d.to_degrees().abs() > MAX_ARM_CORRECTION_DEG =>
+            {
+                return Err(err(
+                    file,
+                    idx,
+                    format!(
+                        "arm parameter \"{}\" = {:.4}° is {:.2}° from the nominal {:.4}° of robot \
+                         \"{}\" (a calibration corrects by at most {MAX_ARM_CORRECTION_DEG}°): a \
+                         calibration of another robot, or a corrupted value",
+                        p.name,
+                        p.value.to_degrees(),
+                        d.to_degrees(),
+                        n.value.to_degrees(),
+                        cal.robot.model
+                    ),
+                ));
+            }
+            (ParamGroup::Tool, Unit::Mm) if p.value.abs() > MAX_TOOL_MM => {
+                return Err(err(
+                    file,
+                    idx,
+                    format!(
+                        "tool parameter \"{}\" = {:.1} mm: a marker or tip more than \
+                         {MAX_TOOL_MM} mm from the flange is not plausible",
+                        p.name, p.value
+                    ),
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// Reads a calibration file, checks its values ([`check_values`]) and that it was made for
+/// the robot of `robot` (the dataset `data_file` it is applied to).
+pub fn load_for(
+    path: &Path,
+    robot: &RobotBlock,
+    data_file: &Path,
+) -> Result<CalibrationFile, DatasetError> {
+    let cal = CalibrationFile::load(path)?;
+    check_same_robot(robot, data_file, &cal.robot, path, "calibration")?;
+    check_values(&cal, path)?;
+    Ok(cal)
+}

@@ -1,0 +1,758 @@
+//! Bad input (issue 14 §5): a silent wrong answer is worse than an error. One test per class
+//! of mistaken input; each runs the real binary under a deadline and asserts a clear error
+//! (exit 1, the message names the file / field and the likely cause), no panic, no hang.
+//! The wider probe (`scripts/bad-input-probe.py`) counts every class across every subcommand.
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+/// Deadline of one invocation: every refusal here happens before any fit or motion.
+const DEADLINE: Duration = Duration::from_secs(60);
+
+struct Out {
+    code: Option<i32>,
+    text: String,
+}
+
+/// Runs the binary with a deadline; a run past it is killed and reported as a hang.
+fn run(args: &[&str]) -> Out {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(args)
+        .env("ROBOCAL_LOG", "warn")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start robocal");
+    let t0 = Instant::now();
+    loop {
+        if child.try_wait().expect("wait").is_some() {
+            break;
+        }
+        if t0.elapsed() > DEADLINE {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("HANG: robocal {args:?} still running after {DEADLINE:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().expect("output");
+    Out {
+        code: o.status.code(),
+        text: format!(
+            "{}{}",
+            String::from_utf8_lossy(&o.stderr),
+            String::from_utf8_lossy(&o.stdout)
+        ),
+    }
+}
+
+/// Asserts a clear refusal: exit 1, no panic, and every `needle` in the message.
+#[track_caller]
+fn refused(args: &[&str], needles: &[&str]) -> String {
+    let o = run(args);
+    assert!(
+        !o.text.contains("panicked at"),
+        "PANIC: robocal {args:?}\n{}",
+        o.text
+    );
+    assert_eq!(
+        o.code,
+        Some(1),
+        "robocal {args:?} should be refused (exit 1)\n{}",
+        o.text
+    );
+    let low = o.text.to_lowercase();
+    for n in needles {
+        assert!(
+            low.contains(&n.to_lowercase()),
+            "robocal {args:?}: the message should name {n:?}\n{}",
+            o.text
+        );
+    }
+    println!(
+        "refused {:?}: {}",
+        &args[..args.len().min(2)],
+        first_error(&o.text)
+    );
+    o.text
+}
+
+fn first_error(text: &str) -> &str {
+    text.lines()
+        .find(|l| l.starts_with("error"))
+        .unwrap_or_else(|| text.lines().next().unwrap_or(""))
+}
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn lines(rel: &str) -> Vec<Value> {
+    std::fs::read_to_string(root().join(rel))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+fn write(dir: &Path, name: &str, rows: &[Value]) -> PathBuf {
+    let mut s = String::new();
+    for r in rows {
+        s.push_str(&r.to_string());
+        s.push('\n');
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, s).unwrap();
+    p
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The first `n` poses of the geometric test dataset (header + records).
+fn geo(n: usize) -> Vec<Value> {
+    lines("tests/data/kin-geometric/train.jsonl")
+        .into_iter()
+        .take(n + 1)
+        .collect()
+}
+
+fn geo_held(n: usize) -> Vec<Value> {
+    lines("tests/data/kin-geometric/heldout.jsonl")
+        .into_iter()
+        .take(n + 1)
+        .collect()
+}
+
+/// Pivot records of a marker rotating about a fixed tip (tip 150 mm from the marker).
+fn pivot_rows(scale: f64, n: usize) -> Vec<Value> {
+    use nalgebra::{UnitQuaternion, Vector3};
+    let mut rows = vec![json!({"format": "robocal-dataset/1", "robot": {"model": "denso-vs060"}})];
+    let pivot = Vector3::new(100.0, -50.0, -1500.0);
+    for i in 0..n {
+        let a = i as f64 * 0.7;
+        let r = UnitQuaternion::from_euler_angles(0.3 * a.sin(), 0.3 * a.cos(), 0.5 * a);
+        let p = (pivot - r * Vector3::new(0.0, 0.0, -150.0)) * scale;
+        let q = r.quaternion();
+        rows.push(
+            json!({"kind": "pivot", "t": i as f64 * 0.1, "tool": "probe",
+            "marker": {"p": [p.x, p.y, p.z], "quat": [q.w, q.i, q.j, q.k], "rms": 0.05}}),
+        );
+    }
+    rows
+}
+
+/// A small annulus spec (20 points) so plans build in a second.
+fn small_plan(dir: &Path) -> PathBuf {
+    let spec = std::fs::read_to_string(root().join("plans/seed001-annulus.toml"))
+        .unwrap()
+        .replace("points = 200", "points = 20");
+    let sp = dir.join("small.toml");
+    std::fs::write(&sp, spec).unwrap();
+    let plan = dir.join("plan.json");
+    let o = run(&[
+        "plan",
+        "--spec",
+        s(&sp),
+        "--robot",
+        "denso-vs060",
+        "--out",
+        s(&plan),
+    ]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    plan
+}
+
+fn lab() -> PathBuf {
+    root().join("mocks/scenarios/lab-vs060-optotrak-il600.toml")
+}
+
+#[test]
+fn bad_input_controls_still_work() {
+    // The checks must not refuse good data: the same files, unmodified.
+    let d = tempfile::tempdir().unwrap();
+    let good = write(d.path(), "good.jsonl", &geo(40));
+    let held = write(d.path(), "held.jsonl", &geo_held(20));
+    let out = d.path().join("nom");
+    let o = run(&[
+        "calibrate",
+        "nominal",
+        "--data",
+        s(&good),
+        "--heldout",
+        s(&held),
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    let o = run(&[
+        "predict",
+        "--calibration",
+        s(&out.join("calibration.json")),
+        "--data",
+        s(&held),
+    ]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    let piv = write(d.path(), "pivot.jsonl", &pivot_rows(1.0, 40));
+    let o = run(&["calibrate", "pivot", "--data", s(&piv)]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    let plan = small_plan(d.path());
+    let o = run(&["plan", "--check", s(&plan)]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    assert!(o.text.contains("re-checked"), "{}", o.text);
+}
+
+#[test]
+fn bad_input_units_and_plausibility() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    // Marker positions in metres: used to shrink the robot 1000× with exit 0.
+    let mut rows = geo(40);
+    for r in rows.iter_mut().skip(1) {
+        let p: Vec<f64> = r["marker"]["p"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap() / 1000.0)
+            .collect();
+        r["marker"]["p"] = json!(p);
+    }
+    let f = write(dp, "metres.jsonl", &rows);
+    let out = dp.join("o");
+    for cal in ["kinematics", "nominal"] {
+        refused(
+            &["calibrate", cal, "--data", s(&f), "--out", s(&out)],
+            &["metres.jsonl:2", "marker.p", "look like metres"],
+        );
+    }
+    refused(
+        &["diagnose", "--data", s(&f), "--out", s(&out)],
+        &["look like metres"],
+    );
+    // Joint angles in radians.
+    let mut rows = geo(40);
+    for r in rows.iter_mut().skip(1) {
+        for k in ["q", "q_cmd"] {
+            let q: Vec<f64> = r[k]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap().to_radians())
+                .collect();
+            r[k] = json!(q);
+        }
+    }
+    let f = write(dp, "radians.jsonl", &rows);
+    refused(
+        &["calibrate", "kinematics", "--data", s(&f), "--out", s(&out)],
+        &["radians.jsonl:2", "field \"q\"", "look like radians"],
+    );
+    // One q of 400° (joint 1 limits ±170°) and one of 1e308, on line 7.
+    for (v, name) in [(400.0, "q400"), (1e308, "q1e308")] {
+        let mut rows = geo(40);
+        rows[5]["q"][0] = json!(v);
+        let f = write(dp, &format!("{name}.jsonl"), &rows);
+        refused(
+            &["calibrate", "nominal", "--data", s(&f), "--out", s(&out)],
+            &[&format!("{name}.jsonl:6"), "q[0]", "outside its limits"],
+        );
+    }
+    // Laser range −50 mm, and ranges in metres.
+    let mut rows = lines("tests/data/laser-planes/train.jsonl");
+    rows[3]["range"] = json!(-50.0);
+    let f = write(dp, "lneg.jsonl", &rows);
+    refused(
+        &["calibrate", "laser", "--data", s(&f), "--out", s(&out)],
+        &["lneg.jsonl:4", "range", "a distance from 0"],
+    );
+    let mut rows = lines("tests/data/laser-planes/train.jsonl");
+    for r in rows.iter_mut().skip(1) {
+        if let Some(x) = r["range"].as_f64() {
+            r["range"] = json!(x / 1000.0);
+        }
+    }
+    let f = write(dp, "lmetres.jsonl", &rows);
+    refused(
+        &["calibrate", "laser", "--data", s(&f), "--out", s(&out)],
+        &["range", "look like metres"],
+    );
+    // A pivot file in metres.
+    let f = write(dp, "pmetres.jsonl", &pivot_rows(0.001, 40));
+    refused(
+        &["calibrate", "pivot", "--data", s(&f)],
+        &["pmetres.jsonl:2", "marker.p", "look like metres"],
+    );
+}
+
+#[test]
+fn bad_input_under_determined_fits() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("o");
+    // 6 poses for the full kinematic model: refused with the number of poses still needed.
+    let f = write(d.path(), "six.jsonl", &geo(6));
+    let msg = refused(
+        &["calibrate", "kinematics", "--data", s(&f), "--out", s(&out)],
+        &["under-determined", "6 usable training poses", "more poses"],
+    );
+    assert!(!out.join("calibration.json").exists(), "{msg}");
+    let f = write(d.path(), "three.jsonl", &geo(3));
+    refused(
+        &["calibrate", "nominal", "--data", s(&f), "--out", s(&out)],
+        &["3 usable training poses", "measure 3 more poses"],
+    );
+    let f = write(d.path(), "p3.jsonl", &pivot_rows(1.0, 3));
+    refused(
+        &["calibrate", "pivot", "--data", s(&f)],
+        &["under-determined", "record 1 more"],
+    );
+}
+
+#[test]
+fn bad_input_huge_and_non_finite_values_do_not_hang() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let out = dp.join("o");
+    // One marker coordinate of 1e308 (used to hang `diagnose` and `calibrate pivot`).
+    let mut rows = geo(40);
+    rows[5]["marker"]["p"][2] = json!(1e308);
+    let f = write(dp, "p308.jsonl", &rows);
+    refused(
+        &["diagnose", "--data", s(&f), "--out", s(&out)],
+        &[
+            "p308.jsonl:6",
+            "marker.p[2]",
+            "not a plausible tracker coordinate",
+        ],
+    );
+    let mut rows = pivot_rows(1.0, 40);
+    rows[3]["marker"]["p"][0] = json!(1e308);
+    let f = write(dp, "piv308.jsonl", &rows);
+    refused(
+        &["calibrate", "pivot", "--data", s(&f)],
+        &["piv308.jsonl:4", "marker.p[0]"],
+    );
+    // A calibration with a3 = 1e308 given to diagnose and predict.
+    let good = write(dp, "good.jsonl", &geo(40));
+    let header = &geo(0)[0];
+    let cal = json!({"format": "robocal-calibration/1", "robot": header["robot"],
+        "params": [{"name": "a3", "value": 1e308, "unit": "mm", "free": true}]});
+    let cp = dp.join("cal308.json");
+    std::fs::write(&cp, cal.to_string()).unwrap();
+    refused(
+        &[
+            "diagnose",
+            "--data",
+            s(&good),
+            "--calibration",
+            s(&cp),
+            "--out",
+            s(&out),
+        ],
+        &["cal308.json", "params[0].value", "a3"],
+    );
+    refused(
+        &["predict", "--calibration", s(&cp), "--data", s(&good)],
+        &["a3", "not a plausible calibration value"],
+    );
+    // A scenario with settle_s = nan.
+    let plan = small_plan(dp);
+    let sc = std::fs::read_to_string(lab())
+        .unwrap()
+        .replace("settle_s = 0.3", "settle_s = nan");
+    let scp = dp.join("nan.toml");
+    std::fs::write(&scp, sc).unwrap();
+    refused(
+        &[
+            "run",
+            "--plan",
+            s(&plan),
+            "--sim",
+            s(&scp),
+            "--out",
+            s(&dp.join("run")),
+            "--virtual-clock",
+            "--in-process",
+        ],
+        &["settle_s", "not a finite number"],
+    );
+    refused(
+        &["sim", "serve", "--scenario", s(&scp), "--virtual-clock"],
+        &["settle_s"],
+    );
+    // A plan of 100 000 000 points (used to grow to 7 GB).
+    let spec = std::fs::read_to_string(root().join("plans/seed001-annulus.toml"))
+        .unwrap()
+        .replace("points = 200", "points = 100000000");
+    let sp = dp.join("huge.toml");
+    std::fs::write(&sp, spec).unwrap();
+    refused(
+        &[
+            "plan",
+            "--spec",
+            s(&sp),
+            "--robot",
+            "denso-vs060",
+            "--out",
+            s(&dp.join("x.json")),
+        ],
+        &["100000000 targets", "more than 100000"],
+    );
+}
+
+#[test]
+fn bad_input_safety_parameters() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let plan = small_plan(dp);
+    let lab = lab();
+    let base = |out: &Path| -> Vec<String> {
+        [
+            "run",
+            "--plan",
+            s(&plan),
+            "--sim",
+            s(&lab),
+            "--out",
+            s(out),
+            "--virtual-clock",
+            "--in-process",
+        ]
+        .iter()
+        .map(|x| x.to_string())
+        .collect()
+    };
+    for (i, (flag, val, needle)) in [
+        ("--speed-deg-s", "0", "finite number > 0"),
+        ("--speed-deg-s=-5", "", "finite number > 0"),
+        ("--speed-deg-s", "NaN", "finite number > 0"),
+        ("--speed-deg-s", "1000", "above the cell's limit of 180"),
+        ("--accel-deg-s2", "0", "finite number > 0"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = dp.join(format!("run{i}"));
+        let mut a = base(&out);
+        a.push(flag.into());
+        if !val.is_empty() {
+            a.push(val.into());
+        }
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        refused(&a, &[flag.split('=').next().unwrap(), needle]);
+        assert!(!out.exists(), "nothing may be created for a refused run");
+    }
+    // A live cell's limit comes from its device file: refused before any device is opened.
+    let dev = dp.join("cell.toml");
+    std::fs::write(
+        &dev,
+        "[[device]]\nname = \"vs060\"\nrole = \"arm\"\nvendor = \"denso\"\nprotocol = \"bcap\"\n\
+         model = \"denso-vs060\"\naddress = \"127.0.0.1:9\"\nmax_speed_deg_s = 90.0\n",
+    )
+    .unwrap();
+    let out = dp.join("live");
+    refused(
+        &[
+            "run",
+            "--plan",
+            s(&plan),
+            "--devices",
+            s(&dev),
+            "--live",
+            "--yes",
+            "--out",
+            s(&out),
+            "--speed-deg-s",
+            "120",
+        ],
+        &["above the cell's limit of 90", "max_speed_deg_s"],
+    );
+    assert!(!out.exists());
+    // A plan whose table was edited after planning: `plan --check` and `run` re-check it.
+    let mut pj: Value = serde_json::from_str(&std::fs::read_to_string(&plan).unwrap()).unwrap();
+    pj["spec"]["constraints"]["table_z_mm"] = json!(450.0);
+    let edited = dp.join("edited.json");
+    std::fs::write(&edited, pj.to_string()).unwrap();
+    refused(&["plan", "--check", s(&edited)], &["table", "re-plan"]);
+    let out = dp.join("run-edited");
+    let mut a = base(&out);
+    a[2] = s(&edited).to_string();
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    refused(&a, &["table"]);
+    // Widened joint limits in the plan's robot block.
+    let mut pj: Value = serde_json::from_str(&std::fs::read_to_string(&plan).unwrap()).unwrap();
+    let header = &geo(0)[0];
+    let mut robot = header["robot"].clone();
+    for j in robot["chain"].as_array_mut().unwrap() {
+        j["limits"] = json!([-1000.0, 1000.0]);
+    }
+    pj["robot"] = robot;
+    let widened = dp.join("widened.json");
+    std::fs::write(&widened, pj.to_string()).unwrap();
+    refused(
+        &["plan", "--check", s(&widened)],
+        &["wider than the denso-vs060 preset"],
+    );
+}
+
+#[test]
+fn bad_input_devices_probe_timeout_nan_is_an_error_not_a_panic() {
+    let d = tempfile::tempdir().unwrap();
+    let dev = d.path().join("dev.toml");
+    std::fs::write(
+        &dev,
+        "[[device]]\nname = \"arm\"\nrole = \"arm\"\nvendor = \"denso\"\nprotocol = \"bcap\"\naddress = \"127.0.0.1:9\"\n",
+    )
+    .unwrap();
+    for v in ["NaN", "-1", "inf", "0"] {
+        let t = format!("--timeout-s={v}");
+        refused(
+            &["devices", "--devices", s(&dev), "--probe", &t],
+            &["--timeout-s", "finite number of seconds"],
+        );
+    }
+}
+
+#[test]
+fn bad_input_mismatched_files() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let out = dp.join("o");
+    let good = write(dp, "good.jsonl", &geo(40));
+    // A held-out file for another robot model.
+    let mut held = geo_held(20);
+    held[0]["robot"] = json!({"model": "ur5e"});
+    let ur = write(dp, "ur.jsonl", &held);
+    for cmd in [
+        &["calibrate", "nominal"][..],
+        &["calibrate", "kinematics"],
+        &["diagnose"],
+    ] {
+        let mut a: Vec<&str> = cmd.to_vec();
+        a.extend(["--data", s(&good), "--heldout", s(&ur), "--out", s(&out)]);
+        refused(&a, &["ur.jsonl", "robot.model", "\"ur5e\"", "denso-vs060"]);
+    }
+    // A calibration for another robot model.
+    let cal = json!({"format": "robocal-calibration/1", "robot": {"model": "ur5e"},
+        "params": [{"name": "tool_z", "value": 150.0, "unit": "mm", "free": true}]});
+    let cp = dp.join("ur-cal.json");
+    std::fs::write(&cp, cal.to_string()).unwrap();
+    refused(
+        &["predict", "--calibration", s(&cp), "--data", s(&good)],
+        &["ur-cal.json", "\"ur5e\"", "denso-vs060"],
+    );
+    // A --heldout file with no usable poses: an error, not silent cross-validation.
+    let mut held = geo_held(20);
+    for r in held.iter_mut().skip(1) {
+        r["marker"] = json!({"visible": false});
+    }
+    let empty = write(dp, "empty.jsonl", &held);
+    for cmd in [
+        &["calibrate", "nominal"][..],
+        &["calibrate", "kinematics"],
+        &["diagnose"],
+    ] {
+        let mut a: Vec<&str> = cmd.to_vec();
+        a.extend(["--data", s(&good), "--heldout", s(&empty), "--out", s(&out)]);
+        refused(&a, &["no usable held-out poses"]);
+    }
+}
+
+/// Equal JSON values, floats within a relative 1e-12 (or both below 1e-300 in magnitude).
+fn same_json(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            x == y || (x - y).abs() <= 1e-12 * x.abs().max(y.abs()) || x.abs().max(y.abs()) < 1e-300
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_json(p, q))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w)))
+        }
+        _ => a == b,
+    }
+}
+
+/// Deterministic mutation of a seed: byte flips, insertions, deletions, truncation and
+/// numbers replaced with extreme values (what a corrupted or mistyped file holds).
+fn mutate(seed: &[u8], rng: &mut u64) -> Vec<u8> {
+    let mut next = || {
+        *rng = rng
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (*rng >> 33) as usize
+    };
+    let mut v = seed.to_vec();
+    let extremes: [&[u8]; 8] = [
+        b"1e308",
+        b"-1e308",
+        b"nan",
+        b"inf",
+        b"-0",
+        b"1e-320",
+        b"18446744073709551616",
+        b"null",
+    ];
+    for _ in 0..1 + next() % 4 {
+        if v.is_empty() {
+            v.push(b'{');
+        }
+        let at = next() % v.len();
+        match next() % 6 {
+            0 => v[at] = (next() % 256) as u8,
+            1 => v.insert(at, b"{}[],:\"0-.e\n"[next() % 12]),
+            2 => {
+                v.remove(at);
+            }
+            3 => v.truncate(at),
+            _ => {
+                // Replace the number starting at/after `at` with an extreme value.
+                if let Some(s) = v[at..].iter().position(|b| b.is_ascii_digit()) {
+                    let s = at + s;
+                    let e = v[s..]
+                        .iter()
+                        .position(|b| !(b.is_ascii_digit() || *b == b'.'))
+                        .map_or(v.len(), |e| s + e);
+                    let x = extremes[next() % extremes.len()];
+                    v.splice(s..e, x.iter().copied()).for_each(drop);
+                }
+            }
+        }
+    }
+    v
+}
+
+#[test]
+fn bad_input_file_readers_survive_mutated_files() {
+    // A fast in-suite complement of the cargo-fuzz targets (fuzz/fuzz_targets/): every
+    // reader, fed mutated copies of the project's own files, returns Ok or a clear Err: no
+    // panic, no hang; what it accepts it writes back in a form it reads back the same.
+    use robocal::dataset::{parse_dataset, CalibrationFile};
+    let dir = tempfile::tempdir().unwrap();
+    let t0 = Instant::now();
+    let n = 400;
+    let mut rng = 7u64;
+    let mut counts = std::collections::BTreeMap::new();
+    let mut note = |k: &str, ok: bool| {
+        let e = counts.entry(k.to_string()).or_insert((0usize, 0usize));
+        if ok {
+            e.0 += 1
+        } else {
+            e.1 += 1
+        }
+    };
+    let dataset: Vec<u8> =
+        std::fs::read_to_string(root().join("tests/data/kin-geometric/heldout.jsonl"))
+            .unwrap()
+            .lines()
+            .take(12)
+            .flat_map(|l| format!("{l}\n").into_bytes())
+            .collect();
+    let fp = Path::new("m.jsonl");
+    for _ in 0..n {
+        let m = mutate(&dataset, &mut rng);
+        let r = parse_dataset(&m, fp);
+        if let Ok(l) = &r {
+            let _ = robocal::plausible::check_dataset(&l.dataset, fp);
+            let again = parse_dataset(l.dataset.to_jsonl().as_bytes(), fp).expect("re-read");
+            assert_eq!(again.dataset.records.len(), l.dataset.records.len());
+            // Equal up to the last bits of a float: serde_json is built without its
+            // `float_roundtrip` feature, so its fast float parser may land one ulp off.
+            for (a, b) in again.dataset.records.iter().zip(&l.dataset.records) {
+                let (va, vb) = (
+                    serde_json::to_value(a).unwrap(),
+                    serde_json::to_value(b).unwrap(),
+                );
+                assert!(same_json(&va, &vb), "re-read record differs:\n{va}\n{vb}");
+            }
+        }
+        note("dataset", r.is_ok());
+    }
+    let header = &geo(0)[0];
+    let cal = json!({"format": "robocal-calibration/1", "robot": header["robot"],
+        "params": [{"name": "a3", "value": 305.1, "std": 0.01, "unit": "mm", "free": true},
+                   {"name": "base_x", "value": 1000.0, "unit": "mm", "free": true}],
+        "effects": [{"kind": "joint_compliance", "joint": 2, "params": {"k_deg_per_nm": 1e-4}}],
+        "metrics": {"train_rms_mm": 0.1}})
+    .to_string()
+    .into_bytes();
+    for _ in 0..n {
+        let m = mutate(&cal, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = CalibrationFile::parse(text, Path::new("m.json"));
+        if let Ok(c) = &r {
+            let _ = robocal::plausible::calibration::check_values(c, Path::new("m.json"));
+            let again = CalibrationFile::parse(&c.to_json_pretty(), Path::new("m.json"))
+                .expect("a calibration robocal accepted reads back");
+            let (va, vb) = (
+                serde_json::to_value(&again).unwrap(),
+                serde_json::to_value(c).unwrap(),
+            );
+            assert!(
+                same_json(&va, &vb),
+                "re-read calibration differs:\n{va}\n{vb}"
+            );
+        }
+        note("calibration", r.is_ok());
+    }
+    let plan = std::fs::read(small_plan(dir.path())).unwrap();
+    for _ in 0..n / 4 {
+        let m = mutate(&plan, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal::plan::PlanFile::from_json_str(text);
+        if let Ok(p) = &r {
+            let _ = robocal::plan::recheck::recheck(p, None);
+        }
+        note("plan", r.is_ok());
+    }
+    let spec = std::fs::read(root().join("plans/seed001-annulus.toml")).unwrap();
+    for _ in 0..n {
+        let m = mutate(&spec, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal::plan::PlanSpec::from_toml_str(text);
+        if let Ok(s) = &r {
+            assert!(s.target_count() <= robocal::plan::spec::MAX_TARGETS);
+        }
+        note("spec", r.is_ok());
+    }
+    let scen = std::fs::read(lab()).unwrap();
+    for _ in 0..n {
+        let m = mutate(&scen, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal_mocks::scenario::Scenario::from_toml(text);
+        if let Ok(s) = &r {
+            for a in &s.arms {
+                assert!(a.motion.settle_s.is_finite(), "{text}");
+            }
+        }
+        note("scenario", r.is_ok());
+    }
+    let dev = std::fs::read(root().join("fuzz/seeds/devices/cell.toml")).unwrap();
+    for _ in 0..n {
+        let m = mutate(&dev, &mut rng);
+        let Ok(text) = std::str::from_utf8(&m) else {
+            continue;
+        };
+        let r = robocal::acquire::devices::DevicesFile::parse(text, "m.toml");
+        note("devices", r.is_ok());
+    }
+    for (k, (ok, err)) in &counts {
+        println!("mutated {k}: {ok} accepted, {err} refused");
+    }
+    println!("file readers: {:.1} s", t0.elapsed().as_secs_f64());
+}
