@@ -58,6 +58,9 @@ mkdir -p "$OUT/camera"
 "$BIN" run --plan "$OUT/camera/plan.json" --sim "$CAMERA_SCENARIO" --virtual-clock \
     --out "$OUT/camera/run" | tail -n 3
 "$BIN" inspect "$OUT/camera/run/dataset.jsonl" | grep -E "^(records|poses|camera)"
+# Camera intrinsics + hand-eye from those images (pure-Rust detection, every method side by side).
+"$BIN" calibrate camera --data "$OUT/camera/run/dataset.jsonl" --out "$OUT/camera/calibrate" \
+    --quiet | tail -n 12
 
 printf '\ndry run done in %d s: %s\n' "$((SECONDS - START))" "$OUT"
 printf 'VERDICT: %s\n' "$(head -n 1 "$OUT/headline.txt")"

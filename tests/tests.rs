@@ -2,6 +2,7 @@
 //! Each area adds a module here.
 mod acquire;
 mod bad_input;
+mod camera_calib;
 mod camera_run;
 mod cli;
 mod dataset;

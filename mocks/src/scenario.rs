@@ -524,6 +524,10 @@ pub struct ChessboardConfig {
     pub rows: u32,
     /// Square edge (mm).
     pub square_mm: f64,
+    /// Bow of the board about its y axis (mm): the board's surface is
+    /// `z = bend_mm·(1 − (2x/W − 1)²)` over its width `W = cols·square_mm` (0 = flat).
+    #[serde(default)]
+    pub bend_mm: f64,
 }
 
 /// Passive objects of the cell.

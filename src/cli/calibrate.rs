@@ -1,5 +1,6 @@
 //! `robocal calibrate <what>`: one file per calibration under `src/cli/calibrate/`.
 
+pub mod camera;
 pub mod kinematics;
 pub mod laser;
 pub mod nominal;
@@ -29,6 +30,9 @@ pub enum What {
     Rcm(rcm::Args),
     /// Tracker ↔ robot base (AX = YB: Shah, Li, Tsai; LM refinement; on-site check).
     RobotWorld(robot_world::Args),
+    /// Camera intrinsics + hand-eye (seed 004): every closed form side by side, then the
+    /// maximum-likelihood refinement on raw corner reprojection.
+    Camera(camera::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -40,5 +44,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Laser(a) => laser::exec(a),
         What::Rcm(a) => rcm::exec(a),
         What::RobotWorld(a) => robot_world::exec(a),
+        What::Camera(a) => camera::exec(a),
     }
 }

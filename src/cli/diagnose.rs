@@ -55,6 +55,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 
 /// Run and return the short console summary.
 pub fn run(args: &Args) -> anyhow::Result<String> {
+    if super::diagnose_camera::is_camera_dataset(&args.data) {
+        return super::diagnose_camera::run(&args.data, args.heldout.as_deref(), &args.out);
+    }
     // Bad input is refused at the boundary: strict reader + plausibility (issue 14 §5).
     let (ds, _) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     // Laser (range sensor) datasets have their own effect library (seed 000 geometry).

@@ -10,6 +10,7 @@ pub mod chain;
 pub mod devices;
 pub mod diagnose;
 pub mod history;
+pub mod diagnose_camera;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;

@@ -4,6 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 
+use crate::dataset::{CalibrationFile, CalibrationKind};
+
 pub use crate::solve::predict::{
     predict_files, predict_files_warn, write_csv, PredictedPoint, Predictor,
 };
@@ -41,6 +43,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 .context("writing to stdout"),
         };
     }
+    if CalibrationFile::load(&args.calibration)?.kind() == CalibrationKind::Other("camera".into()) {
+        return camera_exec(&args);
+    }
     let Some(data) = &args.data else {
         anyhow::bail!("give --data DATA.jsonl (pose records) or --points P.csv (with a registration)");
     };
@@ -59,6 +64,23 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             let stdout = std::io::stdout();
             write_csv(stdout.lock(), &rows).context("writing to stdout")?;
         }
+    }
+    Ok(())
+}
+
+/// `robocal predict` on a camera calibration: CSV `id,corner,u_px,v_px`.
+fn camera_exec(args: &Args) -> anyhow::Result<()> {
+    let Some(data) = &args.data else {
+        anyhow::bail!("a camera calibration predicts the corners of a dataset: give --data DATA.jsonl");
+    };
+    let rows = crate::cli::calibrate::camera::predict_rows(&args.calibration, data)?;
+    let mut text = String::from("id,corner,u_px,v_px\n");
+    for (id, c, uv) in rows {
+        text += &format!("{id},{c},{:.6},{:.6}\n", uv[0], uv[1]);
+    }
+    match &args.out {
+        Some(p) => crate::fsio::write(p, text).with_context(|| format!("writing {}", p.display()))?,
+        None => print!("{text}"),
     }
     Ok(())
 }

@@ -248,6 +248,40 @@ fn header_for(plan: &PlanFile, info: &CellInfo) -> Header {
     }
 }
 
+/// The header's `camera` and `target` blocks of a simulated cell (its first camera and its
+/// chessboard; `board` overrides the inner corners). Live cells leave them to
+/// `robocal calibrate camera --board --square` (the size comes from the images).
+fn camera_header(
+    header: &mut Header,
+    scenario: &Path,
+    board: Option<(u32, u32)>,
+) -> anyhow::Result<()> {
+    let s = Scenario::load(scenario)?;
+    let Some(c) = s.cameras.first() else {
+        return Ok(());
+    };
+    let cam = crate::dataset::CameraHeader {
+        kind: "mono".into(),
+        width: c.width,
+        height: c.height,
+        name: Some(c.name.clone()),
+        mount: Some(if c.arm.is_some() { "flange" } else { "base" }.into()),
+    };
+    let target = s.scene.chessboard.as_ref().map(|b| {
+        let (cols, rows) = board.unwrap_or((b.cols.saturating_sub(1), b.rows.saturating_sub(1)));
+        crate::dataset::TargetHeader {
+            kind: "chessboard".into(),
+            cols,
+            rows,
+            square_mm: b.square_mm,
+            marker_mm: None,
+            dictionary: None,
+        }
+    });
+    header.set_camera(&cam, target.as_ref());
+    Ok(())
+}
+
 fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
     AcquireOptions {
         speed: cfg.speed,
@@ -496,7 +530,10 @@ fn acquire_in(
         geometry: geometry.clone(),
     };
     devices.arm = guard(devices.arm.clone(), limits, geometry);
-    let header = header_for(&plan, &info);
+    let mut header = header_for(&plan, &info);
+    if cfg.camera && cfg.mode == "sim" {
+        camera_header(&mut header, &config_path, cfg.capture.board)?;
+    }
     let journal_path = dir.join(DATASET);
     let (mut journal, existing, warnings) = Journal::open_or_create(&journal_path, &header)?;
     for w in &warnings {

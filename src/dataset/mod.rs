@@ -12,6 +12,7 @@
 //! with a [`LoadWarning`] (also logged with `tracing`).
 
 pub mod calibration;
+pub mod camera;
 mod check;
 pub mod endoscope;
 pub mod error;
@@ -21,6 +22,9 @@ pub mod summary;
 pub mod types;
 
 pub use calibration::{read_calibration, write_calibration, CalibrationKind, CALIBRATION_FORMAT};
+pub use camera::{
+    CameraCalBlock, CameraHeader, HandEyeBlock, IntrinsicsBlock, PoseWithStd, TargetHeader,
+};
 pub use check::QUAT_NORM_TOL;
 pub use error::{DatasetError, LoadWarning, Location};
 pub use io::{

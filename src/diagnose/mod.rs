@@ -18,6 +18,7 @@
 use crate::schema::{self, fin};
 use nalgebra::{DMatrix, DVector, Vector3};
 
+pub mod camera;
 pub mod data;
 pub mod effects;
 pub mod fit;

@@ -11,6 +11,7 @@
 
 pub mod bootstrap;
 pub mod calfile;
+pub mod camera;
 pub mod identifiability;
 pub mod inference;
 pub mod kinematics;

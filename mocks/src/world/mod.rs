@@ -9,6 +9,7 @@
 //! simulated duration, so the same scenario and the same call sequence give byte-identical
 //! measurements.
 
+pub mod camera_board;
 pub mod chain;
 pub mod clock;
 pub mod control;

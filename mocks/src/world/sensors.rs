@@ -200,12 +200,7 @@ pub fn render<R: Rng>(
         // Board-plane point hit by the ray through image point (u, v).
         let hit = |u: f64, v: f64| -> Option<(f64, f64)> {
             let ray = board_from_cam * pixel_ray(cam, u, v);
-            if ray.z.abs() > 1e-12 && -o.z / ray.z > 0.0 {
-                let s = -o.z / ray.z;
-                Some((o.x + ray.x * s, o.y + ray.y * s))
-            } else {
-                None
-            }
+            super::camera_board::hit_board(b, &o, &ray)
         };
         // Hits at the pixel corners (u ± ½, v ± ½): (w+1)·(h+1) rays.
         let corners: Vec<Option<(f64, f64)>> = (0..=h)

@@ -1,0 +1,498 @@
+//! Residual diagnosis on camera datasets (`robocal diagnose` on a dataset whose header has a
+//! `camera` block): after the maximum-likelihood camera + hand-eye fit
+//! ([`crate::solve::camera`]), every candidate effect is freed in turn on top of the current
+//! model and refitted on the raw corner reprojection errors:
+//!
+//! * `target_scale` — the printed board's scale ≠ the declared square size (the robot's
+//!   translations fix the metric scale, so the scale is identifiable);
+//! * `target_flatness` — a bent board: sag `c_x·((x−x₀)/R)² + c_y·((y−y₀)/R)²` (mm);
+//! * `arm_kinematics` — joint zero offsets of the arm identified with the camera as the sensor
+//!   (eye-in-hand; the joints whose offset the target pose or the hand-eye absorb exactly — the
+//!   first and the last — stay fixed), so the hand-eye stops absorbing them;
+//! * `distortion` — the full `k1, k2, p1, p2, k3` model when a simpler one was chosen.
+//!
+//! An effect is accepted when its nested-model F statistic is large (F > 25 on the training
+//! corners) and, with a held-out set, the held-out reprojection error falls by ≥ 2 %; the best
+//! one is added and the loop repeats. Output: one entry per effect with its parameters (units,
+//! 1σ intervals), the evidence, the held-out RMS before / after and the hand-eye change — the
+//! same shape as the kinematic diagnosis' `effects[]` so the two schemas unify.
+use nalgebra::{DVector, Isometry3};
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::Dataset;
+use crate::model::KinematicModel;
+use crate::solve::camera::geom::{Intrinsics, N_INTR};
+use crate::solve::camera::problem::{ArmOffsets, BoardModel, Layout, Obs, Reproj};
+use crate::solve::camera::{
+    self, bend_centre, motion_poses, CameraData, CameraError, DistModel, Estimate, Mount, Options,
+};
+use crate::solve::lm::{minimize, LmOptions, LmReport};
+
+/// One parameter of an effect.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EffectParam {
+    pub name: String,
+    pub value: f64,
+    pub std: f64,
+    pub unit: String,
+    /// ±1.96σ.
+    pub interval: [f64; 2],
+}
+
+/// Why an effect was accepted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Evidence {
+    pub train_rms_before_px: f64,
+    pub train_rms_after_px: f64,
+    /// Nested-model F statistic and its degrees of freedom.
+    pub f_stat: f64,
+    pub dof: [usize; 2],
+}
+
+/// One accepted effect (shape of the kinematic diagnosis' `effects[]`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CameraEffect {
+    pub kind: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint: Option<usize>,
+    pub parameters: Vec<EffectParam>,
+    pub evidence: Evidence,
+    pub summary: String,
+    pub heldout_rms_before_px: f64,
+    pub heldout_rms_after_px: f64,
+    /// Change of the hand-eye when the effect was added (mm, deg).
+    pub hand_eye_change_mm: f64,
+    pub hand_eye_change_deg: f64,
+}
+
+/// A candidate that was tested and not accepted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Rejected {
+    pub kind: String,
+    pub f_stat: f64,
+    pub heldout_rms_px: Option<f64>,
+}
+
+/// `diagnosis.json` of a camera dataset.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CameraDiagnosisFile {
+    pub format: String,
+    pub kind: String,
+    pub effects: Vec<CameraEffect>,
+    pub rejected: Vec<Rejected>,
+    pub heldout_rms_px_before: Option<f64>,
+    pub heldout_rms_px_after: Option<f64>,
+    pub train_rms_px_before: f64,
+    pub train_rms_px_after: f64,
+}
+
+/// What [`diagnose`] returns.
+#[derive(Debug, Clone)]
+pub struct CameraDiagnosis {
+    pub baseline: Estimate,
+    pub effects: Vec<CameraEffect>,
+    pub rejected: Vec<Rejected>,
+    /// The final estimate with every accepted effect.
+    pub final_estimate: Option<Estimate>,
+    pub scale: f64,
+    pub bend_mm: [f64; 2],
+    /// Joint offsets (deg) per joint (1-based), when identified.
+    pub joint_offsets_deg: Vec<(usize, f64)>,
+}
+
+impl CameraDiagnosis {
+    /// The file form.
+    pub fn to_file(&self) -> CameraDiagnosisFile {
+        let last = self.final_estimate.as_ref().unwrap_or(&self.baseline);
+        CameraDiagnosisFile {
+            format: "robocal-diagnosis/1".into(),
+            kind: "camera".into(),
+            effects: self.effects.clone(),
+            rejected: self.rejected.clone(),
+            heldout_rms_px_before: self.baseline.heldout_rms_px,
+            heldout_rms_px_after: last.heldout_rms_px,
+            train_rms_px_before: self.baseline.train_rms_px,
+            train_rms_px_after: last.train_rms_px,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Cand {
+    Scale,
+    Bend,
+    Arm,
+    Distortion,
+}
+
+impl Cand {
+    fn kind(self) -> &'static str {
+        match self {
+            Cand::Scale => "target_scale",
+            Cand::Bend => "target_flatness",
+            Cand::Arm => "arm_kinematics",
+            Cand::Distortion => "distortion",
+        }
+    }
+}
+
+/// The current model.
+#[derive(Debug, Clone)]
+struct St {
+    k: Intrinsics,
+    mask: [bool; N_INTR],
+    x: Isometry3<f64>,
+    target: Isometry3<f64>,
+    scale: f64,
+    bend: [f64; 2],
+    offsets: Vec<f64>,
+    on: Vec<Cand>,
+}
+
+struct Ctx<'a> {
+    obs: Vec<Obs>,
+    g: Vec<Isometry3<f64>>,
+    q: Vec<Vec<f64>>,
+    model: Option<&'a KinematicModel>,
+    joints: Vec<usize>,
+    centre: [f64; 3],
+    held: Option<(CameraData, Vec<Vec<f64>>)>,
+}
+
+fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
+    let arm = s.on.contains(&Cand::Arm) && c.model.is_some();
+    let p = Reproj {
+        obs: &c.obs,
+        flange: &c.g,
+        layout: Layout::HandEye,
+        intr_free: s.mask,
+        intr_fixed: s.k,
+        board: BoardModel {
+            scale: s.on.contains(&Cand::Scale),
+            bend: s.on.contains(&Cand::Bend),
+            centre: c.centre,
+        },
+        arm: arm.then(|| ArmOffsets {
+            model: c.model.expect("checked"),
+            q: &c.q,
+            joints: c.joints.clone(),
+        }),
+    };
+    let mut x0 = p.pack(&s.k, &[s.x, s.target], s.scale, s.bend);
+    if arm && s.offsets.len() == c.joints.len() {
+        let o = p.arm_offset();
+        for (k, v) in s.offsets.iter().enumerate() {
+            x0[o + k] = *v;
+        }
+    }
+    let rep = minimize(
+        &p,
+        x0,
+        &LmOptions {
+            max_iter: 200,
+            ..LmOptions::default()
+        },
+    );
+    let (scale, bend) = p.board_params(&rep.x);
+    let st = St {
+        k: p.intrinsics(&rep.x),
+        x: p.pose(&rep.x, 0),
+        target: p.pose(&rep.x, 1),
+        scale,
+        bend,
+        offsets: if arm { p.joint_offsets(&rep.x) } else { vec![] },
+        ..s.clone()
+    };
+    (st, rep)
+}
+
+fn heldout(c: &Ctx, s: &St) -> Option<f64> {
+    let (h, q) = c.held.as_ref()?;
+    let mut h = h.clone();
+    if s.on.contains(&Cand::Arm) && !s.offsets.is_empty() {
+        let m = c.model?;
+        for (v, qv) in h.views.iter_mut().zip(q) {
+            let mut qq = qv.clone();
+            for (k, &jn) in c.joints.iter().enumerate() {
+                qq[jn] += s.offsets[k];
+            }
+            v.flange = m.flange_pose(&qq);
+        }
+    }
+    Some(camera::heldout_rms(
+        &h, &s.k, &s.x, &s.target, s.scale, s.bend,
+    ))
+}
+
+fn rms(r: &DVector<f64>) -> f64 {
+    (r.norm_squared() / (r.len() / 2).max(1) as f64).sqrt()
+}
+
+/// Joint angles (rad) of the views, matched by record id.
+fn joints_of(data: &CameraData, ds: &Dataset) -> Option<Vec<Vec<f64>>> {
+    data.views
+        .iter()
+        .map(|v| {
+            ds.poses()
+                .find(|r| r.id == v.id)
+                .and_then(|r| r.q.as_ref())
+                .map(|q| q.iter().map(|d| d.to_radians()).collect())
+        })
+        .collect()
+}
+
+/// Diagnose a camera calibration (see the module docs). `train_ds` / `held_ds` give the joint
+/// angles (`q`) for `arm_kinematics`; without them (or eye-to-hand) that candidate is skipped.
+pub fn diagnose(
+    train: &CameraData,
+    held: Option<&CameraData>,
+    train_ds: &Dataset,
+    held_ds: Option<&Dataset>,
+) -> Result<CameraDiagnosis, CameraError> {
+    let base = camera::calibrate(train, held, &Options::default())?;
+    // The views the calibration kept, with its corner rejection.
+    let kept: Vec<camera::View> = train
+        .views
+        .iter()
+        .filter(|v| base.used_views.contains(&v.id))
+        .cloned()
+        .collect();
+    let data = CameraData {
+        views: kept,
+        ..train.clone()
+    };
+    let model = KinematicModel::from_robot_block(&train_ds.header.robot).ok();
+    let q = joints_of(&data, train_ds);
+    let held_q = match (held, held_ds) {
+        (Some(h), Some(d)) => joints_of(h, d),
+        _ => None,
+    };
+    let arm_ok = train.mount == Mount::Flange
+        && model.is_some()
+        && q.is_some()
+        && (held.is_none() || held_q.is_some());
+    let dof = model.as_ref().map_or(0, |m| m.dof());
+    let ctx = Ctx {
+        obs: {
+            // Same corners as the final fit (its rejected ones stay out).
+            let used: std::collections::HashSet<(u64, usize)> =
+                base.residuals.iter().map(|(v, c, _, _)| (*v, *c)).collect();
+            let views: Vec<camera::View> = data
+                .views
+                .iter()
+                .map(|v| camera::View {
+                    corners: v
+                        .corners
+                        .iter()
+                        .enumerate()
+                        .map(|(k, c)| c.filter(|_| used.contains(&(v.id, k))))
+                        .collect(),
+                    ..v.clone()
+                })
+                .collect();
+            camera_obs(&views, &data)
+        },
+        g: motion_poses(&data.views, data.mount),
+        q: q.clone().unwrap_or_default(),
+        model: model.as_ref().filter(|_| arm_ok),
+        joints: if dof >= 4 {
+            (1..dof - 1).collect()
+        } else {
+            vec![]
+        },
+        centre: bend_centre(&data.board),
+        held: held.map(|h| (h.clone(), held_q.clone().unwrap_or_default())),
+    };
+    let mut st = St {
+        k: base.ml.intrinsics,
+        mask: base.distortion.mask(),
+        x: base.ml.x,
+        target: base.ml.target,
+        scale: 1.0,
+        bend: [0.0; 2],
+        offsets: vec![],
+        on: vec![],
+    };
+    let (s0, mut rep) = fit(&ctx, &st);
+    st = s0;
+    let mut cur_held = heldout(&ctx, &st);
+    let mut effects = vec![];
+    let mut rejected = vec![];
+    let mut cands = vec![Cand::Scale, Cand::Bend];
+    if ctx.model.is_some() && !ctx.joints.is_empty() {
+        cands.push(Cand::Arm);
+    }
+    if base.distortion != DistModel::K1K2P1P2K3 {
+        cands.push(Cand::Distortion);
+    }
+    loop {
+        let mut best: Option<(Cand, St, LmReport, f64, Option<f64>)> = None;
+        for &c in cands.iter().filter(|c| !st.on.contains(c)) {
+            let mut s = st.clone();
+            s.on.push(c);
+            if c == Cand::Distortion {
+                s.mask = DistModel::K1K2P1P2K3.mask();
+            }
+            let (s1, r1) = fit(&ctx, &s);
+            let (m, n0, n1) = (
+                r1.residuals.len(),
+                rep.jacobian.ncols(),
+                r1.jacobian.ncols(),
+            );
+            let p = n1.saturating_sub(n0).max(1);
+            let f = ((rep.cost - r1.cost) / p as f64) / (r1.cost / (m - n1).max(1) as f64);
+            let h = heldout(&ctx, &s1);
+            let held_ok = match (cur_held, h) {
+                (Some(a), Some(b)) => b < 0.98 * a,
+                _ => true,
+            };
+            if f > 25.0 && held_ok {
+                if best.as_ref().is_none_or(|b| f > b.3) {
+                    best = Some((c, s1, r1, f, h));
+                }
+            } else {
+                rejected.push(Rejected {
+                    kind: c.kind().into(),
+                    f_stat: f,
+                    heldout_rms_px: h,
+                });
+            }
+        }
+        let Some((c, s1, r1, f, h)) = best else {
+            break;
+        };
+        rejected.retain(|r| r.kind != c.kind());
+        let (dmm, ddeg) = crate::solve::camera::geom::pose_error(&st.x, &s1.x);
+        let std = stds(&r1);
+        let params = effect_params(c, &s1, &std, &ctx, r1.jacobian.ncols());
+        let summary = params
+            .iter()
+            .map(|p| format!("{} = {:.5} ± {:.5} {}", p.name, p.value, p.std, p.unit))
+            .collect::<Vec<_>>()
+            .join(", ");
+        effects.push(CameraEffect {
+            kind: c.kind().into(),
+            joint: None,
+            parameters: params,
+            evidence: Evidence {
+                train_rms_before_px: rms(&rep.residuals),
+                train_rms_after_px: rms(&r1.residuals),
+                f_stat: f,
+                dof: [
+                    r1.jacobian.ncols() - rep.jacobian.ncols(),
+                    r1.residuals.len() - r1.jacobian.ncols(),
+                ],
+            },
+            summary,
+            heldout_rms_before_px: cur_held.unwrap_or(f64::NAN),
+            heldout_rms_after_px: h.unwrap_or(f64::NAN),
+            hand_eye_change_mm: dmm,
+            hand_eye_change_deg: ddeg,
+        });
+        st = s1;
+        rep = r1;
+        cur_held = h;
+    }
+    let final_estimate = (!effects.is_empty()).then(|| Estimate {
+        method: "ml+diagnosis".into(),
+        x: st.x,
+        target: st.target,
+        intrinsics: st.k,
+        train_rms_px: rms(&rep.residuals),
+        heldout_rms_px: cur_held,
+    });
+    Ok(CameraDiagnosis {
+        baseline: base.ml.clone(),
+        effects,
+        rejected,
+        final_estimate,
+        scale: st.scale,
+        bend_mm: st.bend,
+        joint_offsets_deg: ctx
+            .joints
+            .iter()
+            .zip(&st.offsets)
+            .map(|(j, o)| (j + 1, o.to_degrees()))
+            .collect(),
+    })
+}
+
+fn camera_obs(views: &[camera::View], data: &CameraData) -> Vec<Obs> {
+    let pts = camera::board_points(&data.board);
+    let mut out = vec![];
+    for (v, view) in views.iter().enumerate() {
+        for (k, c) in view.corners.iter().enumerate() {
+            if let Some(uv) = c {
+                out.push(Obs {
+                    view: v,
+                    pt: pts[k],
+                    uv: *uv,
+                });
+            }
+        }
+    }
+    out
+}
+
+fn stds(r: &LmReport) -> Vec<f64> {
+    let (m, n) = (r.jacobian.nrows(), r.jacobian.ncols());
+    let s2 = 2.0 * r.cost / (m.saturating_sub(n)).max(1) as f64;
+    let jtj = r.jacobian.transpose() * &r.jacobian;
+    match jtj.try_inverse() {
+        Some(inv) => (0..n).map(|i| (s2 * inv[(i, i)]).max(0.0).sqrt()).collect(),
+        None => vec![f64::NAN; n],
+    }
+}
+
+fn effect_params(c: Cand, s: &St, std: &[f64], ctx: &Ctx, n: usize) -> Vec<EffectParam> {
+    let p = |name: String, value: f64, sd: f64, unit: &str| EffectParam {
+        name,
+        value,
+        std: sd,
+        unit: unit.into(),
+        interval: [value - 1.96 * sd, value + 1.96 * sd],
+    };
+    // Index of the extras: intrinsics, 12 pose params, then scale, bend (2), offsets.
+    let ni = s.mask.iter().filter(|f| **f).count();
+    let mut o = ni + 12;
+    let has = |k: Cand| s.on.contains(&k);
+    let i_scale = has(Cand::Scale).then(|| {
+        o += 1;
+        o - 1
+    });
+    let i_bend = has(Cand::Bend).then(|| {
+        o += 2;
+        o - 2
+    });
+    let i_arm = has(Cand::Arm).then_some(o);
+    let sd = |i: Option<usize>, k: usize| {
+        i.map_or(f64::NAN, |i| std.get(i + k).copied().unwrap_or(f64::NAN))
+    };
+    let _ = n;
+    match c {
+        Cand::Scale => vec![p("scale".into(), s.scale, sd(i_scale, 0), "1")],
+        Cand::Bend => vec![
+            p("sag_x_mm".into(), s.bend[0], sd(i_bend, 0), "mm"),
+            p("sag_y_mm".into(), s.bend[1], sd(i_bend, 1), "mm"),
+        ],
+        Cand::Arm => ctx
+            .joints
+            .iter()
+            .zip(&s.offsets)
+            .enumerate()
+            .map(|(k, (j, v))| {
+                p(
+                    format!("offset_j{}", j + 1),
+                    v.to_degrees(),
+                    sd(i_arm, k).to_degrees(),
+                    "deg",
+                )
+            })
+            .collect(),
+        Cand::Distortion => ["k1", "k2", "p1", "p2", "k3"]
+            .iter()
+            .enumerate()
+            .map(|(k, nm)| p((*nm).into(), s.k.dist[k], f64::NAN, "1"))
+            .collect(),
+    }
+}

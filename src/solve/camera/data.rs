@@ -1,0 +1,231 @@
+//! Camera datasets → [`CameraData`]: the header's `camera` / `target` blocks (or overrides),
+//! each pose record's flange pose (its `flange`, else FK of `q` through the header's robot),
+//! and the board's corners: detected from the record's `image` with the pure-Rust detector
+//! ([`super::detect`]), else the record's `corners` taken in board order.
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use super::detect::{detect_chessboard, BoardSpec};
+use super::{CameraData, Mount, View};
+use crate::dataset::{CameraHeader, Dataset, TargetHeader};
+use crate::model::KinematicModel;
+
+/// Errors reading a camera dataset.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraDataError {
+    #[error("{file}: {msg}")]
+    Header { file: String, msg: String },
+    #[error("{file}: pose {id}: {msg}")]
+    Record { file: String, id: u64, msg: String },
+    #[error(transparent)]
+    Dataset(#[from] crate::dataset::DatasetError),
+}
+
+/// Overrides of the header's board / mount.
+#[derive(Debug, Clone, Default)]
+pub struct Overrides {
+    /// Inner corners.
+    pub board: Option<(u32, u32)>,
+    pub square_mm: Option<f64>,
+    pub mount: Option<Mount>,
+}
+
+/// A camera dataset and how its views were obtained.
+#[derive(Debug, Clone)]
+pub struct Loaded {
+    pub data: CameraData,
+    pub camera: CameraHeader,
+    pub target: TargetHeader,
+    /// Views without a usable board: `(id, reason)`.
+    pub no_board: Vec<(u64, String)>,
+    pub dataset: Dataset,
+}
+
+/// Read `path` (see the module docs). `progress` shows a bar while detecting.
+pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, CameraDataError> {
+    let ds = Dataset::load(path)?;
+    let file = path.display().to_string();
+    let herr = |msg: String| CameraDataError::Header {
+        file: file.clone(),
+        msg,
+    };
+    let cam = ds.header.camera().map_err(&herr)?;
+    let target = ds.header.target().map_err(&herr)?;
+    let mut target = match (target, ov.board, ov.square_mm) {
+        (Some(t), _, _) => t,
+        (None, Some((c, r)), Some(s)) => TargetHeader {
+            kind: "chessboard".into(),
+            cols: c,
+            rows: r,
+            square_mm: s,
+            marker_mm: None,
+            dictionary: None,
+        },
+        (None, _, _) => return Err(herr(
+            "no \"target\" block in the header: give the board with --board COLSxROWS --square MM"
+                .into(),
+        )),
+    };
+    if let Some((c, r)) = ov.board {
+        target.cols = c;
+        target.rows = r;
+    }
+    if let Some(s) = ov.square_mm {
+        target.square_mm = s;
+    }
+    if target.kind != "chessboard" {
+        return Err(herr(format!(
+            "target kind {:?}: only \"chessboard\" is detected so far",
+            target.kind
+        )));
+    }
+    if !(target.square_mm.is_finite() && target.square_mm > 0.0)
+        || target.cols < 2
+        || target.rows < 2
+    {
+        return Err(herr(format!(
+            "field \"target\": a board needs ≥ 2×2 inner corners and a positive square_mm, got {}×{} and {}",
+            target.cols, target.rows, target.square_mm
+        )));
+    }
+    let board = BoardSpec {
+        cols: target.cols as usize,
+        rows: target.rows as usize,
+        square_mm: target.square_mm,
+    };
+    let model = KinematicModel::from_robot_block(&ds.header.robot).ok();
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let recs: Vec<_> = ds.poses().cloned().collect();
+    let mut flanges = vec![];
+    for r in &recs {
+        let f = crate::solve::laser::record_flange(r, model.as_ref()).map_err(|e| {
+            CameraDataError::Record {
+                file: file.clone(),
+                id: r.id,
+                msg: e.to_string(),
+            }
+        })?;
+        flanges.push(f);
+    }
+    let bar = progress.then(|| {
+        let b = indicatif::ProgressBar::new(recs.len() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(
+                "detecting {bar:30} {pos}/{len} images {elapsed}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    let mut size: Option<(u32, u32)> = cam.as_ref().map(|c| (c.width, c.height));
+    let detected: Vec<Result<(Vec<Option<[f64; 2]>>, Option<(u32, u32)>), String>> = recs
+        .par_iter()
+        .map(|r| {
+            let out = corners_of(r, &base, &board);
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            out
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let mut views = vec![];
+    let mut no_board = vec![];
+    for ((r, f), d) in recs.iter().zip(&flanges).zip(detected) {
+        match d {
+            Ok((c, sz)) => {
+                if let Some(s) = sz {
+                    if size.is_some_and(|h| h != s) {
+                        return Err(CameraDataError::Record {
+                            file: file.clone(),
+                            id: r.id,
+                            msg: format!(
+                                "image is {}×{}, the header's camera is {}×{}",
+                                s.0,
+                                s.1,
+                                size.unwrap().0,
+                                size.unwrap().1
+                            ),
+                        });
+                    }
+                    size = Some(s);
+                }
+                views.push(View {
+                    id: r.id,
+                    flange: *f,
+                    corners: c,
+                });
+            }
+            Err(e) => no_board.push((r.id, e)),
+        }
+    }
+    let (w, h) =
+        size.ok_or_else(|| herr("no \"camera\" block and no image to take the size from".into()))?;
+    let camera = cam.unwrap_or(CameraHeader {
+        kind: "mono".into(),
+        width: w,
+        height: h,
+        name: None,
+        mount: None,
+    });
+    let mount = match (ov.mount, camera.mount.as_deref()) {
+        (Some(m), _) => m,
+        (None, None | Some("flange")) => Mount::Flange,
+        (None, Some("base")) => Mount::Base,
+        (None, Some(other)) => {
+            return Err(herr(format!(
+                "field \"camera.mount\": {other:?} (expected \"flange\" or \"base\")"
+            )))
+        }
+    };
+    Ok(Loaded {
+        data: CameraData {
+            width: w,
+            height: h,
+            board,
+            mount,
+            views,
+        },
+        camera,
+        target,
+        no_board,
+        dataset: ds,
+    })
+}
+
+type Corners = (Vec<Option<[f64; 2]>>, Option<(u32, u32)>);
+
+fn corners_of(
+    r: &crate::dataset::PoseRecord,
+    base: &Path,
+    board: &BoardSpec,
+) -> Result<Corners, String> {
+    let n = board.cols * board.rows;
+    if let Some(img) = &r.image {
+        let p: PathBuf = base.join(img);
+        let im = robocal_drivers::camera::read_image_file(&p)
+            .map_err(|e| format!("image {}: {e}", p.display()))?;
+        let c =
+            detect_chessboard(&im.data, im.width, im.height, board).map_err(|e| e.to_string())?;
+        return Ok((
+            c.into_iter().map(Some).collect(),
+            Some((im.width, im.height)),
+        ));
+    }
+    match &r.corners {
+        Some(c) if c.len() == n => Ok((
+            c.iter()
+                .map(|p| p.iter().all(|v| v.is_finite()).then_some(*p))
+                .collect(),
+            None,
+        )),
+        Some(c) => Err(format!(
+            "field \"corners\": {} points, the board has {n} inner corners",
+            c.len()
+        )),
+        None => Err("no image and no corners".into()),
+    }
+}

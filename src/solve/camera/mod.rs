@@ -1,0 +1,993 @@
+//! Camera calibration and hand-eye (seed 004): intrinsics, every closed-form hand-eye side by
+//! side, the maximum-likelihood refinement on raw corner reprojection, seed 004's incremental
+//! mode, uncertainty (covariance and bootstrap).
+//!
+//! Pipeline ([`calibrate`]):
+//! 1. Zhang's closed form ([`zhang`]) from one homography per view.
+//! 2. LM on reprojection over intrinsics + per-view board poses ([`problem::Layout::Views`]) on
+//!    up to 20 views spread over the set, for each distortion model of [`DistModel`]; the
+//!    model is chosen by the reprojection error of the *other* views (their board poses fitted
+//!    with the intrinsics held).
+//! 3. Every view's board pose with those intrinsics; views and corners whose residual is far
+//!    beyond the robust spread of the rest are rejected automatically.
+//! 4. Tsai–Lenz, Park–Martin, Horaud, Andreff, Daniilidis ([`handeye`]).
+//! 5. One LM over intrinsics, `X` and the target pose on every raw corner with the robot poses
+//!    as inputs ([`problem::Layout::HandEye`]), started from the best closed form.
+//! 6. Covariance at the optimum and a view bootstrap; seed 004's incremental Tsai–Lenz.
+//!
+//! Eye-to-hand (camera fixed, board on the flange) runs the same code with the inverse flange
+//! poses: then `X` is the camera in the base and the "target" pose is the board in the flange.
+pub mod data;
+pub mod detect;
+pub mod geom;
+pub mod handeye;
+pub mod problem;
+pub mod zhang;
+
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+
+use crate::solve::lm::{minimize, LmOptions};
+use geom::{board_point, Intrinsics, N_INTR};
+use handeye::Method;
+use problem::{BoardModel, Layout, Obs, Reproj};
+
+/// Where the camera is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mount {
+    /// Eye-in-hand: camera on the flange, board fixed in the base.
+    Flange,
+    /// Eye-to-hand: camera fixed in the base, board on the flange.
+    Base,
+}
+
+/// One view: the flange pose (base ← flange) and the board's inner corners in board order
+/// (`j·cols + i`; `None` where not detected / rejected).
+#[derive(Debug, Clone)]
+pub struct View {
+    pub id: u64,
+    pub flange: Isometry3<f64>,
+    pub corners: Vec<Option<[f64; 2]>>,
+}
+
+/// A camera dataset in internal form.
+#[derive(Debug, Clone)]
+pub struct CameraData {
+    pub width: u32,
+    pub height: u32,
+    pub board: detect::BoardSpec,
+    pub mount: Mount,
+    pub views: Vec<View>,
+}
+
+/// Lens distortion models, simplest first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DistModel {
+    None,
+    K1,
+    K1K2,
+    K1K2P1P2,
+    K1K2P1P2K3,
+}
+
+impl DistModel {
+    pub const ALL: [DistModel; 5] = [
+        DistModel::None,
+        DistModel::K1,
+        DistModel::K1K2,
+        DistModel::K1K2P1P2,
+        DistModel::K1K2P1P2K3,
+    ];
+    /// Free intrinsics `[fx, fy, cx, cy, k1, k2, p1, p2, k3]`.
+    pub fn mask(self) -> [bool; N_INTR] {
+        let d = match self {
+            DistModel::None => [false; 5],
+            DistModel::K1 => [true, false, false, false, false],
+            DistModel::K1K2 => [true, true, false, false, false],
+            DistModel::K1K2P1P2 => [true, true, true, true, false],
+            DistModel::K1K2P1P2K3 => [true; 5],
+        };
+        [true, true, true, true, d[0], d[1], d[2], d[3], d[4]]
+    }
+}
+
+/// Options of [`calibrate`].
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Force a distortion model (default: chosen by held-out error).
+    pub distortion: Option<DistModel>,
+    /// Bootstrap refits (0 = none).
+    pub bootstrap: usize,
+    /// Seed 004's incremental mode.
+    pub incremental: bool,
+    /// Random seed (bootstrap, subsets).
+    pub seed: u64,
+    /// Free board scale / bend in the final fit (the camera diagnosis).
+    pub board: BoardModel,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            distortion: None,
+            bootstrap: 0,
+            incremental: false,
+            seed: 4,
+            board: BoardModel::default(),
+        }
+    }
+}
+
+/// Errors of the camera calibration.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraError {
+    #[error("too few views with a detected board: {got} (need at least {need})")]
+    TooFewViews { got: usize, need: usize },
+    #[error("the closed-form intrinsics failed: {0}")]
+    Intrinsics(String),
+    #[error("no closed-form hand-eye method produced a solution (the robot poses need rotations about at least two different axes)")]
+    HandEye,
+}
+
+/// One hand-eye estimate.
+#[derive(Debug, Clone)]
+pub struct Estimate {
+    pub method: String,
+    /// Camera in flange (eye-in-hand) or in base (eye-to-hand).
+    pub x: Isometry3<f64>,
+    /// Target in base (eye-in-hand) or in flange (eye-to-hand).
+    pub target: Isometry3<f64>,
+    pub intrinsics: Intrinsics,
+    /// RMS reprojection (px) on the training corners.
+    pub train_rms_px: f64,
+    /// RMS reprojection (px) on the held-out views, when given.
+    pub heldout_rms_px: Option<f64>,
+}
+
+/// Seed 004's incremental mode.
+#[derive(Debug, Clone)]
+pub struct Incremental {
+    /// `(views used, training RMS px after that update)` from 4 views on.
+    pub curve: Vec<(usize, f64)>,
+    /// View ids rejected by the 2σ rule.
+    pub rejected: Vec<u64>,
+    /// Subset size and count of the averaging.
+    pub subset: (usize, usize),
+    pub estimate: Estimate,
+}
+
+/// Standard deviations of the final estimate.
+#[derive(Debug, Clone, Default)]
+pub struct Uncertainty {
+    /// Of `[fx, fy, cx, cy, k1, k2, p1, p2, k3]` (0 for fixed ones).
+    pub intrinsics: [f64; N_INTR],
+    /// Of X: translation mm (x, y, z), rotation deg (about x, y, z).
+    pub x_mm: [f64; 3],
+    pub x_deg: [f64; 3],
+    pub target_mm: [f64; 3],
+    pub target_deg: [f64; 3],
+    /// Bootstrap: std of X translation (mm) and rotation (deg) magnitudes, when run.
+    pub bootstrap: Option<(usize, [f64; 3], [f64; 3])>,
+}
+
+/// What [`calibrate`] returns.
+#[derive(Debug, Clone)]
+pub struct CameraResult {
+    pub distortion: DistModel,
+    /// Per model: validation RMS px of the intrinsics-only fit.
+    pub model_scores: Vec<(DistModel, f64)>,
+    /// The intrinsics-only calibration (per-view board poses).
+    pub intrinsics_only: Intrinsics,
+    pub intrinsics_rms_px: f64,
+    /// The five closed forms (intrinsics of step 2).
+    pub closed_form: Vec<Estimate>,
+    /// The maximum-likelihood refinement.
+    pub ml: Estimate,
+    pub incremental: Option<Incremental>,
+    pub uncertainty: Uncertainty,
+    /// Board scale and bend of the final fit (1, 0 unless freed).
+    pub board_scale: f64,
+    pub board_bend_mm: [f64; 2],
+    /// Views used / rejected (ids with reason).
+    pub used_views: Vec<u64>,
+    pub rejected_views: Vec<(u64, String)>,
+    pub rejected_corners: usize,
+    /// Residuals of the final fit: `(view id, corner index, du, dv)`.
+    pub residuals: Vec<(u64, usize, f64, f64)>,
+}
+
+fn obs_of(views: &[View], board: &detect::BoardSpec) -> Vec<Obs> {
+    let mut out = vec![];
+    for (v, view) in views.iter().enumerate() {
+        for (k, c) in view.corners.iter().enumerate() {
+            if let Some(uv) = c {
+                let (i, j) = (k % board.cols, k / board.cols);
+                out.push(Obs {
+                    view: v,
+                    pt: board_point(i, j, board.square_mm).coords,
+                    uv: *uv,
+                });
+            }
+        }
+    }
+    out
+}
+
+fn rms(r: &DVector<f64>) -> f64 {
+    if r.is_empty() {
+        return f64::NAN;
+    }
+    // per-corner RMS of the 2-D error = sqrt(Σ r² / n_corners)
+    (r.norm_squared() / (r.len() / 2) as f64).sqrt()
+}
+
+/// The flange poses as the hand-eye code needs them (inverse for eye-to-hand).
+pub fn motion_poses(views: &[View], mount: Mount) -> Vec<Isometry3<f64>> {
+    views
+        .iter()
+        .map(|v| match mount {
+            Mount::Flange => v.flange,
+            Mount::Base => v.flange.inverse(),
+        })
+        .collect()
+}
+
+/// Board-in-camera pose of one view with the intrinsics held (returns pose and RMS px).
+fn pnp(k: &Intrinsics, obs: &[Obs], init: Isometry3<f64>) -> (Isometry3<f64>, f64, DVector<f64>) {
+    let p = Reproj {
+        obs,
+        flange: &[],
+        layout: Layout::Views(1),
+        intr_free: [false; N_INTR],
+        intr_fixed: *k,
+        board: BoardModel::default(),
+        arm: None,
+    };
+    let x0 = p.pack(k, &[init], 1.0, [0.0; 2]);
+    let rep = minimize(&p, x0, &LmOptions::default());
+    (p.pose(&rep.x, 0), rms(&rep.residuals), rep.residuals)
+}
+
+fn single_view(obs: &[Obs]) -> Vec<Obs> {
+    obs.iter().map(|o| Obs { view: 0, ..*o }).collect()
+}
+
+fn view_h(obs: &[Obs]) -> Option<Matrix3<f64>> {
+    let plane: Vec<[f64; 2]> = obs.iter().map(|o| [o.pt.x, o.pt.y]).collect();
+    let img: Vec<[f64; 2]> = obs.iter().map(|o| o.uv).collect();
+    zhang::homography(&plane, &img)
+}
+
+fn k_matrix(k: &Intrinsics) -> Matrix3<f64> {
+    Matrix3::new(k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0)
+}
+
+/// Reprojection of held-out views under a hand-eye estimate (RMS px over all corners).
+pub fn heldout_rms(
+    data: &CameraData,
+    k: &Intrinsics,
+    x: &Isometry3<f64>,
+    target: &Isometry3<f64>,
+    scale: f64,
+    bend: [f64; 2],
+) -> f64 {
+    let r = predict_residuals(data, k, x, target, scale, bend);
+    if r.is_empty() {
+        return f64::NAN;
+    }
+    (r.iter().map(|(_, _, a, b)| a * a + b * b).sum::<f64>() / r.len() as f64).sqrt()
+}
+
+/// Predicted pixel of every board corner at every view: `(view id, corner, u, v)`.
+pub fn predict(
+    data: &CameraData,
+    k: &Intrinsics,
+    x: &Isometry3<f64>,
+    target: &Isometry3<f64>,
+) -> Vec<(u64, usize, [f64; 2])> {
+    let g = motion_poses(&data.views, data.mount);
+    let mut out = vec![];
+    for (v, view) in data.views.iter().enumerate() {
+        let cam_from_board = (g[v] * x).inverse() * target;
+        for k_i in 0..data.board.cols * data.board.rows {
+            let p = board_point(
+                k_i % data.board.cols,
+                k_i / data.board.cols,
+                data.board.square_mm,
+            );
+            if let Some(uv) = geom::project(k, &(cam_from_board * p).coords) {
+                out.push((view.id, k_i, uv));
+            }
+        }
+    }
+    out
+}
+
+/// Residuals `(view id, corner, du, dv)` of the detected corners of `data` under an estimate.
+pub fn predict_residuals(
+    data: &CameraData,
+    k: &Intrinsics,
+    x: &Isometry3<f64>,
+    target: &Isometry3<f64>,
+    scale: f64,
+    bend: [f64; 2],
+) -> Vec<(u64, usize, f64, f64)> {
+    let obs = obs_of(&data.views, &data.board);
+    let g = motion_poses(&data.views, data.mount);
+    let p = Reproj {
+        obs: &obs,
+        flange: &g,
+        layout: Layout::HandEye,
+        intr_free: [false; N_INTR],
+        intr_fixed: *k,
+        board: BoardModel {
+            scale: true,
+            bend: true,
+            centre: bend_centre(&data.board),
+        },
+        arm: None,
+    };
+    let r = crate::solve::lm::LsqProblem::residuals(&p, &p.pack(k, &[*x, *target], scale, bend));
+    let ids = corner_ids(&data.views);
+    ids.iter()
+        .enumerate()
+        .map(|(i, (v, c))| (*v, *c, r[2 * i], r[2 * i + 1]))
+        .collect()
+}
+
+fn corner_ids(views: &[View]) -> Vec<(u64, usize)> {
+    views
+        .iter()
+        .flat_map(|v| {
+            v.corners
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.is_some())
+                .map(move |(k, _)| (v.id, k))
+        })
+        .collect()
+}
+
+/// Centre and radius of the bend model: the board's centre and its corner radius.
+pub fn bend_centre(b: &detect::BoardSpec) -> [f64; 3] {
+    let (w, h) = (
+        (b.cols + 1) as f64 * b.square_mm,
+        (b.rows + 1) as f64 * b.square_mm,
+    );
+    [w / 2.0, h / 2.0, (w * w + h * h).sqrt() / 2.0]
+}
+
+/// Robust σ (1.4826 · median absolute value).
+fn robust_sigma(v: &[f64]) -> f64 {
+    let mut a: Vec<f64> = v.iter().map(|x| x.abs()).collect();
+    a.sort_by(f64::total_cmp);
+    if a.is_empty() {
+        return 0.0;
+    }
+    1.4826 * a[a.len() / 2]
+}
+
+/// Hand-eye ML fit: intrinsics (free per `mask`), X, target, optional board parameters.
+#[allow(clippy::too_many_arguments)]
+fn ml_fit(
+    obs: &[Obs],
+    g: &[Isometry3<f64>],
+    k: &Intrinsics,
+    mask: [bool; N_INTR],
+    x: &Isometry3<f64>,
+    target: &Isometry3<f64>,
+    board: BoardModel,
+    scale: f64,
+    bend: [f64; 2],
+) -> (
+    Intrinsics,
+    Isometry3<f64>,
+    Isometry3<f64>,
+    f64,
+    [f64; 2],
+    crate::solve::lm::LmReport,
+) {
+    let p = Reproj {
+        obs,
+        flange: g,
+        layout: Layout::HandEye,
+        intr_free: mask,
+        intr_fixed: *k,
+        board,
+        arm: None,
+    };
+    let opts = LmOptions {
+        max_iter: 200,
+        ..LmOptions::default()
+    };
+    let rep = minimize(&p, p.pack(k, &[*x, *target], scale, bend), &opts);
+    let (s, c) = p.board_params(&rep.x);
+    (
+        p.intrinsics(&rep.x),
+        p.pose(&rep.x, 0),
+        p.pose(&rep.x, 1),
+        s,
+        c,
+        rep,
+    )
+}
+
+/// Target pose from X and the per-view board poses: mean of `G_i X T_i`.
+fn target_from(g: &[Isometry3<f64>], x: &Isometry3<f64>, t: &[Isometry3<f64>]) -> Isometry3<f64> {
+    let all: Vec<Isometry3<f64>> = g.iter().zip(t).map(|(g, t)| g * x * t).collect();
+    geom::mean_pose(&all)
+}
+
+/// Calibrate intrinsics and hand-eye (see the module docs).
+pub fn calibrate(
+    train: &CameraData,
+    heldout: Option<&CameraData>,
+    opts: &Options,
+) -> Result<CameraResult, CameraError> {
+    let board = train.board;
+    let mut rejected_views: Vec<(u64, String)> = vec![];
+    let mut views: Vec<View> = vec![];
+    for v in &train.views {
+        let n = v.corners.iter().filter(|c| c.is_some()).count();
+        if n >= 6 {
+            views.push(v.clone());
+        } else {
+            rejected_views.push((v.id, format!("{n} corners")));
+        }
+    }
+    if views.len() < 4 {
+        return Err(CameraError::TooFewViews {
+            got: views.len(),
+            need: 4,
+        });
+    }
+    // 1. Homographies and Zhang.
+    let per_view: Vec<Vec<Obs>> = views
+        .iter()
+        .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
+        .collect();
+    let hs: Vec<Matrix3<f64>> = per_view.iter().filter_map(|o| view_h(o)).collect();
+    let (cx0, cy0) = (
+        train.width as f64 / 2.0 - 0.5,
+        train.height as f64 / 2.0 - 0.5,
+    );
+    let plausible = |k: &Matrix3<f64>| {
+        let f = (k[(0, 0)] * k[(1, 1)]).sqrt();
+        f > 0.1 * train.width as f64
+            && f < 20.0 * train.width as f64
+            && (k[(0, 0)] / k[(1, 1)] - 1.0).abs() < 0.2
+            && (k[(0, 2)] - cx0).abs() < 0.3 * train.width as f64
+            && (k[(1, 2)] - cy0).abs() < 0.3 * train.height as f64
+    };
+    let k0m = zhang::zhang_k(&hs, cx0, cy0, train.width as f64)
+        .filter(plausible)
+        .or_else(|| zhang::focal_centered(&hs, cx0, cy0))
+        .ok_or_else(|| CameraError::Intrinsics("no focal length fits the homographies".into()))?;
+    let k0 = Intrinsics {
+        fx: k0m[(0, 0)],
+        fy: k0m[(1, 1)],
+        cx: k0m[(0, 2)],
+        cy: k0m[(1, 2)],
+        dist: [0.0; 5],
+    };
+    // 2. Intrinsics on up to 20 spread views, model by validation on the others.
+    let n = views.len();
+    let nsub = n.min(20);
+    let sub: Vec<usize> = (0..nsub).map(|i| i * n / nsub).collect();
+    let val: Vec<usize> = (0..n).filter(|i| !sub.contains(i)).collect();
+    let val = if val.len() >= 3 {
+        val
+    } else {
+        (0..n).collect()
+    };
+    let sub_obs: Vec<Obs> = sub
+        .iter()
+        .enumerate()
+        .flat_map(|(s, &v)| per_view[v].iter().map(move |o| Obs { view: s, ..*o }))
+        .collect();
+    let init_poses: Vec<Isometry3<f64>> = sub
+        .iter()
+        .map(|&v| {
+            view_h(&per_view[v])
+                .and_then(|h| zhang::pose_from_h(&k0m, &h))
+                .unwrap_or_else(Isometry3::identity)
+        })
+        .collect();
+    let models: Vec<DistModel> = match opts.distortion {
+        Some(m) => vec![m],
+        None => DistModel::ALL.to_vec(),
+    };
+    let mut fits: Vec<(DistModel, Intrinsics, f64, f64)> = vec![];
+    for m in models {
+        let p = Reproj {
+            obs: &sub_obs,
+            flange: &[],
+            layout: Layout::Views(nsub),
+            intr_free: m.mask(),
+            intr_fixed: k0,
+            board: BoardModel::default(),
+            arm: None,
+        };
+        let rep = minimize(
+            &p,
+            p.pack(&k0, &init_poses, 1.0, [0.0; 2]),
+            &LmOptions::default(),
+        );
+        let k = p.intrinsics(&rep.x);
+        let train_rms = rms(&rep.residuals);
+        // Validation: other views' poses fitted with k held.
+        let mut se = 0.0;
+        let mut nc = 0usize;
+        for &v in &val {
+            let init = view_h(&per_view[v])
+                .and_then(|h| zhang::pose_from_h(&k_matrix(&k), &h))
+                .unwrap_or_else(Isometry3::identity);
+            let (_, r, res) = pnp(&k, &per_view[v], init);
+            if r.is_finite() {
+                se += res.norm_squared();
+                nc += res.len() / 2;
+            }
+        }
+        let vr = (se / nc.max(1) as f64).sqrt();
+        fits.push((m, k, train_rms, vr));
+    }
+    let best_val = fits.iter().map(|f| f.3).fold(f64::INFINITY, f64::min);
+    // Simplest model within 2 % of the best validation error.
+    let chosen = fits
+        .iter()
+        .find(|f| f.3 <= best_val * 1.02)
+        .cloned()
+        .ok_or_else(|| CameraError::Intrinsics("no distortion model converged".into()))?;
+    let (model, k1, k1_rms, _) = chosen;
+    let model_scores = fits.iter().map(|f| (f.0, f.3)).collect();
+    // 3. Every view's board pose with k1; reject views / corners by residual.
+    let mut t_views = vec![];
+    let mut view_rms = vec![];
+    for ob in &per_view {
+        let init = view_h(ob)
+            .and_then(|h| zhang::pose_from_h(&k_matrix(&k1), &h))
+            .unwrap_or_else(Isometry3::identity);
+        let (t, r, res) = pnp(&k1, ob, init);
+        t_views.push((t, res));
+        view_rms.push(r);
+    }
+    let med = {
+        let mut s = view_rms.clone();
+        s.sort_by(f64::total_cmp);
+        s[s.len() / 2]
+    };
+    let all_res: Vec<f64> = t_views
+        .iter()
+        .flat_map(|(_, r)| r.iter().copied())
+        .collect();
+    let sig = robust_sigma(&all_res).max(1e-3);
+    let mut keep_views = vec![];
+    let mut rejected_corners = 0;
+    for (i, v) in views.iter_mut().enumerate() {
+        if !(view_rms[i].is_finite()) || view_rms[i] > (4.0 * med).max(med + 0.5) {
+            rejected_views.push((
+                v.id,
+                format!(
+                    "reprojection RMS {:.3} px vs median {:.3} px",
+                    view_rms[i], med
+                ),
+            ));
+            continue;
+        }
+        // Corner rejection (5 σ).
+        let res = &t_views[i].1;
+        let mut k = 0;
+        for c in v.corners.iter_mut() {
+            if c.is_some() {
+                let e = (res[2 * k].powi(2) + res[2 * k + 1].powi(2)).sqrt();
+                if e > 5.0 * sig * std::f64::consts::SQRT_2 {
+                    *c = None;
+                    rejected_corners += 1;
+                }
+                k += 1;
+            }
+        }
+        keep_views.push(i);
+    }
+    let views: Vec<View> = keep_views.iter().map(|&i| views[i].clone()).collect();
+    let t_list: Vec<Isometry3<f64>> = keep_views.iter().map(|&i| t_views[i].0).collect();
+    if views.len() < 4 {
+        return Err(CameraError::TooFewViews {
+            got: views.len(),
+            need: 4,
+        });
+    }
+    let kept = CameraData {
+        views: views.clone(),
+        ..train.clone()
+    };
+    let obs = obs_of(&views, &board);
+    let g = motion_poses(&views, train.mount);
+    // 4. Closed forms.
+    let pairs = handeye::motion_pairs(&g, &t_list, 2.0);
+    let mut closed = vec![];
+    for m in Method::ALL {
+        if let Some(x) = handeye::solve(m, &pairs) {
+            let target = target_from(&g, &x, &t_list);
+            closed.push(estimate(m.name(), &kept, heldout, &k1, &x, &target));
+        }
+    }
+    let best = closed
+        .iter()
+        .filter(|e| e.train_rms_px.is_finite())
+        .min_by(|a, b| a.train_rms_px.total_cmp(&b.train_rms_px))
+        .ok_or(CameraError::HandEye)?
+        .clone();
+    // 5. ML refinement (robust: one pass of 5σ corner rejection).
+    let bc = BoardModel {
+        centre: bend_centre(&board),
+        ..opts.board
+    };
+    let (mut kf, mut xf, mut tf, mut sf, mut cf, mut rep) = ml_fit(
+        &obs,
+        &g,
+        &k1,
+        model.mask(),
+        &best.x,
+        &best.target,
+        bc,
+        1.0,
+        [0.0; 2],
+    );
+    let sig2 = robust_sigma(rep.residuals.as_slice()).max(1e-4);
+    let bad: Vec<bool> = (0..obs.len())
+        .map(|i| {
+            rep.residuals[2 * i].hypot(rep.residuals[2 * i + 1])
+                > 5.0 * sig2 * std::f64::consts::SQRT_2
+        })
+        .collect();
+    let ids_all = corner_ids(&views);
+    let mut ids = ids_all.clone();
+    if bad.iter().any(|b| *b) {
+        rejected_corners += bad.iter().filter(|b| **b).count();
+        let obs_used: Vec<Obs> = obs
+            .iter()
+            .zip(&bad)
+            .filter(|(_, b)| !**b)
+            .map(|(o, _)| *o)
+            .collect();
+        ids = ids_all
+            .iter()
+            .zip(&bad)
+            .filter(|(_, b)| !**b)
+            .map(|(o, _)| *o)
+            .collect();
+        (kf, xf, tf, sf, cf, rep) = ml_fit(&obs_used, &g, &kf, model.mask(), &xf, &tf, bc, sf, cf);
+    }
+    let ml = Estimate {
+        method: "ml".into(),
+        x: xf,
+        target: tf,
+        intrinsics: kf,
+        train_rms_px: rms(&rep.residuals),
+        heldout_rms_px: heldout.map(|h| heldout_rms(h, &kf, &xf, &tf, sf, cf)),
+    };
+    // 6. Uncertainty.
+    let mut unc = covariance(&rep, &model.mask(), bc);
+    if opts.bootstrap > 0 {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
+        let mut xs = vec![];
+        for _ in 0..opts.bootstrap {
+            let pick: Vec<usize> = (0..views.len())
+                .map(|_| rng.random_range(0..views.len()))
+                .collect();
+            let bv: Vec<View> = pick.iter().map(|&i| views[i].clone()).collect();
+            let bo = obs_of(&bv, &board);
+            let bg = motion_poses(&bv, train.mount);
+            let (_, bx, _, _, _, _) = ml_fit(&bo, &bg, &kf, model.mask(), &xf, &tf, bc, sf, cf);
+            xs.push(bx);
+        }
+        let (mut st, mut sr) = ([0.0; 3], [0.0; 3]);
+        for x in &xs {
+            let d = xf.inverse() * x;
+            let (t, r) = (
+                x.translation.vector - xf.translation.vector,
+                d.rotation.scaled_axis(),
+            );
+            for a in 0..3 {
+                st[a] += t[a] * t[a];
+                sr[a] += r[a].to_degrees().powi(2);
+            }
+        }
+        let nb = (xs.len().max(2) - 1) as f64;
+        unc.bootstrap = Some((
+            xs.len(),
+            st.map(|v| (v / nb).sqrt()),
+            sr.map(|v| (v / nb).sqrt()),
+        ));
+    }
+    let incremental = if opts.incremental {
+        Some(incremental(&kept, heldout, &k1, &t_list, opts.seed))
+    } else {
+        None
+    };
+    let residuals = ids
+        .iter()
+        .enumerate()
+        .map(|(i, (v, c))| (*v, *c, rep.residuals[2 * i], rep.residuals[2 * i + 1]))
+        .collect();
+    Ok(CameraResult {
+        distortion: model,
+        model_scores,
+        intrinsics_only: k1,
+        intrinsics_rms_px: k1_rms,
+        closed_form: closed,
+        ml,
+        incremental,
+        uncertainty: unc,
+        board_scale: sf,
+        board_bend_mm: cf,
+        used_views: views.iter().map(|v| v.id).collect(),
+        rejected_views,
+        rejected_corners,
+        residuals,
+    })
+}
+
+fn estimate(
+    name: &str,
+    data: &CameraData,
+    heldout: Option<&CameraData>,
+    k: &Intrinsics,
+    x: &Isometry3<f64>,
+    target: &Isometry3<f64>,
+) -> Estimate {
+    Estimate {
+        method: name.into(),
+        x: *x,
+        target: *target,
+        intrinsics: *k,
+        train_rms_px: heldout_rms(data, k, x, target, 1.0, [0.0; 2]),
+        heldout_rms_px: heldout.map(|h| heldout_rms(h, k, x, target, 1.0, [0.0; 2])),
+    }
+}
+
+fn covariance(
+    rep: &crate::solve::lm::LmReport,
+    mask: &[bool; N_INTR],
+    b: BoardModel,
+) -> Uncertainty {
+    let j: &DMatrix<f64> = &rep.jacobian;
+    let (m, n) = (j.nrows(), j.ncols());
+    let mut u = Uncertainty::default();
+    if m <= n {
+        return u;
+    }
+    let s2 = 2.0 * rep.cost / (m - n) as f64;
+    let jtj = j.transpose() * j;
+    let Some(inv) = jtj.clone().try_inverse() else {
+        return u;
+    };
+    let sd = |i: usize| (s2 * inv[(i, i)]).max(0.0).sqrt();
+    let mut k = 0;
+    for (i, f) in mask.iter().enumerate() {
+        if *f {
+            u.intrinsics[i] = sd(k);
+            k += 1;
+        }
+    }
+    for a in 0..3 {
+        u.x_deg[a] = sd(k + a).to_degrees();
+        u.x_mm[a] = sd(k + 3 + a);
+        u.target_deg[a] = sd(k + 6 + a).to_degrees();
+        u.target_mm[a] = sd(k + 9 + a);
+    }
+    let _ = b;
+    u
+}
+
+/// Seed 004's incremental Tsai–Lenz: update from 4 views on (error after each update), reject
+/// views beyond mean + 2σ of their reprojection error, then average Tsai–Lenz over 50 random
+/// subsets of 80/130 of the remaining views.
+fn incremental(
+    data: &CameraData,
+    heldout: Option<&CameraData>,
+    k: &Intrinsics,
+    t: &[Isometry3<f64>],
+    seed: u64,
+) -> Incremental {
+    let g = motion_poses(&data.views, data.mount);
+    let n = data.views.len();
+    let mut curve = vec![];
+    let mut last: Option<(Isometry3<f64>, Isometry3<f64>)> = None;
+    for m in 4..=n {
+        let pairs = handeye::motion_pairs(&g[..m], &t[..m], 2.0);
+        if let Some(x) = handeye::solve(Method::TsaiLenz, &pairs) {
+            let target = target_from(&g[..m], &x, &t[..m]);
+            let sub = CameraData {
+                views: data.views[..m].to_vec(),
+                ..data.clone()
+            };
+            curve.push((m, heldout_rms(&sub, k, &x, &target, 1.0, [0.0; 2])));
+            last = Some((x, target));
+        }
+    }
+    let (x, target) = last.unwrap_or((Isometry3::identity(), Isometry3::identity()));
+    // 2σ rejection on per-view RMS.
+    let per: Vec<f64> = data
+        .views
+        .iter()
+        .map(|v| {
+            let one = CameraData {
+                views: vec![v.clone()],
+                ..data.clone()
+            };
+            heldout_rms(&one, k, &x, &target, 1.0, [0.0; 2])
+        })
+        .collect();
+    let mean = per.iter().sum::<f64>() / n as f64;
+    let sd = (per.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n.max(2) - 1) as f64).sqrt();
+    let keep: Vec<usize> = (0..n).filter(|&i| per[i] <= mean + 2.0 * sd).collect();
+    let rejected = (0..n)
+        .filter(|i| !keep.contains(i))
+        .map(|i| data.views[i].id)
+        .collect();
+    let msub = ((keep.len() * 80) as f64 / 130.0).round().max(4.0) as usize;
+    let msub = msub.min(keep.len());
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0004);
+    let mut xs = vec![];
+    for _ in 0..50 {
+        let mut idx = keep.clone();
+        idx.shuffle(&mut rng);
+        idx.truncate(msub);
+        idx.sort();
+        let gs: Vec<Isometry3<f64>> = idx.iter().map(|&i| g[i]).collect();
+        let ts: Vec<Isometry3<f64>> = idx.iter().map(|&i| t[i]).collect();
+        if let Some(x) = handeye::solve(Method::TsaiLenz, &handeye::motion_pairs(&gs, &ts, 2.0)) {
+            xs.push(x);
+        }
+    }
+    let xa = if xs.is_empty() {
+        x
+    } else {
+        geom::mean_pose(&xs)
+    };
+    let gk: Vec<Isometry3<f64>> = keep.iter().map(|&i| g[i]).collect();
+    let tk: Vec<Isometry3<f64>> = keep.iter().map(|&i| t[i]).collect();
+    let ta = target_from(&gk, &xa, &tk);
+    let kept = CameraData {
+        views: keep.iter().map(|&i| data.views[i].clone()).collect(),
+        ..data.clone()
+    };
+    Incremental {
+        curve,
+        rejected,
+        subset: (msub, xs.len()),
+        estimate: estimate("incremental (seed 004)", &kept, heldout, k, &xa, &ta),
+    }
+}
+
+/// The board's corner points (mm) in board order.
+pub fn board_points(b: &detect::BoardSpec) -> Vec<Vector3<f64>> {
+    (0..b.rows)
+        .flat_map(|j| (0..b.cols).map(move |i| board_point(i, j, b.square_mm).coords))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+    use rand_distr::{Distribution, Normal};
+
+    /// Synthetic views with exact corners plus 0.05 px noise: the ML hand-eye recovers X.
+    #[test]
+    fn synthetic_eye_in_hand_and_eye_to_hand() {
+        let k = Intrinsics {
+            fx: 900.0,
+            fy: 900.0,
+            cx: 320.0,
+            cy: 240.0,
+            dist: [-0.05, 0.0, 0.0, 0.0, 0.0],
+        };
+        let board = detect::BoardSpec {
+            cols: 8,
+            rows: 5,
+            square_mm: 30.0,
+        };
+        let x = Isometry3::from_parts(
+            Translation3::new(0.0, 50.0, 40.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.01, -0.02, 0.03)),
+        );
+        let target = Isometry3::from_parts(
+            Translation3::new(-576.9, -223.3, 0.0),
+            UnitQuaternion::identity(),
+        );
+        let centre = target * nalgebra::Point3::new(135.0, 90.0, 0.0);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let noise = Normal::new(0.0, 0.05).unwrap();
+        for mount in [Mount::Flange, Mount::Base] {
+            let mut views = vec![];
+            for v in 0..24 {
+                let az = v as f64 * 0.9;
+                let pol = 0.1 + 0.25 * ((v % 3) as f64) / 2.0;
+                let r = 480.0 + 40.0 * (v % 5) as f64;
+                let eye = centre
+                    + Vector3::new(
+                        r * pol.sin() * az.cos(),
+                        r * pol.sin() * az.sin(),
+                        r * pol.cos(),
+                    );
+                // Camera looking at the centre.
+                let z = (centre - eye).normalize();
+                let xa = Vector3::new(-az.sin(), az.cos(), 0.0);
+                let xa = (xa - z * xa.dot(&z)).normalize();
+                let y = z.cross(&xa);
+                let rot =
+                    nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
+                        xa, y, z,
+                    ]));
+                let cam = Isometry3::from_parts(
+                    Translation3::from(eye.coords),
+                    UnitQuaternion::from_rotation_matrix(&rot),
+                );
+                let (flange, cam_from_board) = match mount {
+                    Mount::Flange => (cam * x.inverse(), cam.inverse() * target),
+                    // Eye-to-hand: X = camera in base (fixed), target = board in flange.
+                    Mount::Base => {
+                        let board_in_base = x * cam.inverse() * target;
+                        let tif = Isometry3::from_parts(
+                            Translation3::new(10.0, -20.0, 30.0),
+                            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, 0.0, 0.2)),
+                        );
+                        (board_in_base * tif.inverse(), cam.inverse() * target)
+                    }
+                };
+                let corners = board_points(&board)
+                    .iter()
+                    .map(|p| {
+                        let uv = geom::project(
+                            &k,
+                            &(cam_from_board * nalgebra::Point3::from(*p)).coords,
+                        )
+                        .unwrap();
+                        Some([
+                            uv[0] + noise.sample(&mut rng),
+                            uv[1] + noise.sample(&mut rng),
+                        ])
+                    })
+                    .collect();
+                views.push(View {
+                    id: v,
+                    flange,
+                    corners,
+                });
+            }
+            let data = CameraData {
+                width: 640,
+                height: 480,
+                board,
+                mount,
+                views,
+            };
+            let res = calibrate(&data, None, &Options::default()).unwrap();
+            let (dt, dr) = geom::pose_error(&res.ml.x, &x);
+            eprintln!("{mount:?}: ML X error {dt:.4} mm {dr:.5} deg, rms {:.4} px, model {:?} {:?} K {:?}", res.ml.train_rms_px, res.distortion, res.model_scores, res.intrinsics_only);
+            for e in &res.closed_form {
+                let (dt, dr) = geom::pose_error(&e.x, &x);
+                eprintln!(
+                    "  {}: {dt:.4} mm {dr:.5} deg rms {:.4}",
+                    e.method, e.train_rms_px
+                );
+            }
+            let tsai = res
+                .closed_form
+                .iter()
+                .find(|e| e.method == "tsai-lenz")
+                .unwrap();
+            let (tt, _) = geom::pose_error(&tsai.x, &x);
+            assert!(dt < 0.5 && dr < 0.05, "{mount:?}: {dt} mm {dr} deg");
+            assert!(dt < tt, "ML {dt} mm not better than Tsai–Lenz {tt} mm");
+            assert!((res.ml.intrinsics.fx - 900.0).abs() < 2.0);
+            assert!(res.closed_form.len() == 5);
+        }
+    }
+}
