@@ -14,6 +14,7 @@
 //! .../heldout.jsonl --out DIR` runs on the same files). The undeclared-effect worlds: board
 //! printed 0.4 % large (declared square as designed), board bowed 0.4 mm, arm joint offsets
 //! 0.05° each; the diagnosis (`robocal::diagnose::camera`) names and compensates them.
+#![allow(clippy::type_complexity)]
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -417,7 +418,7 @@ fn main() {
             if let Some(f) = &d.final_estimate {
                 let (dt, dr) = he_err(&f.x, &x_true);
                 rows.push((
-                    format!("robocal ml+diagnosis"),
+                    "robocal ml+diagnosis".to_string(),
                     dt,
                     dr,
                     f.heldout_rms_px.unwrap_or(f64::NAN),

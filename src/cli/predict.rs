@@ -47,7 +47,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         return camera_exec(&args);
     }
     let Some(data) = &args.data else {
-        anyhow::bail!("give --data DATA.jsonl (pose records) or --points P.csv (with a registration)");
+        anyhow::bail!(
+            "give --data DATA.jsonl (pose records) or --points P.csv (with a registration)"
+        );
     };
     let (rows, warnings) = predict_files_warn(&args.calibration, data)?;
     for w in &warnings {
@@ -71,7 +73,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 /// `robocal predict` on a camera calibration: CSV `id,corner,u_px,v_px`.
 fn camera_exec(args: &Args) -> anyhow::Result<()> {
     let Some(data) = &args.data else {
-        anyhow::bail!("a camera calibration predicts the corners of a dataset: give --data DATA.jsonl");
+        anyhow::bail!(
+            "a camera calibration predicts the corners of a dataset: give --data DATA.jsonl"
+        );
     };
     let rows = crate::cli::calibrate::camera::predict_rows(&args.calibration, data)?;
     let mut text = String::from("id,corner,u_px,v_px\n");
@@ -79,7 +83,9 @@ fn camera_exec(args: &Args) -> anyhow::Result<()> {
         text += &format!("{id},{c},{:.6},{:.6}\n", uv[0], uv[1]);
     }
     match &args.out {
-        Some(p) => crate::fsio::write(p, text).with_context(|| format!("writing {}", p.display()))?,
+        Some(p) => {
+            crate::fsio::write(p, text).with_context(|| format!("writing {}", p.display()))?
+        }
         None => print!("{text}"),
     }
     Ok(())

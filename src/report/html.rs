@@ -369,9 +369,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         }
         h.push_str("</ul>");
     }
-    let _ = write!(
+    let _ = writeln!(
         h,
-        "<p><small>robocal {} · session.json format {}</small></p></body></html>\n",
+        "<p><small>robocal {} · session.json format {}</small></p></body></html>",
         env!("CARGO_PKG_VERSION"),
         esc(&s.format)
     );

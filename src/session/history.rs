@@ -4,6 +4,7 @@
 //! location is a `postgres://` / `postgresql://` URL (a fleet shared between sites). The
 //! location comes from `--history`, else `ROBOCAL_DB`, else the user's data directory
 //! (see [`location`]). One SQL text serves both (`$n` placeholders, standard types).
+#![allow(clippy::type_complexity)]
 use std::path::Path;
 
 use thiserror::Error;

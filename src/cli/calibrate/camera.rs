@@ -2,6 +2,7 @@
 //! and hand-eye (seed 004). Library: [`crate::solve::camera`]. Writes `DIR/calibration.json`
 //! (`kind: camera`, the `camera` block) and `DIR/camera_report.json` (every method side by
 //! side), prints the table.
+#![allow(clippy::type_complexity)]
 use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;

@@ -2,6 +2,7 @@
 //! each pose record's flange pose (its `flange`, else FK of `q` through the header's robot),
 //! and the board's corners: detected from the record's `image` with the pure-Rust detector
 //! ([`super::detect`]), else the record's `corners` taken in board order.
+#![allow(clippy::type_complexity)]
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;

@@ -9,6 +9,7 @@
 //! Optional extra parameters (what the camera diagnosis adds): the board scale `s`
 //! (`P → s·P`) and a board bend `(c_x, c_y)`: the sag `z = c_x·((x−x₀)/R)² + c_y·((y−y₀)/R)²`
 //! about the board centre (mm at distance `R` from it; a bow about one axis or a bowl).
+#![allow(clippy::type_complexity)]
 use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 
 use super::geom::{
