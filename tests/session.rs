@@ -531,7 +531,7 @@ fn json_output_of_devices_and_diagnose() {
     ]);
     assert_eq!(code, 0, "{err}");
     let v: Value = serde_json::from_str(&out).unwrap();
-    assert_eq!(v["format"], "robocal-diagnosis/1");
+    assert_eq!(v["format"], "robocal-diagnosis/2");
 }
 
 #[test]

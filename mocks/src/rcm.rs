@@ -3,7 +3,7 @@
 //! geometry (contour generators of the cylinder, pinhole projection, clipping to the image),
 //! independent of the estimator's tangent-plane algebra in `robocal::solve::rcm`.
 //!
-//! The scenario file (`mocks/scenarios/rcm-endoscope.toml`) names the trocar, the camera
+//! The scenario file (`mocks/rcm/rcm-endoscope.toml`) names the trocar, the camera
 //! (pose by look-at, intrinsics, distortion), the shaft radius, a small planar marker on a
 //! flat of the shaft (for the `AX = XB` baselines, which need the instrument's full pose in
 //! the camera) and the noise of the observations.
@@ -117,9 +117,9 @@ impl RcmScenario {
         }
         Ok(s)
     }
-    /// The built-in scenario (the file shipped in `mocks/scenarios/rcm-endoscope.toml`).
+    /// The built-in scenario (the file shipped in `mocks/rcm/rcm-endoscope.toml`).
     pub fn builtin() -> RcmScenario {
-        Self::parse(include_str!("../scenarios/rcm-endoscope.toml")).expect("builtin scenario")
+        Self::parse(include_str!("../rcm/rcm-endoscope.toml")).expect("builtin scenario")
     }
 }
 
