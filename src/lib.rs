@@ -13,6 +13,7 @@ pub mod cli;
 pub mod dataset;
 pub mod diagnose;
 pub mod fsio;
+pub mod import;
 pub mod model;
 pub mod plan;
 pub mod plausible;

@@ -8,6 +8,7 @@ mod cli;
 mod dataset;
 mod diagnose;
 mod e2e;
+mod import;
 mod laser;
 mod laser_world;
 mod model;

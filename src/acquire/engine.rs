@@ -857,6 +857,7 @@ impl Run<'_> {
             q_prev,
             flange,
             marker: marker_obs,
+            reference: None,
             range,
             temp_c: self.dev.thermometer.as_ref().and_then(|th| th.temp_c()),
             plane: p.plane.clone(),

@@ -92,8 +92,9 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     if let Some(x) = &extra {
         held_recs.extend(x.poses.iter());
     }
-    let train = data::observations(&train_recs, &session, dof);
-    let held = data::observations(&held_recs, &session, dof);
+    let (train, mut ref_skipped) = data::observations_skipped(&train_recs, &session, dof);
+    let (held, s2) = data::observations_skipped(&held_recs, &session, dof);
+    ref_skipped.extend(s2);
     if let (Some(x), Some(h)) = (&extra, &args.heldout) {
         let recs: Vec<&PoseRecord> = x.poses.iter().collect();
         anyhow::ensure!(
@@ -116,6 +117,9 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     };
     let mut d = diagnose::diagnose(&model, &train, &held, &opt)?;
     d.warnings.extend(main.warnings.iter().cloned());
+    if !ref_skipped.is_empty() {
+        d.warnings.push(data::reference_skip_warning(&ref_skipped));
+    }
     let (_, inferred) = data::contexts_counted(&session, dof);
     if inferred > 0 {
         d.warnings

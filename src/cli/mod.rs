@@ -11,6 +11,7 @@ pub mod devices;
 pub mod diagnose;
 pub mod diagnose_camera;
 pub mod history;
+pub mod import;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;
@@ -60,6 +61,8 @@ pub enum Command {
     Session(session::Args),
     /// Fleet history of one robot: accuracy and parameter drift over its sessions.
     History(history::Args),
+    /// Turn measurement files (IPA layout, generic CSV) into a robocal dataset.
+    Import(import::Args),
 }
 
 /// Parse `args` and run; returns the process exit code.
@@ -99,6 +102,7 @@ where
         Command::Register(a) => register::exec(a),
         Command::Chain(a) => chain::exec(a),
         Command::History(a) => history::exec(a),
+        Command::Import(a) => import::exec(a),
     };
     match result {
         Ok(()) => 0,

@@ -95,6 +95,9 @@ impl Validator {
                 if let Some(q) = p.marker.as_ref().and_then(|m| m.quat.as_ref()) {
                     check::unit_quat(q, "marker.quat")?;
                 }
+                if let Some(q) = p.reference.as_ref().and_then(|m| m.quat.as_ref()) {
+                    check::unit_quat(q, "reference.quat")?;
+                }
                 self.last_pose_id = Some(p.id);
                 self.pose_ids.insert(p.id);
             }
@@ -164,6 +167,16 @@ impl Validator {
                 return Err(Problem::field(
                     "marker.p",
                     "missing (the marker is visible)",
+                ));
+            }
+        }
+        if let Some(m) = check::object(obj, "", "reference", false)? {
+            check::marker(m, "reference")?;
+            let visible = m.get("visible").and_then(Value::as_bool).unwrap_or(true);
+            if visible && m.get("p").is_none_or(Value::is_null) {
+                return Err(Problem::field(
+                    "reference.p",
+                    "missing (the reference body is visible)",
                 ));
             }
         }

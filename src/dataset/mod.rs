@@ -18,6 +18,7 @@ pub mod endoscope;
 pub mod error;
 pub mod io;
 pub mod journal;
+pub mod reference;
 pub mod summary;
 pub mod types;
 

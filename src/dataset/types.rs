@@ -119,6 +119,12 @@ pub struct PoseRecord {
     pub flange: Option<FilePose>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker: Option<MarkerObs>,
+    /// A reference body fixed in the cell, re-measured by the same tracker at this pose
+    /// (tracker frame, same shape as `marker`). When a dataset's poses carry it, the
+    /// kinematic observation builders re-express `marker` in this body's frame, which
+    /// removes tracker drift (the tracker moving in the cell during the session).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference: Option<MarkerObs>,
     /// Laser range (mm); `Some(None)` = recorded as `null` (out of range).
     #[serde(
         default,

@@ -180,14 +180,55 @@ pub fn record_key(p: &PoseRecord) -> usize {
 
 /// Observations (records with joints and a visible marker) from `records`, using the
 /// contexts computed over `session` (all records of the session, see [`contexts`]).
+/// When any record of `session` carries a `reference` body, every marker is re-expressed in
+/// its frame ([`crate::dataset::reference`]) and records without a usable reference are
+/// left out (frames are never mixed; [`observations_skipped`] says which and why).
 pub fn observations(records: &[&PoseRecord], session: &[&PoseRecord], dof: usize) -> Vec<Obs> {
+    let (out, skipped) = observations_skipped(records, session, dof);
+    if !skipped.is_empty() {
+        tracing::warn!("{}", reference_skip_warning(&skipped));
+    }
+    out
+}
+
+/// The warning for records left out because they lack a usable reference body.
+pub fn reference_skip_warning(skipped: &[(u64, String)]) -> String {
+    format!(
+        "{} pose record(s) left out: the session's markers are expressed in the reference body's frame and these have no usable reference (first: id {}: {})",
+        skipped.len(),
+        skipped.first().map_or(0, |s| s.0),
+        skipped.first().map_or("", |s| s.1.as_str())
+    )
+}
+
+/// [`observations`] and the records with joints and a visible marker that were left out
+/// because the session is in the reference frame and they have no usable reference
+/// (`(id, reason)`).
+pub fn observations_skipped(
+    records: &[&PoseRecord],
+    session: &[&PoseRecord],
+    dof: usize,
+) -> (Vec<Obs>, Vec<(u64, String)>) {
     let ctx = contexts(session, dof);
     let map: std::collections::HashMap<usize, &ObsCtx> = ctx.iter().map(|(k, c)| (*k, c)).collect();
+    let in_ref = crate::dataset::reference::any_reference(session.iter().copied());
+    let mut skipped = Vec::new();
     let mut out: Vec<Obs> = records
         .iter()
         .filter_map(|p| {
             let y = marker_point(p)?;
             let c = map.get(&record_key(p))?;
+            let y = if in_ref {
+                match crate::dataset::reference::to_reference_frame(p, y, None) {
+                    Ok((y, _)) => y,
+                    Err(reason) => {
+                        skipped.push((p.id, reason));
+                        return None;
+                    }
+                }
+            } else {
+                y
+            };
             Some(Obs {
                 ctx: (*c).clone(),
                 y,
@@ -195,7 +236,7 @@ pub fn observations(records: &[&PoseRecord], session: &[&PoseRecord], dof: usize
         })
         .collect();
     out.sort_by(|a, b| a.ctx.t.total_cmp(&b.ctx.t).then(a.ctx.id.cmp(&b.ctx.id)));
-    out
+    (out, skipped)
 }
 
 #[cfg(test)]
@@ -244,5 +285,35 @@ mod tests {
         );
         let e = format!("{:#}", parse_jsonl(&bad, "mem").unwrap_err());
         assert!(e.contains("mem:2"), "{e}");
+    }
+
+    #[test]
+    fn reference_frame_and_records_without_reference_skipped() {
+        let header = r#"{"format":"robocal-dataset/1","robot":{"model":"x","chain":[{"name":"j1","origin_xyz":[0,0,0],"origin_rpy":[0,0,0],"axis":[0,0,1]},{"name":"j2","origin_xyz":[0,0,100],"origin_rpy":[0,0,0],"axis":[0,1,0]}]}}"#;
+        // reference body at (10, 20, 30) turned 90° about z: marker (1, 2, 3) in the tracker
+        // is R_zᵀ((1,2,3) − (10,20,30)) = (−18, 9, −27) in the reference frame.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let with_ref = rec(0, 0.0, [0.0, 10.0]).replace(
+            "\"marker\"",
+            &format!("\"reference\":{{\"p\":[10,20,30],\"quat\":[{s},0,0,{s}]}},\"marker\""),
+        );
+        let text = format!("{header}\n{with_ref}\n{}\n", rec(1, 1.0, [1.0, 10.0]));
+        let l = parse_jsonl(&text, "mem").unwrap();
+        let refs: Vec<&PoseRecord> = l.poses.iter().collect();
+        let (obs, skipped) = observations_skipped(&refs, &refs, 2);
+        assert_eq!(obs.len(), 1);
+        assert!(
+            (obs[0].y - Point3::new(-18.0, 9.0, -27.0)).norm() < 1e-9,
+            "{:?}",
+            obs[0].y
+        );
+        assert_eq!(skipped.len(), 1);
+        assert_eq!(skipped[0].0, 1);
+        assert!(skipped[0].1.contains("no `reference`"), "{:?}", skipped);
+        // without any reference in the session: the tracker frame, nothing skipped
+        let only = vec![refs[1]];
+        let (obs, skipped) = observations_skipped(&only, &only, 2);
+        assert_eq!((obs.len(), skipped.len()), (1, 0));
+        assert_eq!(obs[0].y, Point3::new(1.0, 2.0, 3.0));
     }
 }

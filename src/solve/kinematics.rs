@@ -543,6 +543,7 @@ pub fn identify(ds: &Dataset, opts: &IdentOptions) -> Result<IdentResult, SolveE
     let (train, mut skipped) = observations(ds, dof, Split::Train);
     let (heldout, source) = match &opts.heldout {
         Some(h) => {
+            super::obs::check_same_frame(ds, h).map_err(SolveError::Invalid)?;
             let (o, s) = observations(h, dof, Split::All);
             if o.is_empty() {
                 // Never silently replaced by cross-validation.

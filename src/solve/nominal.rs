@@ -159,6 +159,9 @@ pub fn fit_nominal(ds: &Dataset, opts: &NominalOptions) -> Result<NominalFit, So
     let chain = KinematicModel::from_robot_block(&ds.header.robot)?;
     let dof = chain.dof();
     let (train, mut skipped) = observations(ds, dof, Split::Train);
+    if let Some(h) = opts.heldout {
+        super::obs::check_same_frame(ds, h).map_err(SolveError::Invalid)?;
+    }
     let (held, s2) = match opts.heldout {
         Some(h) => observations(h, dof, Split::All),
         None => observations(ds, dof, Split::Validation),

@@ -1,7 +1,7 @@
 //! Measurements extracted from `pose` records, in internal units (mm, rad).
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 
-use crate::dataset::{Dataset, PoseRecord};
+use crate::dataset::{reference, Dataset, PoseRecord};
 
 /// One usable `pose` record: joints and the tracked marker.
 #[derive(Debug, Clone, PartialEq)]
@@ -37,6 +37,27 @@ fn finite(v: &[f64]) -> bool {
 impl PoseObs {
     /// Convert one record; `Err` says why it is unusable (invisible marker, missing q, ...).
     pub fn from_record(r: &PoseRecord, dof: usize) -> Result<PoseObs, String> {
+        Self::from_record_in(r, dof, false)
+    }
+
+    /// As [`PoseObs::from_record`]; with `in_reference` the marker is re-expressed in the
+    /// frame of the record's reference body ([`crate::dataset::reference`]), and a record
+    /// without a usable reference is refused.
+    pub fn from_record_in(
+        r: &PoseRecord,
+        dof: usize,
+        in_reference: bool,
+    ) -> Result<PoseObs, String> {
+        let mut o = Self::from_record_tracker(r, dof)?;
+        if in_reference {
+            let (p, quat) = reference::to_reference_frame(r, o.p, o.quat)?;
+            o.p = p;
+            o.quat = quat;
+        }
+        Ok(o)
+    }
+
+    fn from_record_tracker(r: &PoseRecord, dof: usize) -> Result<PoseObs, String> {
         let q = r.q.as_ref().ok_or("no `q`")?;
         if q.len() != dof {
             return Err(format!("`q` has {} joints, the robot {dof}", q.len()));
@@ -94,8 +115,27 @@ pub enum Split {
     Validation,
 }
 
-/// Usable observations of a dataset and the records skipped (with reasons).
+/// Whether the observations of `ds` are expressed in the reference body's frame (any of its
+/// poses carries a `reference`, see [`crate::dataset::reference`]).
+pub fn uses_reference(ds: &Dataset) -> bool {
+    reference::any_reference(ds.poses())
+}
+
+/// Refuses a held-out dataset whose markers are in another frame than the training data's
+/// (one carries a reference body, the other not).
+pub fn check_same_frame(train: &Dataset, heldout: &Dataset) -> Result<(), String> {
+    match (uses_reference(train), uses_reference(heldout)) {
+        (true, false) => Err("the training data carries a reference body (markers are expressed in its frame) but the held-out file does not: held-out markers would be in the tracker frame".into()),
+        (false, true) => Err("the held-out file carries a reference body (markers are expressed in its frame) but the training data does not: held-out markers would be in another frame".into()),
+        _ => Ok(()),
+    }
+}
+
+/// Usable observations of a dataset and the records skipped (with reasons). When any pose
+/// of `ds` carries a `reference` body, every marker is re-expressed in its frame and poses
+/// without one are skipped (frames are never mixed).
 pub fn observations(ds: &Dataset, dof: usize, split: Split) -> (Vec<PoseObs>, Vec<Skipped>) {
+    let in_ref = uses_reference(ds);
     let mut out = Vec::new();
     let mut skipped = Vec::new();
     for r in ds.poses() {
@@ -108,7 +148,7 @@ pub fn observations(ds: &Dataset, dof: usize, split: Split) -> (Vec<PoseObs>, Ve
         if !take {
             continue;
         }
-        match PoseObs::from_record(r, dof) {
+        match PoseObs::from_record_in(r, dof, in_ref) {
             Ok(o) => out.push(o),
             Err(reason) => skipped.push(Skipped { id: r.id, reason }),
         }
