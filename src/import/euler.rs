@@ -115,6 +115,14 @@ impl FromStr for QuatOrder {
 }
 
 impl QuatOrder {
+    /// The name used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            QuatOrder::Wxyz => "wxyz",
+            QuatOrder::Xyzw => "xyzw",
+        }
+    }
+
     /// The quaternion of four values in this order (not normalised).
     pub fn quaternion(&self, v: [f64; 4]) -> Quaternion<f64> {
         match self {

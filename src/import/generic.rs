@@ -20,6 +20,16 @@ pub enum AngleUnit {
     Rad,
 }
 
+impl AngleUnit {
+    /// The name used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            AngleUnit::Deg => "deg",
+            AngleUnit::Rad => "rad",
+        }
+    }
+}
+
 impl FromStr for AngleUnit {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -50,6 +60,13 @@ impl FromStr for LengthUnit {
 }
 
 impl LengthUnit {
+    /// The name used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            LengthUnit::Mm => "mm",
+            LengthUnit::M => "m",
+        }
+    }
     fn to_mm(self) -> f64 {
         match self {
             LengthUnit::Mm => 1.0,
@@ -63,6 +80,16 @@ impl LengthUnit {
 pub enum TimeUnit {
     S,
     Ms,
+}
+
+impl TimeUnit {
+    /// The name used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            TimeUnit::S => "s",
+            TimeUnit::Ms => "ms",
+        }
+    }
 }
 
 impl FromStr for TimeUnit {
@@ -310,8 +337,8 @@ pub fn parse_csv(text: &str, file: &str, map: &CsvMapping) -> Result<Imported, I
             "pos": b.pos,
             "orientation": match &b.orientation {
                 None => json!(null),
-                Some(Orientation::Quat { cols, order }) => json!({"quat": cols, "order": format!("{order:?}").to_lowercase()}),
-                Some(Orientation::Euler { cols, seq, unit }) => json!({"euler": cols, "seq": seq.to_string(), "unit": format!("{unit:?}").to_lowercase()}),
+                Some(Orientation::Quat { cols, order }) => json!({"quat": cols, "order": order.name()}),
+                Some(Orientation::Euler { cols, seq, unit }) => json!({"euler": cols, "seq": seq.to_string(), "unit": unit.name()}),
             }
         })
     };
@@ -320,10 +347,10 @@ pub fn parse_csv(text: &str, file: &str, map: &CsvMapping) -> Result<Imported, I
         "rows": tab.rows.len(),
         "importer": "robocal import csv",
         "mapping": {
-            "joints": map.joints, "joint_unit": format!("{:?}", map.joint_unit).to_lowercase(),
+            "joints": map.joints, "joint_unit": map.joint_unit.name(),
             "marker": describe(&map.marker),
-            "length_unit": format!("{:?}", map.length_unit).to_lowercase(),
-            "time": map.time.as_ref().map(|(c, u)| json!({"column": c, "unit": format!("{u:?}").to_lowercase()})),
+            "length_unit": map.length_unit.name(),
+            "time": map.time.as_ref().map(|(c, u)| json!({"column": c, "unit": u.name()})),
             "temp": map.temp, "rms": map.rms,
             "reference": map.reference.as_ref().map(describe),
             "delimiter": (map.delimiter as char).to_string(), "decimal_comma": map.decimal_comma,
@@ -333,9 +360,9 @@ pub fn parse_csv(text: &str, file: &str, map: &CsvMapping) -> Result<Imported, I
         "Imported by robocal import csv from {file} ({} rows): q = columns {} ({}), marker = columns {} ({}, tracker frame){}.",
         tab.rows.len(),
         map.joints.join(","),
-        format!("{:?}", map.joint_unit).to_lowercase(),
+        map.joint_unit.name(),
         map.marker.pos.join(","),
-        format!("{:?}", map.length_unit).to_lowercase(),
+        map.length_unit.name(),
         if map.reference.is_some() { "; reference = a body fixed in the cell, re-measured at every pose" } else { "" }
     );
     let h = header(map.robot.clone(), source, notes);

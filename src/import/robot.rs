@@ -106,10 +106,12 @@ pub fn resolve(spec: &str) -> Result<RobotBlock, ImportError> {
                 flange: None,
                 extra: Default::default(),
             },
-            Err(_) => return Err(ImportError::Usage(format!(
+            Err(_) => {
+                return Err(ImportError::Usage(format!(
                 "--robot \"{spec}\": not a known robot (ur10, {}) nor a .json chain / .urdf file",
                 crate::model::presets::PRESET_NAMES.join(", ")
-            ))),
+            )))
+            }
         }
     };
     KinematicModel::from_robot_block(&block)
