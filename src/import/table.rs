@@ -29,6 +29,14 @@ impl Table {
             )));
         }
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        // The csv reader's line numbers are off by one after CRLF line ends: count on LF.
+        let lf;
+        let text = if text.contains('\r') {
+            lf = text.replace("\r\n", "\n");
+            lf.as_str()
+        } else {
+            text
+        };
         let mut rd = csv::ReaderBuilder::new()
             .delimiter(delimiter)
             .has_headers(true)

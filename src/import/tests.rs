@@ -184,9 +184,9 @@ fn ipa_errors_name_file_line_column_and_cause() {
         "{e}"
     );
     // a value that does not parse
-    let e = err_ipa(&ipa_a(3).replacen("2361,9831", "23x1", 2));
+    let e = err_ipa(&ipa_a(3).replacen("2361,9831", "23x1", 1));
     assert!(
-        e.contains("m.csv:3: column \"measurement_x\"") && e.contains("\"23x1\""),
+        e.contains("m.csv:2: column \"measurement_x\"") && e.contains("\"23x1\""),
         "{e}"
     );
     // NaN
@@ -220,6 +220,13 @@ fn ipa_errors_name_file_line_column_and_cause() {
         .collect();
     let e = err_ipa(&t);
     assert!(e.contains("look like metres"), "{e}");
+    // CRLF line ends: the same line numbers
+    let e = err_ipa(&ipa_a(3).replacen("-1368,5474", "NaN", 2).replace('\n', "\r\n"));
+    assert!(e.contains("m.csv:2: column \"measurement_y\""), "{e}");
+    let t = ipa_a(4).replace('\n', "\r\n");
+    let t = t.replacen("-1368,5474", "QQQ", 4).replacen("QQQ", "-1368,5474", 3);
+    let e = err_ipa(&t);
+    assert!(e.contains("m.csv:5: column \"measurement_y\""), "{e}");
     // wrong delimiter
     let e = err_ipa(&ipa_a(3).replace(';', ","));
     assert!(e.contains("m.csv:1"), "{e}");
