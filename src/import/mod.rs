@@ -227,7 +227,7 @@ pub(crate) fn assemble(
         }
     } else {
         warnings.push(format!(
-            "{file}: no usable time stamps: t = the row index (acquisition order), not seconds; time-based effects (drift over time, warm-up, latency) cannot be tested on this dataset"
+            "{file}: no usable time stamps: t = the row index (acquisition order), not seconds; time-based effects cannot be tested on this dataset (drift over time, warm-up, latency)"
         ));
         let note = "t is the row index, not a time (the file has no usable time stamps); time-based effects cannot be tested.";
         header.notes = Some(match header.notes.take() {

@@ -221,10 +221,16 @@ fn ipa_errors_name_file_line_column_and_cause() {
     let e = err_ipa(&t);
     assert!(e.contains("look like metres"), "{e}");
     // CRLF line ends: the same line numbers
-    let e = err_ipa(&ipa_a(3).replacen("-1368,5474", "NaN", 2).replace('\n', "\r\n"));
+    let e = err_ipa(
+        &ipa_a(3)
+            .replacen("-1368,5474", "NaN", 2)
+            .replace('\n', "\r\n"),
+    );
     assert!(e.contains("m.csv:2: column \"measurement_y\""), "{e}");
     let t = ipa_a(4).replace('\n', "\r\n");
-    let t = t.replacen("-1368,5474", "QQQ", 4).replacen("QQQ", "-1368,5474", 3);
+    let t = t
+        .replacen("-1368,5474", "QQQ", 4)
+        .replacen("QQQ", "-1368,5474", 3);
     let e = err_ipa(&t);
     assert!(e.contains("m.csv:5: column \"measurement_y\""), "{e}");
     // wrong delimiter
