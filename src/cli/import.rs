@@ -18,6 +18,8 @@ pub struct Args {
 }
 
 /// The input format.
+// Parsed once per process: the size difference of the variants does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, clap::Subcommand)]
 pub enum What {
     /// The IPA robot-accuracy layout (UR10 + Leica tracker + T-Mac; `measurements_*.csv`).

@@ -267,7 +267,7 @@ pub fn parse_ipa(text: &str, file: &str, opts: &IpaOptions) -> Result<Imported, 
         rows.push(Row {
             line: tab.line(i),
             q_deg: q_rad.iter().map(|v| v.to_degrees()).collect(),
-            t: if times_real { stamps[i] } else { None },
+            t: stamps.get(i).copied().flatten().filter(|_| times_real),
             marker: marker_obs(p, Some(quat), rms),
             reference: None,
             temp_c: Some(temp),

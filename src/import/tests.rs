@@ -23,7 +23,7 @@ fn ipa_a(n: usize) -> String {
         let q = 0.01 * i as f64;
         s.push_str(&format!(
             "{stamp};0,365141;-0,000212669;1,4273;1,57002;1,57007;1,57073;{};-1,5708;0,0;-1,5708;{};0,0;23,6800003051758;2361,9831;-1368,5474;{};-90,409151;-59,885105;-90,887438\n",
-            format!("{:.4}", -1.5708 + q).replace('.', ","),
+            format!("{:.4}", -1.5 + q).replace('.', ","),
             format!("{q:.3}").replace('.', ","),
             format!("{:.5}", 119.39713 + i as f64).replace('.', ","),
         ));
@@ -58,7 +58,7 @@ fn ipa_series_a_layout() {
     assert_eq!(poses.len(), 12);
     let p0 = poses[0];
     // q: rad -> deg
-    assert!((p0.q.as_ref().unwrap()[0] - (-1.5708f64).to_degrees()).abs() < 1e-9);
+    assert!((p0.q.as_ref().unwrap()[0] - (-1.5f64).to_degrees()).abs() < 1e-9);
     let m = p0.marker.as_ref().unwrap();
     assert_eq!(m.p.unwrap(), [2361.9831, -1368.5474, 119.39713]);
     // scipy Rotation.from_euler('XYZ', [-90.409151, -59.885105, -90.887438], degrees=True)
