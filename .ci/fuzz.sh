@@ -28,6 +28,7 @@ seed plan seeds/plan/*
 seed spec ../plans/*.toml
 seed scenario ../mocks/scenarios/*.toml
 seed devices seeds/devices/*
+seed import seeds/import/*
 for t in $targets; do
   echo "== fuzz $t (${secs}s)"
   mkdir -p "corpus/$t"

@@ -21,7 +21,7 @@ fn ipa_b(n: usize) -> String {
     let mut s = String::from("Timestamp;Goal x;Goal y;Goal z;Goal roll;Goal pitch;Goal yaw;shoulder_pan_joint;shoulder_lift_joint;elbow_joint;wrist_1_joint;wrist_2_joint;wrist_3_joint;measurement_temperature;measurement_x;measurement_std_x;measurement_y;measurement_std_y;measurement_z;measurement_std_z;measurement_rx;measurement_std_rx;measurement_ry;measurement_std_ry;measurement_rz;measurement_std_rz\n");
     for i in 0..n {
         let q = format!("{:.3}", -2.0 + 0.01 * i as f64).replace('.', ",");
-        s.push_str(&format!("2,02011E+13;0,4;-0,4;0,8;2,96706;1,5708;1,5708;-0,908775;-0,052173;-1,92746;-1,16213;{q};-0,000837151;21,86750031;-0,50720828;0,011904;-3343,1516;0,0080769;-426,95048;0,0088318;-90,14477;0,0014463;-30,089752;0,001215;-90,358505;0,0021268\n"));
+        s.push_str(&format!("2,02011E+13;0,4;-0,4;0,8;2,9;1,5;1,5;-0,9;-0,05;-1,9;-1,2;{q};-0,001;21,5;-0,5;0,01;-3343;0,008;-427;0,009;-90,1;0,0015;-30;0,0012;-90,4;0,002\n"));
     }
     s
 }

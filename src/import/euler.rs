@@ -217,14 +217,14 @@ mod tests {
             let err = (0..4).map(|i| (got[i] - want[i]).abs()).fold(0.0, f64::max);
             assert!(err < 1e-12, "{s}: {got:?} vs scipy {want:?}");
         }
-        // The IPA file's first Series A measurement, scipy 'XYZ' degrees.
+        // An IPA-like measurement: scipy `R.from_euler('XYZ', [-90.5, -60.25, -91.0], degrees=True)`.
         let seq: EulerSeq = "XYZ".parse().unwrap();
-        let got = wxyz(&seq.rotation([-90.409151f64, -59.885105, -90.887438].map(f64::to_radians)));
+        let got = wxyz(&seq.rotation([-90.5f64, -60.25, -91.0].map(f64::to_radians)));
         let want = [
-            0.680744444672422,
-            -0.1808356610527434,
-            -0.6849013823797772,
-            -0.18653568332499665,
+            0.6810277906032837,
+            -0.17852468281583989,
+            -0.6857798940568351,
+            -0.18448854424844283,
         ];
         assert!((0..4).all(|i| (got[i] - want[i]).abs() < 1e-12), "{got:?}");
     }

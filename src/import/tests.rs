@@ -22,10 +22,10 @@ fn ipa_a(n: usize) -> String {
         );
         let q = 0.01 * i as f64;
         s.push_str(&format!(
-            "{stamp};0,365141;-0,000212669;1,4273;1,57002;1,57007;1,57073;{};-1,5708;0,0;-1,5708;{};0,0;23,6800003051758;2361,9831;-1368,5474;{};-90,409151;-59,885105;-90,887438\n",
+            "{stamp};0,36;-0,0002;1,4;1,57;1,57;1,57;{};-1,5708;0,0;-1,5708;{};0,0;23,5;2000,125;-1300,5;{};-90,5;-60,25;-91\n",
             format!("{:.4}", -1.5 + q).replace('.', ","),
             format!("{q:.3}").replace('.', ","),
-            format!("{:.5}", 119.39713 + i as f64).replace('.', ","),
+            format!("{:.5}", 100.25 + i as f64).replace('.', ","),
         ));
     }
     s
@@ -37,7 +37,7 @@ fn ipa_b(n: usize) -> String {
     s.push('\n');
     for i in 0..n {
         s.push_str(&format!(
-            "2,02011E+13;0,4;-0,4;0,8;2,96706;1,5708;1,5708;-0,908775;-0,052173;-1,92746;-1,16213;{};-0,000837151;21,86750031;-0,50720828;0,03;-3343,1516;0,04;-426,95048;0,12;-90,14477;0,0014463;-30,089752;0,001215;-90,358505;0,0021268\n",
+            "2,02011E+13;0,4;-0,4;0,8;2,9;1,5;1,5;-0,9;-0,05;-1,9;-1,2;{};-0,001;21,5;-0,5;0,03;-3343;0,04;-427;0,12;-90,1;0,0015;-30;0,0012;-90,4;0,002\n",
             format!("{:.3}", -2.0 + 0.01 * i as f64).replace('.', ",")
         ));
     }
@@ -60,18 +60,18 @@ fn ipa_series_a_layout() {
     // q: rad -> deg
     assert!((p0.q.as_ref().unwrap()[0] - (-1.5f64).to_degrees()).abs() < 1e-9);
     let m = p0.marker.as_ref().unwrap();
-    assert_eq!(m.p.unwrap(), [2361.9831, -1368.5474, 119.39713]);
-    // scipy Rotation.from_euler('XYZ', [-90.409151, -59.885105, -90.887438], degrees=True)
+    assert_eq!(m.p.unwrap(), [2000.125, -1300.5, 100.25]);
+    // scipy Rotation.from_euler('XYZ', [-90.5, -60.25, -91.0], degrees=True)
     let want = [
-        0.680744444672422,
-        -0.1808356610527434,
-        -0.6849013823797772,
-        -0.18653568332499665,
+        0.6810277906032837,
+        -0.17852468281583989,
+        -0.6857798940568351,
+        -0.18448854424844283,
     ];
     let q = m.quat.unwrap();
     assert!((0..4).all(|i| (q[i] - want[i]).abs() < 1e-12), "{q:?}");
     assert_eq!(m.rms, None, "Series A has no std columns");
-    assert_eq!(p0.temp_c, Some(23.6800003051758));
+    assert_eq!(p0.temp_c, Some(23.5));
     assert_eq!(p0.t, 0.0);
     assert_eq!(poses[1].t, 20.0);
     // q_prev = previous q, omitted after the 15-min pause (before row 6)
@@ -184,13 +184,13 @@ fn ipa_errors_name_file_line_column_and_cause() {
         "{e}"
     );
     // a value that does not parse
-    let e = err_ipa(&ipa_a(3).replacen("2361,9831", "23x1", 1));
+    let e = err_ipa(&ipa_a(3).replacen("2000,125", "23x1", 1));
     assert!(
         e.contains("m.csv:2: column \"measurement_x\"") && e.contains("\"23x1\""),
         "{e}"
     );
     // NaN
-    let e = err_ipa(&ipa_a(3).replacen("-1368,5474", "NaN", 1));
+    let e = err_ipa(&ipa_a(3).replacen("-1300,5", "NaN", 1));
     assert!(
         e.contains("m.csv:2: column \"measurement_y\"") && e.contains("finite"),
         "{e}"
@@ -207,7 +207,7 @@ fn ipa_errors_name_file_line_column_and_cause() {
         "{e}"
     );
     // positions in metres
-    let t = ipa_a(25).replace("2361,9831;-1368,5474;", "2,3619831;-1,3685474;");
+    let t = ipa_a(25).replace("2000,125;-1300,5;", "2,000125;-1,3005;");
     let t: String = t
         .lines()
         .map(|l| {
@@ -221,16 +221,12 @@ fn ipa_errors_name_file_line_column_and_cause() {
     let e = err_ipa(&t);
     assert!(e.contains("look like metres"), "{e}");
     // CRLF line ends: the same line numbers
-    let e = err_ipa(
-        &ipa_a(3)
-            .replacen("-1368,5474", "NaN", 2)
-            .replace('\n', "\r\n"),
-    );
+    let e = err_ipa(&ipa_a(3).replacen("-1300,5", "NaN", 2).replace('\n', "\r\n"));
     assert!(e.contains("m.csv:2: column \"measurement_y\""), "{e}");
     let t = ipa_a(4).replace('\n', "\r\n");
     let t = t
-        .replacen("-1368,5474", "QQQ", 4)
-        .replacen("QQQ", "-1368,5474", 3);
+        .replacen("-1300,5", "QQQ", 4)
+        .replacen("QQQ", "-1300,5", 3);
     let e = err_ipa(&t);
     assert!(e.contains("m.csv:5: column \"measurement_y\""), "{e}");
     // wrong delimiter
