@@ -119,6 +119,38 @@ fn test_datasets_round_trip_unchanged() {
     }
 }
 
+/// Every f64 the writer prints reads back bit for bit (serde_json `float_roundtrip`): a
+/// re-saved dataset or calibration never drifts in the last digit.
+#[test]
+fn floats_round_trip_bit_exact() {
+    let vals = [
+        0.1 + 0.2,
+        1.0 / 3.0,
+        123.456_789_012_345_68,
+        -2.2250738585072014e-308,
+        9_007_199_254_740_993.0,
+        std::f64::consts::PI * 1e-7,
+        5e-324,
+    ];
+    for v in vals {
+        let text = serde_json::to_string(&v).unwrap();
+        let back: f64 = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.to_bits(), v.to_bits(), "{v:e} -> {text}");
+    }
+    let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
+    for _ in 0..20_000 {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        let v = f64::from_bits(rng);
+        if !v.is_finite() {
+            continue;
+        }
+        let back: f64 = serde_json::from_str(&serde_json::to_string(&v).unwrap()).unwrap();
+        assert_eq!(back.to_bits(), v.to_bits(), "{v:e}");
+    }
+}
+
 /// Numbers compared as f64 (the writer prints `0` as `0.0`), `visible` defaulted.
 fn normalise(v: Value) -> Value {
     match v {

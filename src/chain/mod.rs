@@ -319,7 +319,7 @@ impl ChainReport {
     pub fn save(&self, path: &std::path::Path) -> Result<(), RegisterError> {
         let s = serde_json::to_string_pretty(self)
             .map_err(|e| RegisterError::Invalid(format!("serialising: {e}")))?;
-        std::fs::write(path, s + "\n").map_err(|e| RegisterError::Io {
+        crate::fsio::write(path, s + "\n").map_err(|e| RegisterError::Io {
             path: path.display().to_string(),
             source: e,
         })

@@ -28,7 +28,7 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     )?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let file = d.to_file();
-    std::fs::write(
+    crate::fsio::write(
         out.join("diagnosis.json"),
         serde_json::to_string_pretty(&file)? + "\n",
     )

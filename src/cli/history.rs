@@ -55,7 +55,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         }
     }
     if let Some(p) = &a.svg {
-        std::fs::write(p, history::svg(&a.robot, &rows))
+        crate::fsio::write(p, history::svg(&a.robot, &rows))
             .with_context(|| format!("writing {}", p.display()))?;
         println!("wrote {}", p.display());
     }

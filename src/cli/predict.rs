@@ -34,10 +34,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         let rows = crate::cli::register::predict_points(&args.calibration, pts)?;
         return match &args.out {
             Some(path) => {
-                let f = std::fs::File::create(path)
-                    .with_context(|| format!("creating {}", path.display()))?;
-                crate::register::write_points_csv(std::io::BufWriter::new(f), &rows)
-                    .with_context(|| format!("writing {}", path.display()))
+                let mut buf = Vec::new();
+                crate::register::write_points_csv(&mut buf, &rows)
+                    .with_context(|| format!("writing {}", path.display()))?;
+                crate::fsio::write_atomic_ctx(path, &buf)
             }
             None => crate::register::write_points_csv(std::io::stdout().lock(), &rows)
                 .context("writing to stdout"),
@@ -57,10 +57,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     match &args.out {
         Some(path) => {
-            let f = std::fs::File::create(path)
-                .with_context(|| format!("creating {}", path.display()))?;
-            write_csv(std::io::BufWriter::new(f), &rows)
-                .with_context(|| format!("writing {}", path.display()))?;
+            let mut buf = Vec::new();
+            write_csv(&mut buf, &rows).with_context(|| format!("writing {}", path.display()))?;
+            crate::fsio::write_atomic_ctx(path, &buf)?;
         }
         None => {
             let stdout = std::io::stdout();

@@ -128,6 +128,10 @@ pub enum Block {
     BaseShift { t_change: f64 },
     /// Timing latency: `y(t) = p(t − Δt)`, i.e. `δθ = −q̇ Δt` (needs recorded `qd`).
     Latency,
+    /// Transmission ripple of one joint at harmonic `k` ≥ 3 of its rotation (gear tooth /
+    /// bearing / harmonic-drive flexspline errors): `δθ_j = a sin kq + b cos kq`
+    /// (kind `transmission_ripple`; harmonics 1 and 2 are `joint_eccentricity`).
+    Ripple { joint: usize, harmonic: u32 },
     /// Transmission-ratio error of one joint: `δθ_j = ε · q_j` (kind `transmission_ratio`,
     /// not in the contract's list: a new name).
     Transmission { joint: usize },
@@ -147,6 +151,7 @@ impl Block {
             Block::BaseShift { .. } => "base_shift",
             Block::Latency => "latency",
             Block::Transmission { .. } => "transmission_ratio",
+            Block::Ripple { .. } => "transmission_ripple",
             Block::Nonparametric(_) => "nonparametric",
         }
     }
@@ -157,6 +162,7 @@ impl Block {
             | Block::Backlash { joint }
             | Block::Eccentricity { joint }
             | Block::Transmission { joint }
+            | Block::Ripple { joint, .. }
             | Block::JointDrift { joint, .. } => Some(*joint),
             _ => None,
         }
@@ -166,6 +172,7 @@ impl Block {
         match self {
             Block::Compliance { points, .. } => points.len(),
             Block::Eccentricity { .. } => 4,
+            Block::Ripple { .. } => 2,
             Block::BaseShift { .. } => 6,
             Block::Nonparametric(_) => 0,
             _ => 1,
@@ -178,6 +185,7 @@ impl Block {
                 format!(", {}", driver.label())
             }
             Block::BaseShift { t_change } => format!("t≥{t_change:.1}s"),
+            Block::Ripple { harmonic, .. } => format!(", ×{harmonic}"),
             _ => String::new(),
         };
         let lengths = if matches!(self, Block::LengthDrift { .. }) {
@@ -221,6 +229,12 @@ impl Block {
             .collect(),
             Block::Latency => vec!["latency [s]".into()],
             Block::Transmission { .. } => vec!["ratio error [1]".into()],
+            Block::Ripple { harmonic, .. } => {
+                vec![
+                    format!("sin {harmonic}q [rad]"),
+                    format!("cos {harmonic}q [rad]"),
+                ]
+            }
             Block::Nonparametric(_) => vec![],
         }
     }
@@ -256,6 +270,13 @@ impl Block {
             },
             Block::Transmission { joint } => match ctx.q.get(joint.wrapping_sub(1)) {
                 Some(&q) if *joint >= 1 && *joint <= n => vec![(joint - 1, 0, q)],
+                _ => vec![],
+            },
+            Block::Ripple { joint, harmonic } => match ctx.q.get(joint.wrapping_sub(1)) {
+                Some(&q) if *joint >= 1 && *joint <= n => {
+                    let k = f64::from(*harmonic);
+                    vec![(joint - 1, 0, (k * q).sin()), (joint - 1, 1, (k * q).cos())]
+                }
                 _ => vec![],
             },
             Block::JointDrift { joint, driver } if *joint >= 1 && *joint <= n => {
@@ -622,6 +643,10 @@ impl Effect {
             Block::Transmission { .. } => {
                 vec![P::new("ratio_error", "ppm", c[0] * 1e6, s(0) * 1e6)]
             }
+            Block::Ripple { harmonic, .. } => vec![
+                P::new(&format!("sin{harmonic}"), "deg", deg(c[0]), deg(s(0))),
+                P::new(&format!("cos{harmonic}"), "deg", deg(c[1]), deg(s(1))),
+            ],
             Block::Nonparametric(_) => vec![],
         }
     }
@@ -718,6 +743,15 @@ impl Effect {
             Block::Transmission { .. } => {
                 p.insert("ratio_error_ppm".into(), num(c[0] * 1e6));
                 p.insert("std".into(), num(s[0] * 1e6));
+            }
+            Block::Ripple { harmonic, .. } => {
+                p.insert("harmonic".into(), json!(harmonic));
+                p.insert("sin_deg".into(), num(deg(c[0])));
+                p.insert("cos_deg".into(), num(deg(c[1])));
+                p.insert(
+                    "std_deg".into(),
+                    json!(s.iter().map(|v| num(deg(*v))).collect::<Vec<_>>()),
+                );
             }
             Block::Latency => {
                 p.insert("latency_s".into(), num(c[0]));
@@ -855,6 +889,22 @@ impl Effect {
                 Block::Transmission { joint: joint()? },
                 vec![f("ratio_error_ppm")? * 1e-6],
             ),
+            "transmission_ripple" => {
+                let harmonic = p
+                    .get("harmonic")
+                    .and_then(|v| v.as_u64())
+                    .filter(|h| (1..=100_000).contains(h))
+                    .ok_or_else(|| {
+                        anyhow::anyhow!("transmission_ripple: \"harmonic\" must be an integer ≥ 1")
+                    })? as u32;
+                (
+                    Block::Ripple {
+                        joint: joint()?,
+                        harmonic,
+                    },
+                    vec![rad(f("sin_deg")?), rad(f("cos_deg")?)],
+                )
+            }
             "nonparametric" => (Block::Nonparametric(Box::new(Rbf::from_json(p)?)), vec![]),
             other => anyhow::bail!("unknown effect kind \"{other}\""),
         };
@@ -911,4 +961,35 @@ pub fn predict_record(
         )
     })?;
     apply_cal_effects(model, effects, &ctx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A transmission ripple survives the calibration-file form (degrees, harmonic) and a
+    /// bad harmonic is refused with its name.
+    #[test]
+    fn ripple_round_trips_through_the_calibration_file() {
+        let e = Effect {
+            block: Block::Ripple {
+                joint: 3,
+                harmonic: 4,
+            },
+            coefs: vec![1.5e-4, -2.5e-5],
+            std: vec![1e-6, 2e-6],
+            tau_std: f64::NAN,
+        };
+        let cal = e.to_cal();
+        assert_eq!(cal.kind, "transmission_ripple");
+        let back = Effect::from_cal(&cal).unwrap();
+        assert_eq!(back.block, e.block);
+        for (a, b) in back.coefs.iter().zip(&e.coefs) {
+            assert!((a - b).abs() < 1e-15, "{a} vs {b}");
+        }
+        let mut bad = cal.clone();
+        bad.params.insert("harmonic".into(), json!(0));
+        let err = Effect::from_cal(&bad).unwrap_err().to_string();
+        assert!(err.contains("harmonic"), "{err}");
+    }
 }

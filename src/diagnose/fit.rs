@@ -276,6 +276,13 @@ mod tests {
             ),
             effect(Block::Transmission { joint: 4 }, vec![4e-4]),
             effect(
+                Block::Ripple {
+                    joint: 2,
+                    harmonic: 3,
+                },
+                vec![2e-4, -1e-4],
+            ),
+            effect(
                 Block::JointDrift {
                     joint: 2,
                     driver: Driver::Time { t0_s: 0.0 },

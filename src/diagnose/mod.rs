@@ -24,6 +24,7 @@ pub mod effects;
 pub mod fit;
 pub mod nonparam;
 pub mod plot;
+pub mod transfer;
 pub use crate::solve::inference as stats;
 
 use data::Obs;
@@ -108,7 +109,12 @@ pub struct Step {
     pub train_rms_after: f64,
     pub heldout_rms_before: Option<f64>,
     pub heldout_rms_after: Option<f64>,
+    /// The model and effects after this step (for per-pose statistics and transfer).
+    pub state_after: State,
 }
+
+/// Held-out RMS more than this fraction above the training RMS flags overfitting.
+pub const OVERFIT_GAP: f64 = 0.15;
 
 /// The result of a diagnosis.
 #[derive(Debug, Clone)]
@@ -159,6 +165,9 @@ fn row_folds(obs_fold: &[usize]) -> Vec<usize> {
     obs_fold.iter().flat_map(|f| [*f, *f, *f]).collect()
 }
 
+/// Harmonics of a joint's rotation tried as transmission ripple.
+pub const RIPPLE_HARMONICS: [u32; 2] = [3, 4];
+
 /// The candidate library for this data (and the effects it cannot test, with reasons).
 pub fn candidates(
     model: &KinematicModel,
@@ -202,6 +211,14 @@ pub fn candidates(
         }
         out.push(vec![Block::Eccentricity { joint: j }]);
         out.push(vec![Block::Transmission { joint: j }]);
+        // Transmission ripple: harmonics 3 and 4 of the joint's rotation (1 and 2 are
+        // eccentricity); a group, so both count as tests.
+        out.push(
+            RIPPLE_HARMONICS
+                .iter()
+                .map(|&harmonic| Block::Ripple { joint: j, harmonic })
+                .collect(),
+        );
     }
     let t0 = train.iter().map(|o| o.ctx.t).fold(f64::INFINITY, f64::min);
     let t1 = train
@@ -697,6 +714,7 @@ pub fn diagnose(
             train_rms_after: rms3(&residuals(&state, train)),
             heldout_rms_before: before_held,
             heldout_rms_after: heldout_rms(&state, heldout),
+            state_after: state.clone(),
         });
         // Drop the group the accepted block came from (one base shift, one per kind+joint).
         remaining.retain(|g| {
@@ -745,6 +763,7 @@ pub fn diagnose(
                         train_rms_after: rms3(&residuals(&state, train)),
                         heldout_rms_before: before_held,
                         heldout_rms_after: heldout_rms(&state, heldout),
+                        state_after: state.clone(),
                     });
                     nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
                 }
@@ -752,6 +771,7 @@ pub fn diagnose(
         }
     }
     let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
+    warnings.extend(overfit_warnings(&steps));
     if !ambiguous_heldout.is_empty() {
         warnings.push(format!(
             "{} held-out pose(s) lie between the last training pose before and the first after a base shift: which side of the step they are on is unknown (listed in ambiguous_heldout, predicted with the step placed half-way)",
@@ -778,6 +798,26 @@ pub fn diagnose(
         nonparametric,
         untestable,
     })
+}
+
+/// Steps whose held-out RMS exceeds their training RMS by more than [`OVERFIT_GAP`] (and by
+/// more than 0.01 mm): the fit learned the training poses, not the robot.
+pub fn overfit_warnings(steps: &[Step]) -> Vec<String> {
+    steps
+        .iter()
+        .filter_map(|s| {
+            let h = s.heldout_rms_after?;
+            let t = s.train_rms_after;
+            (h > (1.0 + OVERFIT_GAP) * t && h - t > 0.01).then(|| {
+                format!(
+                    "overfitting: after {} the held-out RMS {h:.4} mm is {:.0} % above the training RMS {t:.4} mm (limit {:.0} %): trust the held-out figure",
+                    s.effect.block.label(),
+                    100.0 * (h / t - 1.0),
+                    100.0 * OVERFIT_GAP
+                )
+            })
+        })
+        .collect()
 }
 
 /// The evidence of one score in file form.

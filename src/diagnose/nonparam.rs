@@ -2,7 +2,9 @@
 //! regression (a GP posterior mean) of the 3-D residual on joint space, with the length
 //! scale and ridge chosen by time-blocked cross-validation. Used only after the physical
 //! effects are exhausted, and labelled `nonparametric`.
-use nalgebra::{DMatrix, Matrix3, Vector3};
+use faer::{linalg::solvers::Solve, Mat, Side};
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 
 use crate::model::KinematicModel;
 use serde_json::{json, Map, Value};
@@ -22,6 +24,136 @@ pub struct Rbf {
 fn kern(a: &[f64], b: &[f64], ell: f64) -> f64 {
     let d2: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
     (-d2 / (2.0 * ell * ell)).exp()
+}
+
+/// Kernel matrix `K[a, b] = k(q[rows[a]], q[cols[b]])` (dense, faer).
+fn kernel(q: &[Vec<f64>], rows: &[usize], cols: &[usize], ell: f64) -> Mat<f64> {
+    Mat::from_fn(rows.len(), cols.len(), |a, b| {
+        kern(&q[rows[a]], &q[cols[b]], ell)
+    })
+}
+
+/// Residual targets of the samples `idx` as an `n × 3` matrix.
+fn targets(r: &[Vector3<f64>], idx: &[usize]) -> Mat<f64> {
+    Mat::from_fn(idx.len(), 3, |i, j| r[idx[i]][j])
+}
+
+/// Above this many training samples the correction uses a subset of regressors (Nyström):
+/// `MAX_CENTRES` centres spread evenly through the (time-ordered) samples. The exact kernel
+/// system costs O(n³); the subset one O(n·m²).
+pub const MAX_CENTRES: usize = 2000;
+
+/// `m` indices spread evenly over `idx` (all of them when `idx.len() ≤ m`).
+fn centre_subset(idx: &[usize], m: usize) -> Vec<usize> {
+    if idx.len() <= m {
+        return idx.to_vec();
+    }
+    (0..m).map(|k| idx[k * idx.len() / m]).collect()
+}
+
+fn all_finite(w: &Mat<f64>) -> bool {
+    (0..w.nrows()).all(|i| (0..w.ncols()).all(|j| w[(i, j)].is_finite()))
+}
+
+/// The kernel ridge system of one training set, factorised per λ.
+///
+/// Exact: `W = (K + λI)⁻¹ Y`, centres = the training samples. Subset of regressors
+/// (training set larger than [`MAX_CENTRES`]): `W = (K_mn K_nm + λ K_mm)⁻¹ K_mn Y`, centres =
+/// `m` of the samples: the same GP posterior mean (noise variance λ) on a Nyström kernel.
+/// Solved by a blocked Cholesky (faer); nalgebra's unblocked one made a 2,000-pose
+/// diagnosis take ~40 s.
+struct RidgeSystem {
+    centres: Vec<usize>,
+    /// `K` (exact) or `K_mn K_nm` (subset).
+    gram: Mat<f64>,
+    /// `I` (exact: `None`) or `K_mm` (subset): what λ multiplies.
+    reg: Option<Mat<f64>>,
+    /// `Y` (exact) or `K_mn Y` (subset).
+    rhs: Mat<f64>,
+}
+
+impl RidgeSystem {
+    fn new(q: &[Vec<f64>], r: &[Vector3<f64>], tr: &[usize], ell: f64) -> RidgeSystem {
+        let centres = centre_subset(tr, MAX_CENTRES);
+        let y = targets(r, tr);
+        if centres.len() == tr.len() {
+            RidgeSystem {
+                gram: kernel(q, tr, tr, ell),
+                reg: None,
+                rhs: y,
+                centres,
+            }
+        } else {
+            let kmn = kernel(q, &centres, tr, ell);
+            RidgeSystem {
+                gram: &kmn * kmn.transpose(),
+                reg: Some(kernel(q, &centres, &centres, ell)),
+                rhs: &kmn * &y,
+                centres,
+            }
+        }
+    }
+
+    /// Weights for ridge `lambda`; `None` if not positive definite or not finite.
+    fn solve(&self, lambda: f64) -> Option<Mat<f64>> {
+        let m = self.gram.nrows();
+        let mut a = self.gram.clone();
+        match &self.reg {
+            None => (0..m).for_each(|i| a[(i, i)] += lambda),
+            Some(kmm) => {
+                // λ K_mm plus a tiny jitter: K_mm of near-duplicate centres is singular.
+                for i in 0..m {
+                    for j in 0..m {
+                        a[(i, j)] += lambda * kmm[(i, j)];
+                    }
+                    a[(i, i)] += 1e-9 * lambda;
+                }
+            }
+        }
+        let w = a.llt(Side::Lower).ok()?.solve(&self.rhs);
+        all_finite(&w).then_some(w)
+    }
+}
+
+/// Squared prediction error per fold and per λ: for each fold the training kernel system is
+/// built once and factorised once per λ (folds run in parallel).
+fn fold_errors(
+    q: &[Vec<f64>],
+    r: &[Vector3<f64>],
+    fold: &[usize],
+    n_folds: usize,
+    ell: f64,
+    lambdas: &[f64],
+) -> Vec<(usize, Vec<Option<f64>>)> {
+    (0..n_folds)
+        .into_par_iter()
+        .filter_map(|f| {
+            let tr: Vec<usize> = (0..q.len()).filter(|&i| fold[i] != f).collect();
+            let te: Vec<usize> = (0..q.len()).filter(|&i| fold[i] == f).collect();
+            if tr.len() < 10 || te.is_empty() {
+                return None;
+            }
+            let sys = RidgeSystem::new(q, r, &tr, ell);
+            let kx = kernel(q, &te, &sys.centres, ell);
+            let sse = lambdas
+                .iter()
+                .map(|&lam| {
+                    let w = sys.solve(lam)?;
+                    let pred = &kx * &w;
+                    Some(
+                        te.iter()
+                            .enumerate()
+                            .map(|(a, &i)| {
+                                (r[i] - Vector3::new(pred[(a, 0)], pred[(a, 1)], pred[(a, 2)]))
+                                    .norm_squared()
+                            })
+                            .sum::<f64>(),
+                    )
+                })
+                .collect();
+            Some((te.len(), sse))
+        })
+        .collect()
 }
 
 /// Inputs (wrist centre and marker in MDH frame 1, 100 mm units) and the rotation tracker ← frame 1.
@@ -82,18 +214,16 @@ impl Rbf {
 
     /// Fit on residuals `r` (mm) at `q` (rad) with ridge `lambda`. `None` if singular.
     pub fn fit(q: &[Vec<f64>], r: &[Vector3<f64>], ell: f64, lambda: f64) -> Option<Rbf> {
-        let n = q.len();
-        let k = DMatrix::from_fn(n, n, |i, j| {
-            kern(&q[i], &q[j], ell) + if i == j { lambda } else { 0.0 }
-        });
-        let chol = k.cholesky()?;
-        let rhs = DMatrix::from_fn(n, 3, |i, j| r[i][j]);
-        let w = chol.solve(&rhs);
+        let idx: Vec<usize> = (0..q.len()).collect();
+        let sys = RidgeSystem::new(q, r, &idx, ell);
+        let w = sys.solve(lambda)?;
         Some(Rbf {
             arm_frame: false,
             length_scale: ell,
-            centers: q.to_vec(),
-            weights: (0..n).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect(),
+            centers: sys.centres.iter().map(|&i| q[i].clone()).collect(),
+            weights: (0..w.nrows())
+                .map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]])
+                .collect(),
         })
     }
 
@@ -186,27 +316,16 @@ pub fn cross_validate(
     }
     let var: f64 = r.iter().map(|v| v.norm_squared()).sum::<f64>() / r.len() as f64;
     let before = (var / 3.0).sqrt();
+    let lambdas = [0.03, 0.3, 3.0];
     let mut best: Option<RbfCv> = None;
     for &ell in &[0.5, 1.0, 2.0, 4.0] {
-        for &lam in &[0.03, 0.3, 3.0] {
-            let mut sse = 0.0;
-            let mut cnt = 0usize;
-            for f in 0..n_folds {
-                let tr: Vec<usize> = (0..q.len()).filter(|&i| fold[i] != f).collect();
-                let te: Vec<usize> = (0..q.len()).filter(|&i| fold[i] == f).collect();
-                if tr.len() < 10 || te.is_empty() {
-                    continue;
-                }
-                let qt: Vec<Vec<f64>> = tr.iter().map(|&i| q[i].clone()).collect();
-                let rt: Vec<Vector3<f64>> = tr.iter().map(|&i| r[i]).collect();
-                let Some(m) = Rbf::fit(&qt, &rt, ell, lam) else {
-                    continue;
-                };
-                for &i in &te {
-                    sse += (r[i] - m.predict(&q[i])).norm_squared();
-                    cnt += 1;
-                }
-            }
+        let per_fold = fold_errors(q, r, fold, n_folds, ell, &lambdas);
+        for (li, &lam) in lambdas.iter().enumerate() {
+            // A setting whose factorisation failed on any fold is not comparable: skip it.
+            let Some(sse) = per_fold.iter().map(|(_, e)| e[li]).sum::<Option<f64>>() else {
+                continue;
+            };
+            let cnt: usize = per_fold.iter().map(|(n, _)| n).sum();
             if cnt == 0 {
                 continue;
             }
@@ -234,23 +353,24 @@ pub fn cv_fixed(
     ell: f64,
     lambda: f64,
 ) -> Option<(f64, f64)> {
-    let mut sse0 = 0.0;
+    let per_fold = fold_errors(q, r, fold, n_folds, ell, &[lambda]);
     let mut sse1 = 0.0;
     let mut cnt = 0usize;
+    for (n, e) in &per_fold {
+        sse1 += e[0]?;
+        cnt += n;
+    }
+    // Same test samples as the folds that were fitted.
+    let mut sse0 = 0.0;
     for f in 0..n_folds {
-        let tr: Vec<usize> = (0..q.len()).filter(|&i| fold[i] != f).collect();
-        let te: Vec<usize> = (0..q.len()).filter(|&i| fold[i] == f).collect();
-        if tr.len() < 10 || te.is_empty() {
+        let tr = fold.iter().filter(|&&g| g != f).count();
+        if tr < 10 {
             continue;
         }
-        let qt: Vec<Vec<f64>> = tr.iter().map(|&i| q[i].clone()).collect();
-        let rt: Vec<Vector3<f64>> = tr.iter().map(|&i| r[i]).collect();
-        let m = Rbf::fit(&qt, &rt, ell, lambda)?;
-        for &i in &te {
-            sse0 += r[i].norm_squared();
-            sse1 += (r[i] - m.predict(&q[i])).norm_squared();
-            cnt += 1;
-        }
+        sse0 += (0..q.len())
+            .filter(|&i| fold[i] == f)
+            .map(|i| r[i].norm_squared())
+            .sum::<f64>();
     }
     (cnt > 0).then(|| {
         (
@@ -263,6 +383,46 @@ pub fn cv_fixed(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Above [`MAX_CENTRES`] samples the subset-of-regressors system predicts what the
+    /// exact one does on a smooth field (and keeps only `MAX_CENTRES` centres).
+    #[test]
+    fn subset_of_regressors_matches_the_exact_system() {
+        let n = MAX_CENTRES + 400;
+        let q: Vec<Vec<f64>> = (0..n)
+            .map(|i| {
+                let t = i as f64;
+                vec![
+                    (t * 0.011).sin() * 1.5,
+                    (t * 0.0037).cos(),
+                    (t * 0.023).sin(),
+                ]
+            })
+            .collect();
+        let r: Vec<Vector3<f64>> = q
+            .iter()
+            .map(|x| Vector3::new(0.1 * x[0].sin(), 0.05 * x[1] * x[2], 0.02 * x[2]))
+            .collect();
+        let sub = Rbf::fit(&q, &r, 1.0, 0.03).unwrap();
+        assert_eq!(sub.centers.len(), MAX_CENTRES);
+        let idx: Vec<usize> = (0..n).collect();
+        let exact = RidgeSystem {
+            centres: idx.clone(),
+            gram: kernel(&q, &idx, &idx, 1.0),
+            reg: None,
+            rhs: targets(&r, &idx),
+        };
+        let w = exact.solve(0.03).unwrap();
+        let mut worst: f64 = 0.0;
+        for probe in [[0.3, 0.2, -0.4], [-1.1, 0.9, 0.5], [1.2, -0.5, 0.0]] {
+            let mut e = Vector3::zeros();
+            for (i, c) in q.iter().enumerate() {
+                e += Vector3::new(w[(i, 0)], w[(i, 1)], w[(i, 2)]) * kern(&probe, c, 1.0);
+            }
+            worst = worst.max((sub.predict(&probe) - e).norm());
+        }
+        assert!(worst < 2e-3, "subset vs exact: {worst} mm");
+    }
 
     #[test]
     fn rbf_learns_a_smooth_field_and_round_trips() {

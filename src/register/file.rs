@@ -254,7 +254,7 @@ impl RegistrationFile {
     pub fn save(&self, path: &Path) -> Result<(), RegisterError> {
         let s = serde_json::to_string_pretty(self)
             .map_err(|e| RegisterError::Invalid(format!("serialising: {e}")))?;
-        std::fs::write(path, s + "\n").map_err(|e| io_err(path, e))
+        crate::fsio::write(path, s + "\n").map_err(|e| io_err(path, e))
     }
 
     /// Reads and checks a registration file.

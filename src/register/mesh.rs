@@ -45,7 +45,7 @@ impl Mesh {
             }
             b.extend_from_slice(&[0, 0]);
         }
-        std::fs::write(path, b).map_err(|e| io_err(path, e))
+        crate::fsio::write(path, b).map_err(|e| io_err(path, e))
     }
 
     /// Writes ASCII PLY (full f64 precision).
@@ -64,7 +64,7 @@ impl Mesh {
         for t in &self.triangles {
             let _ = writeln!(s, "3 {} {} {}", t[0], t[1], t[2]);
         }
-        std::fs::write(path, s).map_err(|e| io_err(path, e))
+        crate::fsio::write(path, s).map_err(|e| io_err(path, e))
     }
 }
 

@@ -545,7 +545,7 @@ impl RobotWorldFile {
     pub fn save(&self, path: &std::path::Path) -> Result<(), RegisterError> {
         let s = serde_json::to_string_pretty(self)
             .map_err(|e| RegisterError::Invalid(format!("serialising: {e}")))?;
-        std::fs::write(path, s + "\n").map_err(|e| super::io_err(path, e))
+        crate::fsio::write(path, s + "\n").map_err(|e| super::io_err(path, e))
     }
 }
 

@@ -274,18 +274,12 @@ pub trait Cell {
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary>;
 }
 
-/// Write a file atomically (tmp + fsync + rename).
+/// Write a file atomically and durably ([`crate::fsio::write_atomic`]), creating its directory.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     if let Some(p) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(p).with_context(|| format!("creating {}", p.display()))?;
     }
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::File::open(&tmp)
-        .and_then(|f| f.sync_all())
-        .with_context(|| format!("syncing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    crate::fsio::write_atomic_ctx(path, bytes)
 }
 
 /// SHA-256 of a file, hex.

@@ -102,7 +102,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     let cal = calibration_file(&train, &res);
     crate::dataset::write_calibration(a.out.join("calibration.json"), &cal)?;
     let report = report_json(&train, held.as_ref(), &res, t_detect, t_total);
-    std::fs::write(
+    crate::fsio::write(
         a.out.join("camera_report.json"),
         serde_json::to_string_pretty(&report)? + "\n",
     )

@@ -219,9 +219,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             );
         }
         let path = args.out.join("bootstrap.csv");
-        let mut w = std::io::BufWriter::new(
-            std::fs::File::create(&path).with_context(|| format!("writing {}", path.display()))?,
-        );
+        // Built in memory, then written atomically (a kill never leaves half a file).
+        let mut w: Vec<u8> = Vec::new();
         writeln!(
             w,
             "name,unit,full,mean,std,q025,q975,skewness,excess_kurtosis,normal_p"
@@ -255,7 +254,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                 );
             }
         }
-        w.flush()?;
+        crate::fsio::write_atomic_ctx(&path, &w)?;
         file.extra.insert(
             "bootstrap".into(),
             json!({"k": b.n_requested, "converged": b.samples.len(), "subset": b.subset_size,

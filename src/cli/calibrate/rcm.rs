@@ -45,7 +45,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     // Everything robocal writes loads back.
     CalibrationFile::load(&cal_path)?;
     let rep_path = args.out.join("rcm_report.json");
-    std::fs::write(&rep_path, serde_json::to_string_pretty(&report)?)
+    crate::fsio::write(&rep_path, serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("writing {}", rep_path.display()))?;
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
