@@ -124,6 +124,7 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
         calibration: None,
         heldout: Some(case_dir("kin-compliance-j2").join("heldout.jsonl")),
         no_nonparametric: false,
+        physics_first: false,
         json: false,
     };
     let summary = robocal::cli::diagnose::run(&args).unwrap();

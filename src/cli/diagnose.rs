@@ -32,6 +32,13 @@ pub struct Args {
     /// Do not add a nonparametric correction even if structured residual remains.
     #[arg(long)]
     pub no_nonparametric: bool,
+    /// Accept every physical effect that passes the significance, ΔBIC, time-blocked CV and
+    /// independence tests (up to 6), even when it explains less than half of what a kernel
+    /// regression explains, then add the correction for the rest. Better held-out error on the
+    /// real UR10 data (0.2733 vs 0.2882 mm); on an effect outside the library it may name a
+    /// library effect that only resembles it.
+    #[arg(long)]
+    pub physics_first: bool,
     /// Print `diagnosis.json` on stdout instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -111,9 +118,18 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
             train.len()
         );
     }
-    let opt = Options {
-        allow_nonparametric: !args.no_nonparametric,
-        ..Options::default()
+    let opt = if args.physics_first {
+        Options {
+            allow_nonparametric: !args.no_nonparametric,
+            min_np_ratio: 0.0,
+            max_effects: 6,
+            ..Options::default()
+        }
+    } else {
+        Options {
+            allow_nonparametric: !args.no_nonparametric,
+            ..Options::default()
+        }
     };
     let mut d = diagnose::diagnose(&model, &train, &held, &opt)?;
     d.warnings.extend(main.warnings.iter().cloned());

@@ -705,6 +705,7 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
         calibration: None,
         heldout: Some(val),
         no_nonparametric: false,
+        physics_first: false,
         json: false,
     })?;
     // Every artifact records the datasets it came from.
