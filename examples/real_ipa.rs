@@ -244,7 +244,7 @@ fn main() -> anyhow::Result<()> {
     // Physics first: the same selection (F test, ΔBIC, time-blocked CV gain, independence,
     // all on training data) without the rule that a physical effect must explain half of
     // what the kernel benchmark explains; up to 6 effects, then the correction.
-    run_with(
+    let dp = run_with(
         "Series A, physics first (kernel-benchmark rule off, up to 6 effects)",
         &model,
         &a.train,
@@ -291,7 +291,11 @@ fn main() -> anyhow::Result<()> {
             "  {:<34} {:>9} {:>9} {:>9} {:>9}",
             "stage (fitted on Series A)", "setup", "held-out", "held p95", "held max"
         );
-        for (label, st) in stages(&d) {
+        let physics_first = stages(&dp)
+            .into_iter()
+            .skip(2)
+            .map(|(l, st)| (format!("{l} [physics first]"), st));
+        for (label, st) in stages(&d).into_iter().chain(physics_first) {
             let st2 = refit_setup(&st, &s.train)?;
             let (tr, _, _) = stats(&st2, &s.train);
             let (h, p95, mx) = stats(&st2, &s.held);
