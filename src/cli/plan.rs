@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
-use crate::dataset::{ChainJoint, Dataset, FixedOrigin, RobotBlock};
+use crate::dataset::{Dataset, RobotBlock};
 use crate::model::{KinematicModel, SerialChain};
 use crate::plan::{self, export, PlanFile, PlanOptions, PlanSpec};
 
@@ -65,41 +65,7 @@ pub struct Args {
 
 /// The URDF chain as dataset-header joints (mm, deg), so the plan file can rebuild it.
 fn chain_block(sc: &SerialChain, name: &str) -> RobotBlock {
-    let joint = |o: &nalgebra::Isometry3<f64>| {
-        let t = o.translation.vector;
-        let (r, p, y) = o.rotation.euler_angles();
-        (
-            [t.x, t.y, t.z],
-            [r.to_degrees(), p.to_degrees(), y.to_degrees()],
-        )
-    };
-    let chain = sc
-        .joints
-        .iter()
-        .map(|j| {
-            let (xyz, rpy) = joint(&j.origin);
-            ChainJoint {
-                name: j.name.clone(),
-                origin_xyz: xyz,
-                origin_rpy: rpy,
-                axis: [j.axis.x, j.axis.y, j.axis.z],
-                limits: j.limits.map(|(a, b)| [a.to_degrees(), b.to_degrees()]),
-                extra: Default::default(),
-            }
-        })
-        .collect();
-    let (xyz, rpy) = joint(&sc.flange);
-    RobotBlock {
-        model: name.to_string(),
-        serial: None,
-        chain: Some(chain),
-        flange: Some(FixedOrigin {
-            origin_xyz: xyz,
-            origin_rpy: rpy,
-            extra: Default::default(),
-        }),
-        extra: Default::default(),
-    }
+    crate::import::robot::robot_block_from_chain(sc, name)
 }
 
 fn robot_from_args(a: &Args) -> anyhow::Result<(RobotBlock, KinematicModel)> {
