@@ -23,7 +23,7 @@ use std::time::Duration;
 use anyhow::{bail, Context as _};
 use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
-use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
+use robocal_drivers::ndi::{NdiConfig, NdiTracker, ReplyMode};
 use robocal_drivers::ur::{Backoff, UrArm, UrConfig};
 use robocal_drivers::{Arm, ImageSource, MarkerTracker, RangeSensor};
 use robocal_mocks::scenario::Protocol;
@@ -136,21 +136,21 @@ async fn connect_tracker(
     Ok(match protocol {
         Protocol::NdiTcp => {
             let addr = tcp_addr(served, name, "ndi-tcp")?;
-            let client = NdiClient::connect(&addr.to_string(), NdiConfig::default())
-                .await
-                .with_context(|| format!("NDI TCP client to {name} at {addr}"))?;
-            let t = NdiTracker::setup(client, &tools, ReplyMode::Binary)
-                .await
-                .with_context(|| format!("NDI start-up sequence on {name}"))?;
+            let t = NdiTracker::connect_tcp(
+                &addr.to_string(),
+                NdiConfig::default(),
+                &tools,
+                ReplyMode::Binary,
+            )
+            .await
+            .with_context(|| format!("NDI tracker {name} at {addr} (connect and start-up)"))?;
             Arc::new(t.with_clock(world.clock()))
         }
         Protocol::NdiSerial => {
             let path = pty_path(served, name, "ndi-serial")?;
-            let client = NdiClient::open_serial(&path, NdiConfig::default())
-                .with_context(|| format!("NDI serial client to {name} on {path}"))?;
-            let t = NdiTracker::setup(client, &tools, ReplyMode::Binary)
+            let t = NdiTracker::open_serial(&path, NdiConfig::default(), &tools, ReplyMode::Binary)
                 .await
-                .with_context(|| format!("NDI start-up sequence on {name}"))?;
+                .with_context(|| format!("NDI tracker {name} on {path} (open and start-up)"))?;
             Arc::new(t.with_clock(world.clock()))
         }
         other => {
@@ -333,6 +333,9 @@ impl robocal_drivers::ArmStatus for KeepAlive {
     }
     async fn recover(&self) -> robocal_drivers::DriverResult<()> {
         self.arm.recover().await
+    }
+    fn link_recoveries(&self) -> u64 {
+        self.arm.link_recoveries()
     }
 }
 
