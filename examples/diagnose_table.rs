@@ -11,8 +11,9 @@
 use std::collections::HashMap;
 
 use robocal::dataset::PoseRecord;
-use robocal::diagnose::{self, data, effects, Options};
+use robocal::diagnose::{self, effects, Options};
 use robocal::model::KinematicModel;
+use robocal::solve::obs::session_observations;
 use robocal_mocks::scenario::{BaseBump, Scenario};
 use robocal_mocks::synth::{synthesize, SynthConfig};
 use robocal_mocks::world::effects::{
@@ -354,14 +355,19 @@ pub fn run(world: &World, seed: u64, size: Size) -> Outcome {
         ..SynthConfig::default()
     };
     let out = synthesize(&wh, &cfg).expect("synthesise");
-    let tr = data::parse_jsonl(&strip(&out.train_jsonl, world.strip), "train").unwrap();
-    let he = data::parse_jsonl(&strip(&out.heldout_jsonl, world.strip), "heldout").unwrap();
+    let parse = |text: &str, label: &str| {
+        robocal::dataset::parse_dataset(text.as_bytes(), std::path::Path::new(label))
+            .unwrap()
+            .dataset
+    };
+    let tr = parse(&strip(&out.train_jsonl, world.strip), "train");
+    let he = parse(&strip(&out.heldout_jsonl, world.strip), "heldout");
     let model = KinematicModel::from_robot_block(&tr.header.robot).unwrap();
-    let session: Vec<&PoseRecord> = tr.poses.iter().chain(he.poses.iter()).collect();
-    let trr: Vec<&PoseRecord> = tr.poses.iter().collect();
-    let her: Vec<&PoseRecord> = he.poses.iter().collect();
-    let train = data::observations(&trr, &session, model.dof());
-    let held = data::observations(&her, &session, model.dof());
+    let session: Vec<&PoseRecord> = tr.poses().chain(he.poses()).collect();
+    let trr: Vec<&PoseRecord> = tr.poses().collect();
+    let her: Vec<&PoseRecord> = he.poses().collect();
+    let train = session_observations(&trr, &session, model.dof()).0;
+    let held = session_observations(&her, &session, model.dof()).0;
     let truth: HashMap<u64, [f64; 3]> = out
         .truth_csv
         .lines()

@@ -15,10 +15,10 @@ use nalgebra::{Matrix3xX, Point3, Vector3};
 use serde_json::{json, Map, Value};
 use std::borrow::Cow;
 
-use super::data::ObsCtx;
 use super::nonparam::Rbf;
 use crate::dataset::CalEffect;
 use crate::model::{KinematicModel, ParamGroup};
+use crate::solve::obs::PoseCtx;
 
 /// Standard gravity (m/s²).
 pub const GRAVITY: f64 = 9.80665;
@@ -70,7 +70,7 @@ pub enum Driver {
 
 impl Driver {
     /// The driver value for one pose (hours, K or the warm-up fraction).
-    pub fn value(&self, ctx: &ObsCtx) -> f64 {
+    pub fn value(&self, ctx: &PoseCtx) -> f64 {
         match self {
             Driver::Time { t0_s } => (ctx.t - t0_s) / 3600.0,
             Driver::Temp { t0_c } => ctx.temp_c.map(|t| t - t0_c).unwrap_or(0.0),
@@ -241,7 +241,11 @@ impl Block {
 
     /// Sparse joint-angle regressors: `(joint index 0-based, coef index, feature)` so that
     /// `δθ_joint += coef · feature`. Empty for effects that do not act on joint angles.
-    pub fn joint_features(&self, model: &KinematicModel, ctx: &ObsCtx) -> Vec<(usize, usize, f64)> {
+    pub fn joint_features(
+        &self,
+        model: &KinematicModel,
+        ctx: &PoseCtx,
+    ) -> Vec<(usize, usize, f64)> {
         let n = model.dof();
         match self {
             Block::Compliance { joint, points } => {
@@ -391,7 +395,7 @@ impl Effect {
 }
 
 /// `δθ` (rad, per joint) of all joint-angle effects at one pose.
-pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Vec<f64> {
+pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Vec<f64> {
     let mut d = vec![0.0; model.dof()];
     for e in effects {
         for (j, c, f) in e.block.joint_features(model, ctx) {
@@ -408,7 +412,7 @@ pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -
 pub fn pose_model<'a>(
     model: &'a KinematicModel,
     effects: &[Effect],
-    ctx: &ObsCtx,
+    ctx: &PoseCtx,
 ) -> Cow<'a, KinematicModel> {
     let mut out: Cow<KinematicModel> = Cow::Borrowed(model);
     for e in effects {
@@ -451,7 +455,7 @@ fn tracker_scale(effects: &[Effect]) -> f64 {
 }
 
 /// Predicted marker origin (mm, tracker frame) of one pose with all effects applied.
-pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Point3<f64> {
+pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Point3<f64> {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
@@ -476,7 +480,7 @@ pub struct PoseEval {
 }
 
 /// Evaluate one pose (see [`PoseEval`]).
-pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> PoseEval {
+pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> PoseEval {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
@@ -537,7 +541,7 @@ pub fn block_columns(
     model: &KinematicModel,
     jm: &Matrix3xX<f64>,
     p: &Point3<f64>,
-    ctx: &ObsCtx,
+    ctx: &PoseCtx,
 ) -> Vec<Vector3<f64>> {
     let mut cols = vec![Vector3::zeros(); block.n_coefs()];
     let feats = block.joint_features(model, ctx);
@@ -922,28 +926,13 @@ impl Effect {
 pub fn apply_cal_effects(
     model: &KinematicModel,
     effects: &[CalEffect],
-    ctx: &ObsCtx,
+    ctx: &PoseCtx,
 ) -> anyhow::Result<Point3<f64>> {
     let e = effects
         .iter()
         .map(Effect::from_cal)
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok(apply_effects(model, &e, ctx))
-}
-
-/// The context of one pose record within its dataset (approach direction from the
-/// records before it in time, see [`super::data::contexts`]). `None` if the record has no
-/// usable joint angles.
-pub fn record_context(
-    rec: &crate::dataset::PoseRecord,
-    ds: &crate::dataset::Dataset,
-    dof: usize,
-) -> Option<ObsCtx> {
-    let session: Vec<&crate::dataset::PoseRecord> = ds.poses().collect();
-    super::data::contexts(&session, dof)
-        .into_iter()
-        .find(|(key, _)| *key == super::data::record_key(rec))
-        .map(|(_, c)| c)
 }
 
 /// Prediction of one pose record of `ds` with a calibration's effects (the hook of
@@ -954,7 +943,7 @@ pub fn predict_record(
     rec: &crate::dataset::PoseRecord,
     ds: &crate::dataset::Dataset,
 ) -> anyhow::Result<Point3<f64>> {
-    let ctx = record_context(rec, ds, model.dof()).ok_or_else(|| {
+    let ctx = crate::solve::obs::record_context(rec, ds, model.dof()).ok_or_else(|| {
         anyhow::anyhow!(
             "pose {}: no usable joint angles `q` for the effects",
             rec.id

@@ -19,7 +19,6 @@ use crate::schema::{self, fin};
 use nalgebra::{DMatrix, DVector, Vector3};
 
 pub mod camera;
-pub mod data;
 pub mod effects;
 pub mod fit;
 pub mod nonparam;
@@ -27,7 +26,7 @@ pub mod plot;
 pub mod transfer;
 pub use crate::solve::inference as stats;
 
-use data::Obs;
+use crate::solve::obs::PoseObs;
 use effects::{block_columns, eval_pose, mass_points, Block, Driver, Effect};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
 use stats::{f_sf, independence, orth_basis, project_out, CvBase};
@@ -156,7 +155,7 @@ impl Diagnosis {
 }
 
 /// Time-block fold of every observation (obs sorted by time).
-fn folds(obs: &[Obs], k: usize) -> Vec<usize> {
+fn folds(obs: &[PoseObs], k: usize) -> Vec<usize> {
     let n = obs.len().max(1);
     (0..obs.len()).map(|i| (i * k / n).min(k - 1)).collect()
 }
@@ -171,7 +170,7 @@ pub const RIPPLE_HARMONICS: [u32; 2] = [3, 4];
 /// The candidate library for this data (and the effects it cannot test, with reasons).
 pub fn candidates(
     model: &KinematicModel,
-    train: &[Obs],
+    train: &[PoseObs],
 ) -> (Vec<Vec<Block>>, Vec<(String, String)>) {
     let n = model.dof();
     let mut out: Vec<Vec<Block>> = Vec::new();
@@ -331,7 +330,7 @@ fn warm_up_tau(e: &Effect) -> Option<f64> {
 /// Refine the time constant of the warm-up effect `k` of `state` (golden-section search on
 /// ln τ within a factor 2 of the grid value, every evaluation a joint refit) and set its
 /// standard deviation from the curvature of the residual sum of squares over τ.
-pub fn refine_tau(state: &mut State, train: &[Obs], k: usize) {
+pub fn refine_tau(state: &mut State, train: &[PoseObs], k: usize) {
     let Some(tau0) = state.effects.get(k).and_then(warm_up_tau) else {
         return;
     };
@@ -387,7 +386,7 @@ pub fn refine_tau(state: &mut State, train: &[Obs], k: usize) {
 /// Score every candidate against the residual of `state` on `train`.
 pub fn score_round(
     state: &State,
-    train: &[Obs],
+    train: &[PoseObs],
     cands: &[Vec<Block>],
     opt: &Options,
 ) -> Vec<Score> {
@@ -540,7 +539,7 @@ fn accepted(s: &Score, m_tests: usize, opt: &Options) -> bool {
 }
 
 /// Inputs and residual targets of the kernel regression (arm-frame representation).
-fn np_data(state: &State, train: &[Obs]) -> (Vec<Vec<f64>>, Vec<Vector3<f64>>) {
+fn np_data(state: &State, train: &[PoseObs]) -> (Vec<Vec<f64>>, Vec<Vector3<f64>>) {
     let rv = residual_vectors(state, train);
     let qs: Vec<Vec<f64>> = train.iter().map(|o| o.ctx.q.clone()).collect();
     nonparam::arm_frame_data(&state.model, &qs, &rv)
@@ -548,7 +547,7 @@ fn np_data(state: &State, train: &[Obs]) -> (Vec<Vec<f64>>, Vec<Vector3<f64>>) {
 
 /// Cross-validated variance fraction of the residual that a kernel regression on joint
 /// space explains, with fixed hyper-parameters; NaN if it cannot be computed.
-fn np_gain(state: &State, train: &[Obs], hp: Option<(f64, f64)>, opt: &Options) -> f64 {
+fn np_gain(state: &State, train: &[PoseObs], hp: Option<(f64, f64)>, opt: &Options) -> f64 {
     let Some((ell, lam)) = hp else {
         return f64::NAN;
     };
@@ -559,7 +558,7 @@ fn np_gain(state: &State, train: &[Obs], hp: Option<(f64, f64)>, opt: &Options) 
     }
 }
 
-fn heldout_rms(state: &State, heldout: &[Obs]) -> Option<f64> {
+fn heldout_rms(state: &State, heldout: &[PoseObs]) -> Option<f64> {
     (!heldout.is_empty()).then(|| rms3(&residuals(state, heldout)))
 }
 
@@ -567,8 +566,8 @@ fn heldout_rms(state: &State, heldout: &[Obs]) -> Option<f64> {
 /// between the last training pose before the step and the first one after it.
 fn ambiguous(
     steps: &[Step],
-    train: &[Obs],
-    heldout: &[Obs],
+    train: &[PoseObs],
+    heldout: &[PoseObs],
 ) -> (Vec<schema::AmbiguousPose>, Vec<String>) {
     let mut out = Vec::new();
     for st in steps {
@@ -604,8 +603,8 @@ fn ambiguous(
 /// geometric fit after [`KinematicModel::fix_point_redundancies`]).
 pub fn diagnose(
     model: &KinematicModel,
-    train: &[Obs],
-    heldout: &[Obs],
+    train: &[PoseObs],
+    heldout: &[PoseObs],
     opt: &Options,
 ) -> anyhow::Result<Diagnosis> {
     let mut model = model.clone();
@@ -1057,7 +1056,7 @@ impl Diagnosis {
 }
 
 /// Stacked residual of `state` as 3-vectors per observation.
-pub fn residual_vectors(state: &State, obs: &[Obs]) -> Vec<Vector3<f64>> {
+pub fn residual_vectors(state: &State, obs: &[PoseObs]) -> Vec<Vector3<f64>> {
     let r: DVector<f64> = residuals(state, obs);
     (0..obs.len())
         .map(|k| Vector3::new(r[3 * k], r[3 * k + 1], r[3 * k + 2]))
