@@ -11,6 +11,7 @@ use anyhow::Context;
 use serde_json::{json, Map, Value};
 
 use crate::dataset::{CalibrationFile, PoseRecord};
+use crate::diagnose::effects::EffectModel;
 use crate::diagnose::{self, effects, plot, Options};
 use crate::model::KinematicModel;
 use crate::solve::obs;

@@ -3,7 +3,7 @@
 //! registration by [`crate::solve::rigid::register_points`], then base + tool position).
 use nalgebra::{DMatrix, DVector, Isometry3, Point3};
 
-use super::effects::{eval_pose, Effect};
+use super::effects::{eval_pose, Effect, EffectModel};
 use super::stats::{lstsq, normal_inverse};
 use crate::model::{KinematicModel, ParamGroup};
 use crate::solve::lm::{minimize, LmOptions, LsqProblem};
@@ -20,7 +20,7 @@ pub struct State {
 /// prediction w.r.t. [free model params, effect coefs].
 pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
     let free = state.model.free_indices();
-    let ne: usize = state.effects.iter().map(|e| e.block.n_coefs()).sum();
+    let ne: usize = state.effects.iter().map(|e| e.block.n_params()).sum();
     let p = free.len() + ne;
     let mut r = DVector::zeros(3 * obs.len());
     let mut j = DMatrix::zeros(3 * obs.len(), p);
@@ -107,7 +107,7 @@ impl LsqProblem for DiagnoseProblem<'_> {
                 .state
                 .effects
                 .iter()
-                .map(|e| e.block.n_coefs())
+                .map(|e| e.block.n_params())
                 .sum::<usize>()
     }
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {

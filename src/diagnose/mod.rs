@@ -27,7 +27,7 @@ pub mod transfer;
 pub use crate::solve::inference as stats;
 
 use crate::solve::obs::PoseObs;
-use effects::{block_columns, eval_pose, mass_points, Block, Driver, Effect};
+use effects::{mass_points, Block, Driver, Effect, EffectModel};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
 use stats::{f_sf, independence, orth_basis, project_out, CvBase};
 
@@ -167,79 +167,42 @@ fn row_folds(obs_fold: &[usize]) -> Vec<usize> {
 /// Harmonics of a joint's rotation tried as transmission ripple.
 pub const RIPPLE_HARMONICS: [u32; 2] = [3, 4];
 
-/// The candidate library for this data (and the effects it cannot test, with reasons).
+/// The candidate library for this data (and the effects it cannot test, with reasons):
+/// every effect of the library in groups (one group per kind and joint; a group's variants
+/// — warm-up time constants, change points, ripple harmonics — count as separate tests),
+/// each block kept only if the data can identify it ([`EffectModel::check_identifiable`]).
 pub fn candidates(
     model: &KinematicModel,
     train: &[PoseObs],
 ) -> (Vec<Vec<Block>>, Vec<(String, String)>) {
     let n = model.dof();
-    let mut out: Vec<Vec<Block>> = Vec::new();
-    let mut untestable = Vec::new();
+    let mut groups: Vec<Vec<Block>> = Vec::new();
     for j in 1..=n {
-        let pts = mass_points(model, j);
-        if !pts.is_empty() {
-            // Skip joints whose gravity torque does not vary (vertical axes).
-            let taus: Vec<f64> = train
-                .iter()
-                .map(|o| {
-                    effects::gravity_torques(model, &o.ctx.q, j, &pts)
-                        .iter()
-                        .sum::<f64>()
-                })
-                .collect();
-            let m = taus.iter().sum::<f64>() / taus.len().max(1) as f64;
-            let sd = (taus.iter().map(|t| (t - m).powi(2)).sum::<f64>() / taus.len().max(1) as f64)
-                .sqrt();
-            if sd > 0.05 {
-                out.push(vec![Block::Compliance {
-                    joint: j,
-                    points: pts,
-                }]);
-            }
-        }
-        let plus = train
-            .iter()
-            .filter(|o| o.ctx.approach.get(j - 1) == Some(&1.0))
-            .count();
-        let minus = train
-            .iter()
-            .filter(|o| o.ctx.approach.get(j - 1) == Some(&-1.0))
-            .count();
-        if plus >= 5 && minus >= 5 {
-            out.push(vec![Block::Backlash { joint: j }]);
-        }
-        out.push(vec![Block::Eccentricity { joint: j }]);
-        out.push(vec![Block::Transmission { joint: j }]);
+        groups.push(vec![Block::Compliance {
+            joint: j,
+            points: mass_points(model, j),
+        }]);
+        groups.push(vec![Block::Backlash { joint: j }]);
+        groups.push(vec![Block::Eccentricity { joint: j }]);
+        groups.push(vec![Block::Transmission { joint: j }]);
         // Transmission ripple: harmonics 3 and 4 of the joint's rotation (1 and 2 are
         // eccentricity); a group, so both count as tests.
-        out.push(
+        groups.push(
             RIPPLE_HARMONICS
                 .iter()
                 .map(|&harmonic| Block::Ripple { joint: j, harmonic })
                 .collect(),
         );
     }
-    let t0 = train.iter().map(|o| o.ctx.t).fold(f64::INFINITY, f64::min);
-    let t1 = train
-        .iter()
-        .map(|o| o.ctx.t)
-        .fold(f64::NEG_INFINITY, f64::max);
-    let temps: Vec<f64> = train.iter().filter_map(|o| o.ctx.temp_c).collect();
-    let mut drivers = Vec::new();
-    if t1 - t0 > 60.0 {
-        drivers.push(Driver::Time { t0_s: t0 });
-    } else {
-        untestable.push((
-            "thermal_drift (time)".into(),
-            "the session spans less than a minute".into(),
-        ));
-    }
-    if temps.len() == train.len() && !temps.is_empty() {
-        let lo = temps.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = temps.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        if hi - lo > 0.5 {
-            drivers.push(Driver::Temp { t0_c: lo });
-        }
+    let t0 = train.iter().map(|o| o.t).fold(f64::INFINITY, f64::min);
+    let t1 = train.iter().map(|o| o.t).fold(f64::NEG_INFINITY, f64::max);
+    let mut drivers = vec![Driver::Time { t0_s: t0 }];
+    if train.iter().any(|o| o.temp_c.is_some()) {
+        let lo = train
+            .iter()
+            .filter_map(|o| o.temp_c)
+            .fold(f64::INFINITY, f64::min);
+        drivers.push(Driver::Temp { t0_c: lo });
     }
     // A time-driven drift is either linear or an exponential warm-up with an unknown time
     // constant: one group per (kind, joint) holding the linear drift and a log grid of τ
@@ -256,23 +219,23 @@ pub fn candidates(
             _ => vec![*d],
         };
         for j in 1..=n {
-            out.push(
+            groups.push(
                 variants
                     .iter()
                     .map(|&driver| Block::JointDrift { joint: j, driver })
                     .collect(),
             );
         }
-        out.push(
+        groups.push(
             variants
                 .iter()
                 .map(|&driver| Block::LengthDrift { driver })
                 .collect(),
         );
     }
-    out.push(vec![Block::TrackerScale]);
+    groups.push(vec![Block::TrackerScale]);
     if train.len() >= 20 && t1 > t0 {
-        let mut ts: Vec<f64> = train.iter().map(|o| o.ctx.t).collect();
+        let mut ts: Vec<f64> = train.iter().map(|o| o.t).collect();
         ts.sort_by(|a, b| a.total_cmp(b));
         let grid: Vec<Block> = (2..=18)
             .map(|k| {
@@ -282,16 +245,34 @@ pub fn candidates(
                 Block::BaseShift { t_change: t }
             })
             .collect();
-        out.push(grid);
+        groups.push(grid);
     }
-    let with_qd = train.iter().filter(|o| o.ctx.qd.is_some()).count();
-    if with_qd * 2 >= train.len() && with_qd > 0 {
-        out.push(vec![Block::Latency]);
-    } else {
-        untestable.push((
-            "latency".into(),
-            "records carry no joint velocity (stop-and-measure data): latency is unobservable and irrelevant".into(),
-        ));
+    groups.push(vec![Block::Latency]);
+    let mut out = Vec::new();
+    let mut untestable: Vec<(String, String)> = Vec::new();
+    for g in groups {
+        let mut reason = None;
+        let kept: Vec<Block> = g
+            .into_iter()
+            .filter(|b| match b.check_identifiable(model, train) {
+                Ok(()) => true,
+                Err(e) => {
+                    let name = match b {
+                        Block::Compliance { .. } | Block::Backlash { .. } => b.label(),
+                        _ => b.kind().to_string(),
+                    };
+                    reason.get_or_insert((name, e));
+                    false
+                }
+            })
+            .collect();
+        if !kept.is_empty() {
+            out.push(kept);
+        } else if let Some(r) = reason {
+            if !untestable.iter().any(|u| u.1 == r.1) {
+                untestable.push(r);
+            }
+        }
     }
     (out, untestable)
 }
@@ -398,31 +379,13 @@ pub fn score_round(
     let rf = row_folds(&folds(train, opt.n_folds));
     let cvb = CvBase::new(&j, &r, &rf, opt.n_folds);
     let cv0 = cvb.rms(&j, &DMatrix::zeros(nrow, 0), &r);
-    // per-pose model Jacobian and prediction
-    let evals: Vec<_> = train
-        .iter()
-        .map(|o| eval_pose(&state.model, &state.effects, &o.ctx))
-        .collect();
-    let raw_pred: Vec<_> = train
-        .iter()
-        .map(|o| {
-            let d = effects::joint_offsets(&state.model, &state.effects, &o.ctx);
-            let th: Vec<f64> = o.ctx.q.iter().zip(&d).map(|(a, b)| a + b).collect();
-            effects::pose_model(&state.model, &state.effects, &o.ctx).measured_point(&th)
-        })
-        .collect();
+    // Candidate columns come from the Jacobian of the same problem the refit solves
+    // ([`fit::DiagnoseProblem`]): every candidate of the round appended to the state at zero
+    // coefficients (which leaves the prediction and the other columns unchanged).
+    let all: Vec<Block> = cands.iter().flatten().cloned().collect();
+    let mut cols = candidate_columns(state, train, &all).into_iter();
     let mut out = Vec::new();
-    let eval_block = |b: &Block, tests: usize| -> Option<(Score, DMatrix<f64>)> {
-        let pk = b.n_coefs();
-        let mut g = DMatrix::zeros(nrow, pk);
-        for (k, o) in train.iter().enumerate() {
-            let cols = block_columns(b, &state.model, &evals[k].jac_model, &raw_pred[k], &o.ctx);
-            for (c, v) in cols.iter().enumerate() {
-                for a in 0..3 {
-                    g[(3 * k + a, c)] = v[a];
-                }
-            }
-        }
+    let eval_block = |b: &Block, g: DMatrix<f64>, tests: usize| -> Option<(Score, DMatrix<f64>)> {
         if g.iter().all(|v| v.abs() < 1e-15) {
             return None;
         }
@@ -471,7 +434,9 @@ pub fn score_round(
             }
         };
         for b in group {
-            consider(eval_block(b, group.len()), &mut best);
+            if let Some(g) = cols.next() {
+                consider(eval_block(b, g, group.len()), &mut best);
+            }
         }
         // Refine a change point between its coarse neighbours: every mid-point between two
         // consecutive poses (each one counts as a test).
@@ -510,11 +475,12 @@ pub fn score_round(
                 .filter(|t| *t > lo && *t < hi && (*t - tc).abs() > 1e-9)
                 .collect();
             let tests = group.len() + fine.len();
-            for t in fine {
-                consider(
-                    eval_block(&Block::BaseShift { t_change: t }, tests),
-                    &mut best,
-                );
+            let fine: Vec<Block> = fine
+                .into_iter()
+                .map(|t_change| Block::BaseShift { t_change })
+                .collect();
+            for (b, g) in fine.iter().zip(candidate_columns(state, train, &fine)) {
+                consider(eval_block(b, g, tests), &mut best);
             }
             if let Some((s, _)) = &mut best {
                 s.tests = tests;
@@ -528,6 +494,29 @@ pub fn score_round(
     }
     out.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
     out
+}
+
+/// Columns (d prediction / d coefficient, 3 rows per pose) of each block of `blocks` at
+/// the current state: the trailing columns of the [`fit::DiagnoseProblem`] Jacobian of the
+/// state with the blocks appended at zero coefficients.
+pub fn candidate_columns(state: &State, train: &[PoseObs], blocks: &[Block]) -> Vec<DMatrix<f64>> {
+    let mut st = state.clone();
+    let mut off = st.model.free_count() + st.effects.iter().map(|e| e.coefs.len()).sum::<usize>();
+    st.effects.extend(blocks.iter().cloned().map(Effect::zero));
+    let prob = fit::DiagnoseProblem {
+        state: &st,
+        obs: train,
+    };
+    let (_, j) = crate::solve::lm::LsqProblem::residuals_jacobian(&prob, &fit::params_of(&st));
+    blocks
+        .iter()
+        .map(|b| {
+            let n = b.n_params();
+            let g = j.columns(off, n).into_owned();
+            off += n;
+            g
+        })
+        .collect()
 }
 
 fn accepted(s: &Score, m_tests: usize, opt: &Options) -> bool {
@@ -954,7 +943,7 @@ impl Diagnosis {
                 for ((n, v), sd) in st
                     .effect
                     .block
-                    .coef_names()
+                    .param_names()
                     .iter()
                     .zip(&st.effect.coefs)
                     .zip(&st.effect.std)

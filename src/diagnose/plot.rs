@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use std::path::Path;
 
-use super::effects::{apply_effects, Effect};
+use super::effects::{apply_effects, Effect, EffectModel};
 use super::fit::State;
 use crate::solve::obs::PoseObs;
 
