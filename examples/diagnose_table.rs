@@ -11,6 +11,7 @@
 use std::collections::HashMap;
 
 use robocal::dataset::PoseRecord;
+use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::{self, effects, Options};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::session_observations;

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use robocal::dataset::PoseRecord;
-use robocal::diagnose::effects::{Block, Effect};
+use robocal::diagnose::effects::{Block, Effect, EffectModel};
 use robocal::diagnose::fit::{fit, residuals, State};
 use robocal::diagnose::transfer::refit_setup;
 use robocal::diagnose::{self, Options};

@@ -5,6 +5,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use robocal::dataset::{CalibrationFile, PoseRecord};
+use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::{self, effects, Options};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::{session_observations, PoseObs};

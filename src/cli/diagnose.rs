@@ -176,12 +176,22 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
         extra: Map::new(),
     };
     w("calibration.json", &serde_json::to_string_pretty(&cal)?)?;
-    let mut csv = String::from("id,x_mm,y_mm,z_mm\n");
-    for o in &held {
-        let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
-        csv.push_str(&format!("{},{:.5},{:.5},{:.5}\n", o.ctx.id, p.x, p.y, p.z));
-    }
-    w("heldout_predictions.csv", &csv)?;
+    let rows: Vec<crate::schema::points_csv::IdPoint> = held
+        .iter()
+        .map(|o| {
+            let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
+            crate::schema::points_csv::IdPoint {
+                id: o.id,
+                x_mm: p.x,
+                y_mm: p.y,
+                z_mm: p.z,
+            }
+        })
+        .collect();
+    w(
+        "heldout_predictions.csv",
+        &crate::schema::points_csv::to_string(&rows),
+    )?;
     for (i, e) in d.state.effects.iter().enumerate() {
         let (pts, xl, yl) = plot::partial_residual(&d.state, &train, i);
         let name = format!("effect_{}_{}.svg", i + 1, e.block.kind());

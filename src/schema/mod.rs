@@ -21,6 +21,8 @@ use std::path::Path;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub mod points_csv;
+
 pub use crate::acquire::summary::RunSummary;
 pub use crate::dataset::{CalEffect, CalibrationFile, CALIBRATION_FORMAT};
 pub use crate::plan::file::{PlanFile, PLAN_FORMAT};
