@@ -141,6 +141,9 @@ pub struct Diagnosis {
     pub untestable: Vec<(String, String)>,
     /// Held-out poses inside the uncertainty window of an accepted change point.
     pub ambiguous_heldout: Vec<schema::AmbiguousPose>,
+    /// Held-out poses left out of every held-out RMS (the ambiguous ones: which side of a
+    /// change point they are on is unknown, so their error would score a guess).
+    pub n_heldout_excluded: usize,
     /// Warnings of the diagnosis (for `diagnosis.json`).
     pub warnings: Vec<String>,
 }
@@ -551,6 +554,11 @@ fn heldout_rms(state: &State, heldout: &[PoseObs]) -> Option<f64> {
     (!heldout.is_empty()).then(|| rms3(&residuals(state, heldout)))
 }
 
+/// Whether `o` is one of the ambiguous held-out poses.
+fn is_ambiguous(amb: &[schema::AmbiguousPose], o: &PoseObs) -> bool {
+    amb.iter().any(|a| a.id == o.id && a.t_s == o.t)
+}
+
 /// Held-out poses inside the uncertainty window of an accepted change point: strictly
 /// between the last training pose before the step and the first one after it.
 fn ambiguous(
@@ -759,10 +767,27 @@ pub fn diagnose(
         }
     }
     let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
+    // Held-out RMS never counts an ambiguous pose: recompute every held-out figure on the
+    // poses whose side of each change point is known.
+    let scored: Vec<PoseObs> = heldout
+        .iter()
+        .filter(|o| !is_ambiguous(&ambiguous_heldout, o))
+        .cloned()
+        .collect();
+    let n_heldout_excluded = heldout.len() - scored.len();
+    let heldout = &scored[..];
+    if n_heldout_excluded > 0 {
+        let mut prev = &geometric;
+        for st in steps.iter_mut() {
+            st.heldout_rms_before = heldout_rms(prev, heldout);
+            st.heldout_rms_after = heldout_rms(&st.state_after, heldout);
+            prev = &st.state_after;
+        }
+    }
     warnings.extend(overfit_warnings(&steps));
     if !ambiguous_heldout.is_empty() {
         warnings.push(format!(
-            "{} held-out pose(s) lie between the last training pose before and the first after a base shift: which side of the step they are on is unknown (listed in ambiguous_heldout, predicted with the step placed half-way)",
+            "{} held-out pose(s) lie between the last training pose before and the first after a base shift: which side of the step they are on is unknown (listed in ambiguous_heldout, predicted with the step placed half-way, and left out of the held-out RMS)",
             ambiguous_heldout.len()
         ));
     }
@@ -777,6 +802,7 @@ pub fn diagnose(
         train_rms_final: rms3(&residuals(&state, train)),
         n_train: train.len(),
         n_heldout: heldout.len(),
+        n_heldout_excluded,
         nominal,
         geometric,
         state,
@@ -854,6 +880,7 @@ impl Diagnosis {
             residual: "3-D marker point error (mm)".into(),
             n_train: self.n_train,
             n_heldout: self.n_heldout,
+            n_heldout_excluded: self.n_heldout_excluded,
             train_rms: schema::StageRms {
                 nominal_mm: fin(self.train_rms_nominal),
                 base_model_mm: fin(self.train_rms_geometric),
@@ -901,6 +928,13 @@ impl Diagnosis {
             "{} training poses, {} held-out poses. RMS = 3-D point error (mm).\n",
             self.n_train, self.n_heldout
         );
+        if self.n_heldout_excluded > 0 {
+            let _ = writeln!(
+                s,
+                "{} held-out pose(s) between the training poses around a base shift are left out of the held-out RMS (listed in diagnosis.json `ambiguous_heldout`).\n",
+                self.n_heldout_excluded
+            );
+        }
         let _ = writeln!(s, "| model | train RMS | held-out RMS |\n|---|---|---|");
         let _ = writeln!(
             s,
