@@ -3,9 +3,11 @@
 //! before and after (issue 9, `robocal diagnose`).
 //!
 //! Method (`docs/effects.md` §5.2 / §7 of the shared docs): after the geometric fit, every
-//! candidate effect of the library ([`effects::Block`]) gives a block `G` of regressor
-//! columns on the stacked residual. Each block is orthogonalised against the current model
-//! Jacobian `J` (`G̃ = (I − P_J) G`) and scored by the nested-model F test, ΔBIC and the
+//! candidate effect of the library ([`effects::Block`], through the [`effects::EffectModel`]
+//! trait) gives a block `G` of columns: its columns of the Jacobian of the very problem the
+//! refit solves ([`fit::DiagnoseProblem`], candidate appended at zero coefficients). Each
+//! block is orthogonalised against the current model Jacobian `J` (`G̃ = (I − P_J) G`) and
+//! scored by the nested-model F test, ΔBIC and the
 //! time-blocked cross-validated RMS gain; a block that the model absorbs (small
 //! [`stats::independence`]) is "not identifiable", never an effect. The best significant
 //! block (Bonferroni over the number of tests) is added, all parameters are refitted
@@ -1090,6 +1092,69 @@ pub fn residual_vectors(state: &State, obs: &[PoseObs]) -> Vec<Vector3<f64>> {
 mod tests {
     use super::*;
     use nalgebra::Point3;
+
+    /// The columns a candidate is scored with are the problem's own Jacobian: each matches
+    /// the central finite difference of the prediction in that coefficient (at zero, on top
+    /// of an already fitted effect), for a candidate of every kind.
+    #[test]
+    fn candidate_columns_are_the_problem_jacobian() {
+        let mut model = KinematicModel::preset("denso-vs060").unwrap();
+        model.fix_point_redundancies();
+        let obs: Vec<PoseObs> = (0..12)
+            .map(|k| {
+                let f = k as f64;
+                let q: Vec<f64> = (0..6)
+                    .map(|i| 0.7 * ((f + 1.0) * (i as f64 + 1.3)).sin())
+                    .collect();
+                let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
+                o.ctx.approach = (0..6)
+                    .map(|i| if (k as usize + i) % 2 == 0 { 1.0 } else { -1.0 })
+                    .collect();
+                o.ctx.temp_c = Some(20.0 + 0.3 * f);
+                o.ctx.qd = Some(vec![0.05; 6]);
+                o
+            })
+            .collect();
+        let mut fitted = Effect::zero(Block::Backlash { joint: 3 });
+        fitted.coefs = vec![2e-4];
+        let state = State {
+            model: model.clone(),
+            effects: vec![fitted],
+        };
+        let (mut blocks, _) = candidates(&model, &obs);
+        let mut all: Vec<Block> = blocks.iter_mut().map(|g| g.remove(0)).collect();
+        all.push(Block::Latency);
+        all.push(Block::BaseShift { t_change: 1500.0 });
+        let cols = candidate_columns(&state, &obs, &all);
+        let mut worst = 0.0f64;
+        for (b, g) in all.iter().zip(&cols) {
+            for c in 0..b.n_params() {
+                // Central differences: truncation ~h², round-off ~1e-13·|p|/h (p ~ 1 m).
+                let h = 1e-5;
+                let at = |v: f64| {
+                    let mut st = state.clone();
+                    let mut e = Effect::zero(b.clone());
+                    e.coefs[c] = v;
+                    st.effects.push(e);
+                    -fit::residuals(&st, &obs)
+                };
+                let fd = (at(h) - at(-h)) / (2.0 * h);
+                // A joint whose axis passes through the marker has a zero column: compare
+                // against 1e-6 mm there (round-off of the analytic column is ~1e-13 mm).
+                let err = (&fd - g.column(c)).norm() / fd.norm().max(1e-6);
+                assert!(
+                    err < 1e-5,
+                    "{} column {c}: relative error {err:.2e}",
+                    b.label()
+                );
+                worst = worst.max(err);
+            }
+        }
+        println!(
+            "candidate columns of {} blocks vs finite differences: worst relative error {worst:.2e}",
+            all.len()
+        );
+    }
 
     /// A base shift at t = 601 s; training poses every 10 s, held-out poses every 40 s plus
     /// two at 602 s and 608 s, between the training poses around the step (600 s, 610 s):

@@ -306,37 +306,37 @@ fn build(
     let mut out = Vec::new();
     let mut skipped = Vec::new();
     for r in records {
-        let o = PoseObs::from_record_tracker(r, dof).and_then(|mut o| {
-            if let Some(c) = map.get(&record_key(r)) {
-                o.ctx = c.clone();
+        let mut o = match PoseObs::from_record_tracker(r, dof) {
+            Ok(o) => o,
+            Err(reason) => {
+                skipped.push(Skipped {
+                    id: r.id,
+                    reason,
+                    no_reference: false,
+                });
+                continue;
             }
-            if in_ref {
-                match reference::to_reference_frame(r, o.p, o.quat) {
-                    Ok((p, quat)) => {
-                        o.p = p;
-                        o.quat = quat;
-                    }
-                    Err(reason) => {
-                        skipped.push(Skipped {
-                            id: r.id,
-                            reason,
-                            no_reference: true,
-                        });
-                        return Err(String::new());
-                    }
+        };
+        if let Some(c) = map.get(&record_key(r)) {
+            o.ctx = c.clone();
+        }
+        if in_ref {
+            match reference::to_reference_frame(r, o.p, o.quat) {
+                Ok((p, quat)) => {
+                    o.p = p;
+                    o.quat = quat;
+                }
+                Err(reason) => {
+                    skipped.push(Skipped {
+                        id: r.id,
+                        reason,
+                        no_reference: true,
+                    });
+                    continue;
                 }
             }
-            Ok(o)
-        });
-        match o {
-            Ok(o) => out.push(o),
-            Err(reason) if !reason.is_empty() => skipped.push(Skipped {
-                id: r.id,
-                reason,
-                no_reference: false,
-            }),
-            Err(_) => {}
         }
+        out.push(o);
     }
     (out, skipped)
 }
