@@ -1108,7 +1108,13 @@ mod tests {
                     .collect();
                 let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
                 o.ctx.approach = (0..6)
-                    .map(|i| if (k as usize + i) % 2 == 0 { 1.0 } else { -1.0 })
+                    .map(|i| {
+                        if (k as usize + i).is_multiple_of(2) {
+                            1.0
+                        } else {
+                            -1.0
+                        }
+                    })
                     .collect();
                 o.ctx.temp_c = Some(20.0 + 0.3 * f);
                 o.ctx.qd = Some(vec![0.05; 6]);
