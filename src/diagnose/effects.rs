@@ -688,6 +688,62 @@ pub fn block_columns(
     block.columns(model, jm, p, ctx)
 }
 
+/// A library effect as an extension of the kinematic identification
+/// ([`crate::solve::kinematics::Effect`]): `solve::identify` refits it jointly with the
+/// geometry on the same LM solver. Its correction is the exact change of the predicted
+/// marker point the effect makes, `p(q, model, effect) − p(q, model)`, and its Jacobian the
+/// effect's analytic columns ([`EffectModel::columns`] through [`eval_pose`]).
+#[derive(Debug, Clone)]
+pub struct LibraryEffect {
+    pub block: Block,
+    /// Starting coefficients (internal units; zeros by [`LibraryEffect::new`]).
+    pub initial: Vec<f64>,
+}
+
+impl LibraryEffect {
+    /// The effect with zero starting coefficients.
+    pub fn new(block: Block) -> Self {
+        let n = block.n_params();
+        LibraryEffect {
+            block,
+            initial: vec![0.0; n],
+        }
+    }
+}
+
+impl crate::solve::kinematics::Effect for LibraryEffect {
+    fn kind(&self) -> String {
+        EffectModel::kind(&self.block).into()
+    }
+    fn param_names(&self) -> Vec<String> {
+        self.block.param_names()
+    }
+    fn initial(&self) -> Vec<f64> {
+        self.initial.clone()
+    }
+    fn point_correction(
+        &self,
+        model: &KinematicModel,
+        obs: &PoseObs,
+        theta: &[f64],
+        jac: Option<&mut Matrix3xX<f64>>,
+    ) -> Vector3<f64> {
+        let e = Effect {
+            block: self.block.clone(),
+            coefs: theta.to_vec(),
+            std: vec![f64::NAN; theta.len()],
+            tau_std: f64::NAN,
+        };
+        let ev = eval_pose(model, std::slice::from_ref(&e), &obs.ctx);
+        if let Some(j) = jac {
+            if j.ncols() == ev.jac_effects.ncols() {
+                j.copy_from(&ev.jac_effects);
+            }
+        }
+        ev.pred.coords - model.measured_point(&obs.q).coords
+    }
+}
+
 // ---------------------------------------------------------------------- file form
 
 fn num(v: f64) -> Value {

@@ -1092,6 +1092,7 @@ pub fn residual_vectors(state: &State, obs: &[PoseObs]) -> Vec<Vector3<f64>> {
 mod tests {
     use super::*;
     use nalgebra::Point3;
+    use std::sync::Arc;
 
     /// The columns a candidate is scored with are the problem's own Jacobian: each matches
     /// the central finite difference of the prediction in that coefficient (at zero, on top
@@ -1160,6 +1161,86 @@ mod tests {
             "candidate columns of {} blocks vs finite differences: worst relative error {worst:.2e}",
             all.len()
         );
+    }
+
+    /// A library effect is refitted by the kinematic identification too (`solve::identify`,
+    /// the `calibrate` path, on the same LM) through [`effects::LibraryEffect`]: its
+    /// correction Jacobian matches finite differences for a block of every kind, and a
+    /// backlash of 0.02° on joint 2 is recovered from data that carries it.
+    #[test]
+    fn library_effect_refits_in_the_kinematic_identification() {
+        use crate::solve::kinematics::{identify_obs, Effect as KinEffect, IdentOptions};
+        use effects::LibraryEffect;
+        use nalgebra::Matrix3xX;
+        let model = KinematicModel::preset("denso-vs060").unwrap();
+        let truth_b = 0.02f64.to_radians();
+        let mut truth = Effect::zero(Block::Backlash { joint: 2 });
+        truth.coefs = vec![truth_b];
+        let mut seed = 11u64;
+        let mut noise = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            0.01 * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
+        };
+        let mut pose = |k: u64| {
+            let f = k as f64;
+            let q: Vec<f64> = (0..6)
+                .map(|i| 0.9 * ((f + 1.0) * (i as f64 + 1.7)).sin())
+                .collect();
+            let mut o = PoseObs::at(k, 30.0 * f, q, Point3::origin());
+            o.ctx.approach = (0..6)
+                .map(|i| {
+                    if (k as usize + i).is_multiple_of(2) {
+                        1.0
+                    } else {
+                        -1.0
+                    }
+                })
+                .collect();
+            o.ctx.temp_c = Some(20.0 + 0.05 * f);
+            o.ctx.qd = Some(vec![0.05; 6]);
+            let p = effects::apply_effects(&model, std::slice::from_ref(&truth), &o.ctx);
+            o.p = p + Vector3::new(noise(), noise(), noise());
+            o
+        };
+        let train: Vec<PoseObs> = (0..80).map(&mut pose).collect();
+        let held: Vec<PoseObs> = (80..100).map(&mut pose).collect();
+        // Jacobian of the correction for a block of every kind, at nonzero coefficients.
+        let (groups, _) = candidates(&model, &train);
+        let mut worst = 0.0f64;
+        for b in groups.iter().map(|g| g[0].clone()).chain([Block::Latency]) {
+            let le = LibraryEffect::new(b.clone());
+            let th: Vec<f64> = (0..b.n_params()).map(|k| 1e-4 * (k as f64 + 1.0)).collect();
+            let o = &train[5];
+            let mut j = Matrix3xX::zeros(th.len());
+            le.point_correction(&model, o, &th, Some(&mut j));
+            for c in 0..th.len() {
+                let h = 1e-6;
+                let (mut tp, mut tm) = (th.clone(), th.clone());
+                tp[c] += h;
+                tm[c] -= h;
+                let fd = (le.point_correction(&model, o, &tp, None)
+                    - le.point_correction(&model, o, &tm, None))
+                    / (2.0 * h);
+                let err = (fd - j.column(c)).norm() / fd.norm().max(1e-3);
+                assert!(err < 1e-4, "{} column {c}: {err:.2e}", b.label());
+                worst = worst.max(err);
+            }
+        }
+        let opts = IdentOptions {
+            effects: vec![Arc::new(LibraryEffect::new(Block::Backlash { joint: 2 }))],
+            kfold: 0,
+            ..Default::default()
+        };
+        let res = identify_obs(&model, train, held, None, vec![], &opts).unwrap();
+        let b = res.effect_values[0][0];
+        println!(
+            "LibraryEffect: worst FD error {worst:.2e}; identify recovers backlash j2 {:.5}° (truth {:.5}°)",
+            b.to_degrees(),
+            truth_b.to_degrees()
+        );
+        assert!((b - truth_b).abs() < 0.05 * truth_b, "{b} vs {truth_b}");
     }
 
     /// A base shift at t = 601 s; training poses every 10 s, held-out poses every 40 s plus
