@@ -906,7 +906,7 @@ impl Run<'_> {
             marker: marker_obs,
             reference: None,
             range,
-            temp_c: self.dev.thermometer.as_ref().and_then(|th| th.temp_c()),
+            temp_c: None,
             plane: p.plane.clone(),
             move_kind: p.move_kind.clone(),
             target: p.target.clone(),

@@ -194,7 +194,6 @@ pub async fn live_cell(
             tracker,
             range,
             clock,
-            thermometer: None,
             camera,
         },
         info,
