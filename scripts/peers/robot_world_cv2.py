@@ -1,5 +1,7 @@
 """Peer of `robocal calibrate robot-world`: OpenCV's calibrateRobotWorldHandEye (SHAH, LI)
-and calibrateHandEye (TSAI, seed 003's route) on the same poses.
+and calibrateHandEye (TSAI, seed 003's route) on the same poses. OpenCV >= 4.10 Tsai drops
+pose pairs whose gripper motion has |2 sin(theta/2)| < 0.3 (PR opencv#24897); robocal's
+`tsai_route_min_motion(obs, OPENCV_TSAI_MIN_MOTION)` reproduces that to 1e-12.
 
 Usage: robot_world_cv2.py IN.json   ({"A": [16 row-major T_base_flange...],
                                       "B": [16 row-major T_tracker_marker...]})

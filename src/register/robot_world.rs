@@ -194,29 +194,54 @@ pub fn tsai_lenz(
     hg: &[Isometry3<f64>],
     hc: &[Isometry3<f64>],
 ) -> Result<Isometry3<f64>, RegisterError> {
+    tsai_lenz_min_motion(hg, hc, 0.0)
+}
+
+/// OpenCV ≥ 4.10's pair filter for Tsai (PR opencv#24897): motions whose rotation
+/// `|2 sin(θ/2)|` is below this (θ ≈ 17.25°) are dropped as uninformative.
+pub const OPENCV_TSAI_MIN_MOTION: f64 = 0.3;
+
+/// [`tsai_lenz`] over only the pairs whose gripper motion `|2 sin(θ/2)| ≥ min_motion`
+/// (`0.0`: all pairs, the 1989 paper and OpenCV < 4.10; [`OPENCV_TSAI_MIN_MOTION`]:
+/// OpenCV ≥ 4.10). On noise-free poses both give the same `X`; on noisy poses they are
+/// different estimators (the dropped pairs carry little rotation information but still
+/// weigh in the least squares).
+pub fn tsai_lenz_min_motion(
+    hg: &[Isometry3<f64>],
+    hc: &[Isometry3<f64>],
+    min_motion: f64,
+) -> Result<Isometry3<f64>, RegisterError> {
     let n = hg.len();
     if n < 3 || hc.len() != n {
         return Err(RegisterError::Degenerate(format!(
             "Tsai: {n} poses, need ≥ 3"
         )));
     }
-    let k = n * (n - 1) / 2;
-    let mut a = DMatrix::zeros(3 * k, 3);
-    let mut b = DVector::zeros(3 * k);
-    let mut pairs = Vec::with_capacity(k);
-    let mut idx = 0;
+    let mut motions = Vec::with_capacity(n * (n - 1) / 2);
     for i in 0..n {
         for j in i + 1..n {
             let hgij = hg[j].inverse() * hg[i];
-            let hcij = hc[j] * hc[i].inverse();
             let pg = quat_minimal2(&rot(&hgij));
-            let pc = quat_minimal2(&rot(&hcij));
-            a.fixed_view_mut::<3, 3>(3 * idx, 0)
-                .copy_from(&skew(&(pg + pc)));
-            b.fixed_rows_mut::<3>(3 * idx).copy_from(&(pc - pg));
-            pairs.push((hgij, hcij));
-            idx += 1;
+            if pg.norm() >= min_motion {
+                motions.push((hgij, hc[j] * hc[i].inverse(), pg));
+            }
         }
+    }
+    let k = motions.len();
+    if k < 2 {
+        return Err(RegisterError::Degenerate(format!(
+            "Tsai: {k} pose pairs rotate by |2 sin(θ/2)| ≥ {min_motion}, need ≥ 2"
+        )));
+    }
+    let mut a = DMatrix::zeros(3 * k, 3);
+    let mut b = DVector::zeros(3 * k);
+    let mut pairs = Vec::with_capacity(k);
+    for (idx, (hgij, hcij, pg)) in motions.into_iter().enumerate() {
+        let pc = quat_minimal2(&rot(&hcij));
+        a.fixed_view_mut::<3, 3>(3 * idx, 0)
+            .copy_from(&skew(&(pg + pc)));
+        b.fixed_rows_mut::<3>(3 * idx).copy_from(&(pc - pg));
+        pairs.push((hgij, hcij));
     }
     let p_ = lstsq(&a, &b)?;
     let p_ = Vector3::new(p_[0], p_[1], p_[2]);
@@ -239,9 +264,17 @@ pub fn tsai_lenz(
 /// Seed 003's route: Tsai–Lenz on `(A_i⁻¹, B_i)` gives `Y = T_base_tracker`; `X` is the
 /// mean of `A_i⁻¹ Y B_i`. Returns `(X, Y)`.
 pub fn tsai_route(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
+    tsai_route_min_motion(obs, 0.0)
+}
+
+/// [`tsai_route`] with [`tsai_lenz_min_motion`]'s pair filter.
+pub fn tsai_route_min_motion(
+    obs: &[RwObs],
+    min_motion: f64,
+) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
     let hg: Vec<_> = obs.iter().map(|o| o.a.inverse()).collect();
     let hc: Vec<_> = obs.iter().map(|o| o.b).collect();
-    let y = tsai_lenz(&hg, &hc)?;
+    let y = tsai_lenz_min_motion(&hg, &hc, min_motion)?;
     let xs: Vec<_> = obs.iter().map(|o| o.a.inverse() * y * o.b).collect();
     Ok((crate::solve::rigid::mean_isometry(&xs), y))
 }
