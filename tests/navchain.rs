@@ -488,6 +488,93 @@ fn cli_register_predict_robot_world_chain() {
             t.rms_mm
         );
     }
+    // The robot link from a calibration's bootstrap covariance instead of one σ.
+    let model = robocal::model::presets::preset("vs060").unwrap();
+    let robot = robocal::dataset::RobotBlock {
+        model: "denso-vs060".into(),
+        serial: None,
+        chain: None,
+        flange: None,
+        extra: Default::default(),
+    };
+    let mut cal = robocal::solve::calfile::kinematic_file(&robot, &model);
+    let names: Vec<String> = model
+        .params()
+        .iter()
+        .filter(|p| p.free)
+        .map(|p| p.name.clone())
+        .collect();
+    let n = names.len();
+    let mut m = vec![0.0; n * n];
+    for (i, name) in names.iter().enumerate() {
+        let p = &model.params()[model.param_index(name).unwrap()];
+        m[i * n + i] = match p.unit {
+            robocal::model::Unit::Mm => 0.03f64.powi(2),
+            robocal::model::Unit::Rad => 3e-5f64.powi(2),
+        };
+        if i > 0 {
+            m[i * n + i - 1] = 0.5 * (m[i * n + i] * m[(i - 1) * n + i - 1]).sqrt();
+            m[(i - 1) * n + i] = m[i * n + i - 1];
+        }
+    }
+    let bc = robocal::chain::BootstrapCovariance {
+        units: "mm, rad".into(),
+        names,
+        matrix: m,
+    };
+    cal.extra
+        .insert("bootstrap".into(), serde_json::json!({ "covariance": bc }));
+    cal.save(d.path().join("calibration.json")).unwrap();
+    let (ok, out, err) = robocal(&[
+        "chain",
+        "--registration",
+        &p("registration.json"),
+        "--robot-world",
+        &p("robot_world.json"),
+        "--targets",
+        &p("targets.csv"),
+        "--calibration",
+        &p("calibration.json"),
+        "--joints-deg",
+        "10,-20,80,5,40,-30",
+        "--tool-sigma-mm",
+        "0.05",
+        "--mc",
+        "4000",
+        "--out",
+        &p("chain_cal.json"),
+    ]);
+    assert!(
+        ok && out.contains("robot link: bootstrap covariance"),
+        "{out}{err}"
+    );
+    println!("{out}");
+    let c = robocal::chain::ChainReport::load(&d.path().join("chain_cal.json")).unwrap();
+    for t in &c.targets {
+        assert!(
+            (t.mc_rms_mm / t.rms_mm - 1.0).abs() < 0.05,
+            "MC {} vs FO {}",
+            t.mc_rms_mm,
+            t.rms_mm
+        );
+        let robot = t
+            .links
+            .iter()
+            .find(|l| l.link == "robot kinematics")
+            .unwrap();
+        assert!(robot.rms_mm > 0.01, "{}", robot.rms_mm);
+    }
+    // Neither a calibration nor a σ: refused.
+    let (ok, _, err) = robocal(&[
+        "chain",
+        "--registration",
+        &p("registration.json"),
+        "--robot-world",
+        &p("robot_world.json"),
+        "--targets",
+        &p("targets.csv"),
+    ]);
+    assert!(!ok && err.contains("robot-sigma-mm"), "{err}");
     // Bad input: collinear CT fiducials are refused with the reason.
     write_csv(
         d.path().join("line.csv").as_path(),

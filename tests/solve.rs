@@ -545,6 +545,18 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     assert!(f.metrics["heldout_rms_mm_after"].as_f64().unwrap() < 0.08);
     assert!(f.param("a2").unwrap().std.unwrap() > 0.0);
     assert!(out_k.join("bootstrap.csv").exists());
+    // The bootstrap's full covariance is written and is the chain's robot link.
+    let bc: robocal::chain::BootstrapCovariance =
+        serde_json::from_value(f.extra["bootstrap"]["covariance"].clone()).unwrap();
+    assert_eq!(bc.matrix.len(), bc.names.len() * bc.names.len());
+    let (c, source) =
+        robocal::chain::robot_link_from_calibration(&f, &[0.1, -0.3, 1.2, 0.2, 0.6, -0.4]).unwrap();
+    println!(
+        "robot link from the bootstrap covariance: tip RMS {:.4} mm",
+        c.trace().sqrt()
+    );
+    assert_eq!(source, "bootstrap covariance");
+    assert!(c.trace() > 0.0 && c.trace().sqrt() < 0.5, "{c}");
     let csv_path = dir.path().join("pred.csv");
     let code = robocal::cli::run([
         "robocal",

@@ -21,9 +21,28 @@ pub struct Args {
     /// CT targets, CSV `name,x_mm,y_mm,z_mm`.
     #[arg(long, value_name = "T.csv")]
     pub targets: PathBuf,
-    /// Robot tip positioning error after calibration, 1σ per axis (mm) (e.g. held-out RMS/√3).
-    #[arg(long, value_name = "MM")]
-    pub robot_sigma_mm: f64,
+    /// Robot calibration (`robocal-calibration/1` from `calibrate kinematics`): the robot
+    /// link is its bootstrap parameter covariance (`--bootstrap`; else the per-parameter
+    /// σ) propagated to the tip at `--joints-deg`.
+    #[arg(
+        long,
+        value_name = "calibration.json",
+        requires = "joints_deg",
+        conflicts_with = "robot_sigma_mm"
+    )]
+    pub calibration: Option<PathBuf>,
+    /// Joint configuration (deg, comma-separated) where the robot reaches the targets.
+    #[arg(
+        long,
+        value_name = "Q1,Q2,...",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
+    pub joints_deg: Vec<f64>,
+    /// Fallback without a calibration: robot tip positioning error, 1σ per axis (mm)
+    /// (e.g. held-out RMS/√3).
+    #[arg(long, value_name = "MM", required_unless_present = "calibration")]
+    pub robot_sigma_mm: Option<f64>,
     /// Tool tip offset uncertainty, 1σ per axis (mm) (pivot calibration).
     #[arg(long, value_name = "MM", default_value_t = 0.0)]
     pub tool_sigma_mm: f64,
@@ -41,7 +60,7 @@ pub struct Args {
 /// Run `robocal chain`.
 pub fn exec(a: Args) -> anyhow::Result<()> {
     for (v, n) in [
-        (a.robot_sigma_mm, "--robot-sigma-mm"),
+        (a.robot_sigma_mm.unwrap_or(0.0), "--robot-sigma-mm"),
         (a.tool_sigma_mm, "--tool-sigma-mm"),
     ] {
         if !(v.is_finite() && v >= 0.0) {
@@ -69,13 +88,31 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             (cov_total, Matrix6::zeros())
         }
     };
+    let cov_robot = match (&a.calibration, a.robot_sigma_mm) {
+        (Some(path), _) => {
+            let cal = crate::dataset::CalibrationFile::load(path)?;
+            let q: Vec<f64> = a.joints_deg.iter().map(|d| d.to_radians()).collect();
+            let (c, source) = crate::chain::robot_link_from_calibration(&cal, &q)
+                .with_context(|| format!("{}", path.display()))?;
+            println!(
+                "robot link: {source} of {} at the given joints: tip RMS {:.4} mm",
+                path.display(),
+                c.trace().max(0.0).sqrt()
+            );
+            c
+        }
+        (None, Some(s)) => Matrix3::identity() * s.powi(2),
+        (None, None) => {
+            bail!("give --calibration calibration.json --joints-deg ... or --robot-sigma-mm")
+        }
+    };
     let inp = ChainInputs {
         t_tracker_ct: t,
         cov_reg_ct: cov_ct,
         cov_reg_tracker: cov_trk,
         t_base_tracker: y,
         cov_y,
-        cov_robot: Matrix3::identity() * a.robot_sigma_mm.powi(2),
+        cov_robot,
         cov_tool: Matrix3::identity() * a.tool_sigma_mm.powi(2),
     };
     let targets: Vec<_> = points::read_points_csv(&a.targets)?
