@@ -115,7 +115,15 @@ fn main() {
     let hshots = shoot(&world, &sc, &held);
     println!(
         "camera {}x{} fx {} k1 {} blur {} px noise {} grey; board {}x{} inner, {} mm",
-        c.width, c.height, c.fx, c.k1, c.blur_px, c.noise_grey, spec.cols, spec.rows, spec.square_mm
+        c.width,
+        c.height,
+        c.fx,
+        c.k1,
+        c.blur_px,
+        c.noise_grey,
+        spec.cols,
+        spec.rows,
+        spec.square_mm
     );
     let mut all = vec![];
     let t0 = std::time::Instant::now();
@@ -161,7 +169,11 @@ fn main() {
             den += ru * ru + rv * rv;
         }
         let sc_ppm = num / den * 1e6;
-        println!("{:>4} {:>3} {mu:>8.4} {mv:>8.4} {rms:>6.4} {sc_ppm:>10.0}", s.id, pairs.len());
+        println!(
+            "{:>4} {:>3} {mu:>8.4} {mv:>8.4} {rms:>6.4} {sc_ppm:>10.0}",
+            s.id,
+            pairs.len()
+        );
         all.push((mu, mv, rms, sc_ppm));
     }
     let n = all.len() as f64;
@@ -175,8 +187,8 @@ fn main() {
         m(|a| a.3)
     );
     // Estimator on detected vs true corners.
-    let mk = |sh: &[Shot], corners: &dyn Fn(usize, &Shot) -> Option<Vec<Option<[f64; 2]>>>| {
-        CameraData {
+    let mk =
+        |sh: &[Shot], corners: &dyn Fn(usize, &Shot) -> Option<Vec<Option<[f64; 2]>>>| CameraData {
             width: c.width,
             height: c.height,
             board: spec,
@@ -192,11 +204,12 @@ fn main() {
                     })
                 })
                 .collect(),
-        }
-    };
+        };
     let nt = shots.len();
     let det_train = mk(&shots, &|i, _| {
-        detected[i].as_ref().map(|d| d.iter().map(|p| Some(*p)).collect())
+        detected[i]
+            .as_ref()
+            .map(|d| d.iter().map(|p| Some(*p)).collect())
     });
     let det_held = mk(&hshots, &|i, _| {
         detected[nt + i]

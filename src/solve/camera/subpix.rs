@@ -7,8 +7,9 @@
 //!
 //! Differences from `cornerSubPix`: gradients are taken on the pixel grid itself (Scharr
 //! derivative, no bilinear re-sampling of the window, so no interpolation smoothing that moves
-//! with the sub-pixel phase), and the window radius follows the local square size (a third of
-//! the distance to the nearest grid neighbour, 3–25 px) instead of a fixed 11 px, so that large
+//! with the sub-pixel phase), and the window radius follows the local square size (0.4 ×
+//! the distance to the nearest grid neighbour, 3–40 px: within it only the corner's own two
+//! edges) instead of a fixed 11 px, so that large
 //! squares use long stretches of edge and small ones never reach the next corner.
 //!
 //! Pixel convention: the centre of pixel `(i, j)` is at `(i, j)` (OpenCV's), as everywhere in
@@ -90,8 +91,8 @@ pub fn refine(
     failed
 }
 
-/// Window radius of every corner of a `cols × rows` grid in board order: a third of the
-/// distance to its nearest grid neighbour, within 3–25 px.
+/// Window radius of every corner of a `cols × rows` grid in board order: 0.4 × the distance
+/// to its nearest grid neighbour, within 3–40 px.
 pub fn grid_radius(corners: &[[f64; 2]], cols: usize, rows: usize) -> Vec<f64> {
     let dist = |a: [f64; 2], b: [f64; 2]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
     (0..cols * rows)
@@ -114,7 +115,7 @@ pub fn grid_radius(corners: &[[f64; 2]], cols: usize, rows: usize) -> Vec<f64> {
                 nb(i, j + 1);
             }
             if m.is_finite() {
-                (m / 3.0).clamp(3.0, 25.0)
+                (m / 2.5).clamp(3.0, 40.0)
             } else {
                 5.0
             }
@@ -189,11 +190,11 @@ mod tests {
     }
 
     #[test]
-    fn radius_is_a_third_of_the_nearest_neighbour() {
+    fn radius_is_0_4_of_the_nearest_neighbour() {
         let c: Vec<[f64; 2]> = (0..6)
             .map(|k| [(k % 3) as f64 * 30.0, (k / 3) as f64 * 45.0])
             .collect();
         let r = grid_radius(&c, 3, 2);
-        assert!(r.iter().all(|r| (r - 10.0).abs() < 1e-12), "{r:?}");
+        assert!(r.iter().all(|r| (r - 12.0).abs() < 1e-12), "{r:?}");
     }
 }
