@@ -3,6 +3,7 @@
 //!
 //!     cargo run --release --example camera_detector                 # 640×480, fx 900 (the test cell)
 //!     cargo run --release --example camera_detector -- 1280x1024    # fx 1500, the benchmark camera
+//!     cargo run --release --example camera_detector -- border       # boards touching the image edge
 //!
 //! For every view of the seed 004 shell plan on the clean UR5e camera cell: detected corners
 //! (`robocal::solve::camera::detect`) minus the world's true projection of each corner
@@ -89,8 +90,217 @@ fn shoot(world: &WorldHandle, sc: &Scenario, plan: &PlanFile) -> Vec<Shot> {
         .collect()
 }
 
+/// Views where the board's outermost inner corner lies `delta` px from an image edge (the
+/// board whole, its margin cut): for each distance, 8 views (2 per image side) at random tilt
+/// (≤ 20°) and roll, camera 560 mm from the board. Each detector's error on the corners within
+/// 3 squares of that edge and on the whole board, against the world's true corners; OpenCV's
+/// `findChessboardCorners` + `cornerSubPix` (11×11) and `findChessboardCornersSB` through the
+/// peer script on the same images.
+fn border_study(sc: &Scenario, spec: &BoardSpec) {
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use rand::Rng;
+    let cam = &sc.cameras[0];
+    let board = sc.scene.chessboard.as_ref().unwrap();
+    let bo = board.placement.isometry();
+    let centre = bo
+        * nalgebra::Point3::new(
+            board.cols as f64 * board.square_mm / 2.0,
+            board.rows as f64 * board.square_mm / 2.0,
+            0.0,
+        );
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let dir = root().join("out/camera-detector/border");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut jobs = vec![];
+    for &delta in &[1.5, 3.0, 5.0, 8.0, 12.0, 20.0] {
+        for k in 0..8 {
+            let side = k % 4;
+            let tilt = UnitQuaternion::from_scaled_axis(Vector3::new(
+                rng.random_range(-0.35..0.35),
+                rng.random_range(-0.35..0.35),
+                rng.random_range(-0.3..0.3),
+            ));
+            // Camera looking down (x right, y down in the image, z into the board).
+            let down = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+            let rot = tilt * down;
+            let axis = rot * Vector3::z();
+            let (ex, ey) = (rot * Vector3::x(), rot * Vector3::y());
+            // Image direction towards the chosen side.
+            let toward = match side {
+                0 => -ex,
+                1 => ex,
+                2 => -ey,
+                _ => ey,
+            };
+            let margin = |s: f64| -> f64 {
+                let eye = centre.coords - axis * 560.0 - toward * s;
+                let pose = Isometry3::from_parts(Translation3::from(eye), rot);
+                let tc = camera_board::true_corners(cam, &pose, board);
+                tc.iter()
+                    .map(|t| match t {
+                        Some([u, v]) => match side {
+                            0 => u + 0.5,
+                            1 => w - 0.5 - u,
+                            2 => v + 0.5,
+                            _ => h - 0.5 - v,
+                        },
+                        None => f64::NEG_INFINITY,
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            };
+            // Bisection on the shift so that the nearest corner is `delta` from the edge.
+            let (mut lo, mut hi) = (0.0, 400.0);
+            if margin(lo) < delta {
+                continue;
+            }
+            for _ in 0..60 {
+                let m = 0.5 * (lo + hi);
+                if margin(m) > delta {
+                    lo = m;
+                } else {
+                    hi = m;
+                }
+            }
+            let eye = centre.coords - axis * 560.0 - toward * lo;
+            let pose = Isometry3::from_parts(Translation3::from(eye), rot);
+            let truth = camera_board::true_corners(cam, &pose, board);
+            let img = robocal_mocks::world::sensors::render(cam, &pose, Some(board), &mut rng);
+            let path = dir.join(format!("d{delta}-{k}.pgm"));
+            std::fs::write(
+                &path,
+                robocal_drivers::camera::pgm::encode(cam.width, cam.height, &img),
+            )
+            .unwrap();
+            // Corners within 3 squares of that side (board order): by the true margin.
+            let near: Vec<bool> = truth
+                .iter()
+                .map(|t| {
+                    let [u, v] = t.unwrap();
+                    let m = match side {
+                        0 => u + 0.5,
+                        1 => w - 0.5 - u,
+                        2 => v + 0.5,
+                        _ => h - 0.5 - v,
+                    };
+                    m < delta + 3.0 * cam.fx * board.square_mm / 560.0 * 0.5
+                })
+                .collect();
+            jobs.push((delta, path, truth, near, img));
+        }
+    }
+    // Ours.
+    println!("border study: {} views, {}x{}, camera 560 mm from the board", jobs.len(), cam.width, cam.height);
+    let stats = |errs: &[f64]| -> (f64, f64) {
+        let n = errs.len().max(1) as f64;
+        (
+            (errs.iter().map(|e| e * e).sum::<f64>() / n).sqrt(),
+            errs.iter().cloned().fold(0.0, f64::max),
+        )
+    };
+    let mut ours = std::collections::BTreeMap::<String, (usize, usize, Vec<f64>, Vec<f64>)>::new();
+    for (delta, _, truth, near, img) in &jobs {
+        let e = ours.entry(format!("{delta:>5.1}")).or_default();
+        e.1 += 1;
+        if let Ok(d) = detect::detect_chessboard(img, cam.width, cam.height, spec) {
+            e.0 += 1;
+            for ((d, t), n) in d.iter().zip(truth).zip(near) {
+                let t = t.unwrap();
+                let err = ((d[0] - t[0]).powi(2) + (d[1] - t[1]).powi(2)).sqrt();
+                if *n {
+                    e.2.push(err);
+                }
+                e.3.push(err);
+            }
+        }
+    }
+    println!("edge px  detector                         found   near-edge RMS / max px   all RMS / max px");
+    for (k, (f, n, near, all)) in &ours {
+        let (a, b) = stats(near);
+        let (c, d) = stats(all);
+        println!("{k}    robocal (calib-targets + subpix)  {f:>2}/{n:<2}   {a:>8.4} / {b:<8.4}        {c:.4} / {d:.4}");
+    }
+    // OpenCV.
+    let py = root().join(".venv/peers-cv2/bin/python");
+    if !py.exists() {
+        println!("SKIP OpenCV: {} missing (run .ci/peers.sh)", py.display());
+        return;
+    }
+    let job = serde_json::json!({
+        "pattern": [spec.cols, spec.rows],
+        "images": jobs.iter().map(|j| j.1.display().to_string()).collect::<Vec<_>>(),
+    });
+    let mut child = std::process::Command::new(&py)
+        .arg(root().join("scripts/peers/chessboard_detect_cv2.py"))
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    use std::io::Write as _;
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(job.to_string().as_bytes())
+        .unwrap();
+    let o = child.wait_with_output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("peer JSON");
+    for method in ["classic", "sb"] {
+        let mut by = std::collections::BTreeMap::<String, (usize, usize, Vec<f64>, Vec<f64>)>::new();
+        for (j, r) in jobs.iter().zip(v["results"].as_array().unwrap()) {
+            let e = by.entry(format!("{:>5.1}", j.0)).or_default();
+            e.1 += 1;
+            let m = &r[method];
+            if !m["found"].as_bool().unwrap_or(false) {
+                continue;
+            }
+            e.0 += 1;
+            // OpenCV orders corners its own way: match each to its nearest true corner.
+            for c in m["corners"].as_array().unwrap() {
+                let (u, w) = (c[0].as_f64().unwrap(), c[1].as_f64().unwrap());
+                let (best, k) = j
+                    .2
+                    .iter()
+                    .enumerate()
+                    .map(|(k, t)| {
+                        let t = t.unwrap();
+                        (((t[0] - u).powi(2) + (t[1] - w).powi(2)).sqrt(), k)
+                    })
+                    .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a });
+                if j.3[k] {
+                    e.2.push(best);
+                }
+                e.3.push(best);
+            }
+        }
+        let name = if method == "classic" {
+            "OpenCV findChessboardCorners+SubPix"
+        } else {
+            "OpenCV findChessboardCornersSB    "
+        };
+        for (k, (f, n, near, all)) in &by {
+            let (a, b) = stats(near);
+            let (c, d) = stats(all);
+            println!("{k}    {name} {f:>2}/{n:<2}   {a:>8.4} / {b:<8.4}        {c:.4} / {d:.4}");
+        }
+    }
+    println!("(OpenCV {}; its corners matched to the nearest true corner)", v["opencv"].as_str().unwrap_or("?"));
+}
+
 fn main() {
     let size = std::env::args().nth(1).unwrap_or_else(|| "640x480".into());
+    if size == "border" {
+        let mut sc = Scenario::load(&root().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
+        sc.arms[0].errors = GeometricErrors::none();
+        let b = sc.scene.chessboard.clone().unwrap();
+        let spec = BoardSpec {
+            cols: (b.cols - 1) as usize,
+            rows: (b.rows - 1) as usize,
+            square_mm: b.square_mm,
+        };
+        border_study(&sc, &spec);
+        return;
+    }
     let mut sc = Scenario::load(&root().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
     sc.arms[0].errors = GeometricErrors::none();
     if size == "1280x1024" {
