@@ -122,7 +122,8 @@ fn border_study(sc: &Scenario, spec: &BoardSpec) {
                 rng.random_range(-0.3..0.3),
             ));
             // Camera looking down (x right, y down in the image, z into the board).
-            let down = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+            let down =
+                UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
             let rot = tilt * down;
             let axis = rot * Vector3::z();
             let (ex, ey) = (rot * Vector3::x(), rot * Vector3::y());
@@ -190,7 +191,12 @@ fn border_study(sc: &Scenario, spec: &BoardSpec) {
         }
     }
     // Ours.
-    println!("border study: {} views, {}x{}, camera 560 mm from the board", jobs.len(), cam.width, cam.height);
+    println!(
+        "border study: {} views, {}x{}, camera 560 mm from the board",
+        jobs.len(),
+        cam.width,
+        cam.height
+    );
     let stats = |errs: &[f64]| -> (f64, f64) {
         let n = errs.len().max(1) as f64;
         (
@@ -246,7 +252,8 @@ fn border_study(sc: &Scenario, spec: &BoardSpec) {
     let o = child.wait_with_output().unwrap();
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("peer JSON");
     for method in ["classic", "sb"] {
-        let mut by = std::collections::BTreeMap::<String, (usize, usize, Vec<f64>, Vec<f64>)>::new();
+        let mut by =
+            std::collections::BTreeMap::<String, (usize, usize, Vec<f64>, Vec<f64>)>::new();
         for (j, r) in jobs.iter().zip(v["results"].as_array().unwrap()) {
             let e = by.entry(format!("{:>5.1}", j.0)).or_default();
             e.1 += 1;
@@ -258,15 +265,14 @@ fn border_study(sc: &Scenario, spec: &BoardSpec) {
             // OpenCV orders corners its own way: match each to its nearest true corner.
             for c in m["corners"].as_array().unwrap() {
                 let (u, w) = (c[0].as_f64().unwrap(), c[1].as_f64().unwrap());
-                let (best, k) = j
-                    .2
-                    .iter()
-                    .enumerate()
-                    .map(|(k, t)| {
-                        let t = t.unwrap();
-                        (((t[0] - u).powi(2) + (t[1] - w).powi(2)).sqrt(), k)
-                    })
-                    .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a });
+                let (best, k) =
+                    j.2.iter()
+                        .enumerate()
+                        .map(|(k, t)| {
+                            let t = t.unwrap();
+                            (((t[0] - u).powi(2) + (t[1] - w).powi(2)).sqrt(), k)
+                        })
+                        .fold((f64::INFINITY, 0), |a, b| if b.0 < a.0 { b } else { a });
                 if j.3[k] {
                     e.2.push(best);
                 }
@@ -284,7 +290,10 @@ fn border_study(sc: &Scenario, spec: &BoardSpec) {
             println!("{k}    {name} {f:>2}/{n:<2}   {a:>8.4} / {b:<8.4}        {c:.4} / {d:.4}");
         }
     }
-    println!("(OpenCV {}; its corners matched to the nearest true corner)", v["opencv"].as_str().unwrap_or("?"));
+    println!(
+        "(OpenCV {}; its corners matched to the nearest true corner)",
+        v["opencv"].as_str().unwrap_or("?")
+    );
 }
 
 fn main() {
