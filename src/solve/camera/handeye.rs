@@ -439,10 +439,9 @@ mod noisy_tests {
     /// Seed 004's geometry: camera 50 mm off the flange axis looking down at a board from a
     /// shell of radius 520–600 mm, polar angle ≤ 20°; the board poses in the camera carry
     /// detection-like noise (0.01° rotation, 0.02 mm lateral, 0.1 mm depth).
-    fn shell_views(
-        seed: u64,
-        depth_scale: f64,
-    ) -> (Isometry3<f64>, Vec<(Isometry3<f64>, Isometry3<f64>)>) {
+    type Pairs = Vec<(Isometry3<f64>, Isometry3<f64>)>;
+
+    fn shell_views(seed: u64, depth_scale: f64) -> (Isometry3<f64>, Pairs) {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let x = Isometry3::from_parts(
             Translation3::new(0.0, 50.0, 40.0),
