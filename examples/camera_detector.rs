@@ -11,6 +11,7 @@
 //! error that is a scale about the board's image centre (a radial shrink shows up as focal-length
 //! bias). Then `camera::calibrate` on (a) the detected corners and (b) the true corners plus
 //! 0.05 px Gaussian noise, hand-eye and intrinsics against truth.
+#![allow(clippy::type_complexity)]
 use std::path::{Path, PathBuf};
 
 use nalgebra::Isometry3;
