@@ -4,11 +4,16 @@
 //! silence) plus protective stops injected at random between poses. Each invocation either
 //! completes or stops safely (aborted, resumable); the soak resumes until the plan is done.
 //!
-//! Checked: every record an invocation reported is in the final journal (nothing lost), the
+//! Checked: the same poses run once without faults and once with them record the same pose ids
+//! (no pose lost to a fault); every fault the client must see as an error (link drop, bad CRC,
+//! truncated or refused reply, protective stop) is followed by at least one event (faults are
+//! injected one at a time so each is matched with its events; a delay or silence within the
+//! reply deadline and garbage the decoder skips may pass without one, and are counted);
+//! every record an invocation reported is in the final journal (nothing lost), the
 //! journal loads with the strict reader (no duplicate ids, no torn line), every planned pose
 //! is recorded or skipped, faults leave `fault` / `retry` / `pause` / `resume` events.
 //!
-//! `cargo run --release --example acquire_soak [POSES] [FAULT_PROB] [SEED]`
+//! `cargo run --release --example acquire_soak [POSES] [FAULT_PROB] [SEED] [lab|hospital|both]`
 //! (default 2000 poses, half on the lab cell — b-CAP arm, DL-RS1A laser — half on the hospital
 //! cell — b-CAP arm, NDI Vega over TCP —, fault probability 0.15 per pose, seed 14).
 use std::collections::BTreeSet;
@@ -36,8 +41,80 @@ struct Tally {
     recorded: usize,
     skipped: usize,
     events: std::collections::BTreeMap<String, usize>,
+    skip_reasons: std::collections::BTreeMap<String, usize>,
+    /// Per fault kind: (consumed, consumed and followed by at least one event).
+    consumed_by_kind: std::collections::BTreeMap<&'static str, (usize, usize)>,
+    /// Faults that must surface as an error but left no event.
+    silent: Vec<String>,
+    /// The recorded pose ids.
+    ids: BTreeSet<u64>,
     wall_s: f64,
     sim_s: f64,
+}
+
+/// The fault in flight: injected, not yet matched with its events.
+struct Outstanding {
+    /// The wire device it was queued on (`None`: a protective stop of the arm).
+    device: Option<String>,
+    kind: &'static str,
+    /// Whether the client must see it as an error (a link drop, a bad CRC, a truncated or
+    /// refused reply, a protective stop); a short delay or silence within the reply deadline,
+    /// or garbage the decoder skips, is absorbed without one.
+    must_error: bool,
+    /// Fault-related events in the journal when it was injected.
+    events_at: usize,
+}
+
+fn classify(f: &Fault) -> (&'static str, bool) {
+    match f {
+        Fault::DropLink => ("drop-link", true),
+        Fault::Delay { .. } => ("delay", false),
+        Fault::ErrorReply { .. } => ("error-reply", true),
+        Fault::Garbage { .. } => ("garbage", false),
+        Fault::BadCrc => ("bad-crc", true),
+        Fault::Truncated => ("truncated", true),
+        Fault::Silence { .. } => ("silence", false),
+        _ => ("other", false),
+    }
+}
+
+/// Reads the journal's new complete lines as the run appends them and counts the events a
+/// fault can cause (everything but notes and the tracker's own "marker not visible" retries
+/// and skips, which happen without any fault).
+#[derive(Default)]
+struct JournalTail {
+    offset: u64,
+    fault_events: usize,
+}
+
+impl JournalTail {
+    fn read_new(&mut self, path: &Path) {
+        use std::io::{Read, Seek, SeekFrom};
+        let Ok(mut f) = std::fs::File::open(path) else {
+            return;
+        };
+        let mut buf = Vec::new();
+        if f.seek(SeekFrom::Start(self.offset)).is_err() || f.read_to_end(&mut buf).is_err() {
+            return;
+        }
+        let Some(end) = buf.iter().rposition(|&b| b == b'\n') else {
+            return;
+        };
+        for line in buf[..end].split(|&b| b == b'\n') {
+            let Ok(v) = serde_json::from_slice::<serde_json::Value>(line) else {
+                continue;
+            };
+            if v["kind"] != "event" || v["what"] == "note" {
+                continue;
+            }
+            let reason = v["reason"].as_str().unwrap_or("");
+            if reason.contains("not visible") {
+                continue;
+            }
+            self.fault_events += 1;
+        }
+        self.offset += end as u64 + 1;
+    }
 }
 
 fn random_poses(n: usize, rng: &mut rand_chacha::ChaCha8Rng) -> Vec<PlannedPose> {
@@ -138,6 +215,9 @@ fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
     let wall = Instant::now();
     let t0 = world.now();
     let ctl = world.control();
+    // One fault outstanding at a time, so each can be matched with the events it caused.
+    let mut outstanding: Option<Outstanding> = None;
+    let mut log = JournalTail::default();
     loop {
         tally.invocations += 1;
         anyhow::ensure!(tally.invocations < 200, "the soak never completed");
@@ -147,15 +227,43 @@ fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
             if p.ok {
                 reported.insert(p.id);
             }
+            log.read_new(&jpath);
+            if let Some(o) = &outstanding {
+                let consumed = o.device.as_ref().is_none_or(|d| ctl.pending_faults(d) == 0);
+                if !consumed {
+                    return;
+                }
+                let evented = log.fault_events > o.events_at;
+                tally.consumed_by_kind.entry(o.kind).or_default().0 += 1;
+                if evented {
+                    tally.consumed_by_kind.entry(o.kind).or_default().1 += 1;
+                } else if o.must_error {
+                    tally.silent.push(format!("{} on {:?}", o.kind, o.device));
+                }
+                outstanding = None;
+            }
             if rng.random_bool(prob) {
                 if rng.random_bool(0.1) {
                     ctl.protective_stop(0);
                     tally.stops += 1;
+                    outstanding = Some(Outstanding {
+                        device: None,
+                        kind: "protective-stop",
+                        must_error: true,
+                        events_at: log.fault_events,
+                    });
                 } else {
                     let (name, kind) = &wire[rng.random_range(0..wire.len())];
                     let f = fault(&mut rng, kind);
+                    let (label, must_error) = classify(&f);
                     ctl.inject(name, f);
                     tally.injected += 1;
+                    outstanding = Some(Outstanding {
+                        device: Some(name.clone()),
+                        kind: label,
+                        must_error,
+                        events_at: log.fault_events,
+                    });
                 }
             }
         };
@@ -169,6 +277,17 @@ fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
         ))?;
         if s.aborted.is_some() {
             tally.aborted += 1;
+        }
+        if std::env::var_os("ROBOCAL_SOAK_VERBOSE").is_some() {
+            eprintln!(
+                "invocation {}: recorded {} (+{}), remaining {}, skipped {}, aborted {:?}",
+                tally.invocations,
+                s.recorded,
+                s.recorded_now,
+                s.remaining,
+                s.skipped.len(),
+                s.aborted
+            );
         }
         if s.remaining == 0 {
             tally.recorded = s.recorded;
@@ -194,10 +313,18 @@ fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
             }
             Record::Event(e) if e.what == "skip" => {
                 skipped.extend(e.id);
+                let reason = e.reason.as_deref().unwrap_or("?");
+                let class = if std::env::var_os("ROBOCAL_SOAK_VERBOSE").is_some() {
+                    reason.chars().take(400).collect()
+                } else {
+                    reason.split(':').next().unwrap_or(reason).to_string()
+                };
+                *tally.skip_reasons.entry(class).or_default() += 1;
             }
             _ => {}
         }
     }
+    tally.ids = ids.clone();
     let lost: Vec<_> = reported.difference(&ids).collect();
     anyhow::ensure!(lost.is_empty(), "records reported but lost: {lost:?}");
     anyhow::ensure!(
@@ -208,13 +335,10 @@ fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
     );
     let all: BTreeSet<u64> = ids.union(&skipped).copied().collect();
     anyhow::ensure!(all.len() == n, "{} of {n} poses accounted for", all.len());
-    let fault_events: usize = ["fault", "pause"]
-        .iter()
-        .map(|k| tally.events.get(*k).copied().unwrap_or(0))
-        .sum();
     anyhow::ensure!(
-        tally.consumed + tally.stops == 0 || fault_events > 0,
-        "faults but no fault events"
+        tally.silent.is_empty(),
+        "faults that must surface as an error left no event: {:?}",
+        tally.silent
     );
     Ok(tally)
 }
@@ -224,19 +348,45 @@ fn main() -> anyhow::Result<()> {
     let n: usize = args.next().map(|s| s.parse()).transpose()?.unwrap_or(2000);
     let prob: f64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(0.15);
     let seed: u64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(14);
+    let only = args.next().unwrap_or_else(|| "both".into());
+    anyhow::ensure!(
+        ["both", "lab", "hospital"].contains(&only.as_str()),
+        "the fourth argument is lab, hospital or both, not {only:?}"
+    );
+    let cells = [
+        ("lab", "mocks/scenarios/lab-vs060-optotrak-il600.toml"),
+        ("hospital", "mocks/scenarios/hospital-vs060-vega.toml"),
+    ];
+    let chosen: Vec<_> = cells
+        .iter()
+        .filter(|(name, _)| only == "both" || only == *name)
+        .collect();
     let mut total = Tally::default();
-    for (k, file) in [
-        "mocks/scenarios/lab-vs060-optotrak-il600.toml",
-        "mocks/scenarios/hospital-vs060-vega.toml",
-    ]
-    .iter()
-    .enumerate()
-    {
-        let part = n / 2 + if k == 0 { n % 2 } else { 0 };
+    for (k, (_, file)) in chosen.iter().enumerate() {
+        let part = if chosen.len() == 1 {
+            n
+        } else {
+            n / 2 + if k == 0 { n % 2 } else { 0 }
+        };
+        // The same poses without any fault: which poses the cell records undisturbed.
+        let calm = soak(file, part, 0.0, seed + k as u64)?;
         let t = soak(file, part, prob, seed + k as u64)?;
+        let lost: Vec<_> = calm.ids.difference(&t.ids).collect();
+        let gained: Vec<_> = t.ids.difference(&calm.ids).collect();
+        println!(
+            "{file}: without faults {} of {} poses recorded; with faults {}: {} poses lost to \
+             faults, {} recorded only with faults",
+            calm.recorded,
+            part,
+            t.recorded,
+            lost.len(),
+            gained.len()
+        );
+
         println!(
             "{file}: {} poses, {} recorded, {} skipped; {} wire faults injected ({} consumed), \
              {} protective stops; {} invocations ({} ended aborted, resumed); events {:?}; \
+             skip reasons {:?}; faults consumed (kind: consumed, followed by an event) {:?}; \
              {:.0} s simulated in {:.1} s wall",
             t.poses,
             t.recorded,
@@ -247,8 +397,14 @@ fn main() -> anyhow::Result<()> {
             t.invocations,
             t.aborted,
             t.events,
+            t.skip_reasons,
+            t.consumed_by_kind,
             t.sim_s,
             t.wall_s
+        );
+        anyhow::ensure!(
+            lost.is_empty(),
+            "faults cost poses the undisturbed run records: {lost:?}"
         );
         total.poses += t.poses;
         total.recorded += t.recorded;

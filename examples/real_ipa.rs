@@ -23,11 +23,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use robocal::dataset::PoseRecord;
-use robocal::diagnose::effects::{Block, Effect};
+use robocal::diagnose::effects::{Block, Effect, EffectModel};
 use robocal::diagnose::fit::{fit, residuals, State};
 use robocal::diagnose::transfer::refit_setup;
-use robocal::diagnose::{self, data, Options};
+use robocal::diagnose::{self, Options};
 use robocal::model::KinematicModel;
+use robocal::solve::obs::{session_observations, PoseObs};
 
 fn data_dir() -> Option<PathBuf> {
     let p = std::env::var_os("ROBOCAL_REAL_DATA")
@@ -39,7 +40,7 @@ fn data_dir() -> Option<PathBuf> {
 }
 
 /// RMS, 95th percentile and max of the 3-D error (mm).
-fn stats(state: &State, obs: &[data::Obs]) -> (f64, f64, f64) {
+fn stats(state: &State, obs: &[PoseObs]) -> (f64, f64, f64) {
     let r = residuals(state, obs);
     let mut e: Vec<f64> = (0..obs.len())
         .map(|k| (r[3 * k].powi(2) + r[3 * k + 1].powi(2) + r[3 * k + 2].powi(2)).sqrt())
@@ -68,7 +69,7 @@ fn stages(d: &diagnose::Diagnosis) -> Vec<(String, State)> {
     v
 }
 
-fn table(d: &diagnose::Diagnosis, train: &[data::Obs], held: &[data::Obs]) {
+fn table(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
     println!(
         "  {:<34} {:>9} {:>9} {:>9} {:>9} {:>7}",
         "stage", "train", "held-out", "held p95", "held max", "gap"
@@ -91,7 +92,7 @@ fn table(d: &diagnose::Diagnosis, train: &[data::Obs], held: &[data::Obs]) {
 
 /// Every candidate of the effect library added alone to the geometric model (refitted
 /// jointly with the geometry): what each physical effect buys on held-out poses.
-fn ablation(d: &diagnose::Diagnosis, train: &[data::Obs], held: &[data::Obs]) {
+fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
     let (groups, untestable) = diagnose::candidates(&d.geometric.model, train);
     let (g_tr, _, _) = stats(&d.geometric, train);
     let (g_h, g_p95, g_mx) = stats(&d.geometric, held);
@@ -135,30 +136,32 @@ fn ablation(d: &diagnose::Diagnosis, train: &[data::Obs], held: &[data::Obs]) {
 }
 
 struct Split {
-    train: Vec<data::Obs>,
-    held: Vec<data::Obs>,
+    train: Vec<PoseObs>,
+    held: Vec<PoseObs>,
 }
 
 fn load(train: &Path, held: Option<&Path>) -> anyhow::Result<(KinematicModel, Split)> {
-    let main = data::load_jsonl(train)?;
-    let extra = held.map(data::load_jsonl).transpose()?;
+    let main = robocal::dataset::read_dataset(train)?.dataset;
+    let extra = held
+        .map(|h| robocal::dataset::read_dataset(h).map(|l| l.dataset))
+        .transpose()?;
     let model = KinematicModel::from_robot_block(&main.header.robot)?;
     let dof = model.dof();
-    let mut session: Vec<&PoseRecord> = main.poses.iter().collect();
+    let mut session: Vec<&PoseRecord> = main.poses().collect();
     if let Some(x) = &extra {
-        session.extend(x.poses.iter());
+        session.extend(x.poses());
     }
     let is_val = |p: &PoseRecord| p.group.as_deref() == Some("validation");
-    let tr: Vec<&PoseRecord> = main.poses.iter().filter(|p| !is_val(p)).collect();
-    let mut he: Vec<&PoseRecord> = main.poses.iter().filter(|p| is_val(p)).collect();
+    let tr: Vec<&PoseRecord> = main.poses().filter(|p| !is_val(p)).collect();
+    let mut he: Vec<&PoseRecord> = main.poses().filter(|p| is_val(p)).collect();
     if let Some(x) = &extra {
-        he.extend(x.poses.iter());
+        he.extend(x.poses());
     }
     Ok((
         model,
         Split {
-            train: data::observations(&tr, &session, dof),
-            held: data::observations(&he, &session, dof),
+            train: session_observations(&tr, &session, dof).0,
+            held: session_observations(&he, &session, dof).0,
         },
     ))
 }
@@ -166,8 +169,8 @@ fn load(train: &Path, held: Option<&Path>) -> anyhow::Result<(KinematicModel, Sp
 fn run(
     name: &str,
     model: &KinematicModel,
-    train: &[data::Obs],
-    held: &[data::Obs],
+    train: &[PoseObs],
+    held: &[PoseObs],
 ) -> anyhow::Result<diagnose::Diagnosis> {
     run_with(name, model, train, held, &Options::default())
 }
@@ -175,8 +178,8 @@ fn run(
 fn run_with(
     name: &str,
     model: &KinematicModel,
-    train: &[data::Obs],
-    held: &[data::Obs],
+    train: &[PoseObs],
+    held: &[PoseObs],
     opt: &Options,
 ) -> anyhow::Result<diagnose::Diagnosis> {
     let t0 = Instant::now();
@@ -260,13 +263,13 @@ fn main() -> anyhow::Result<()> {
     let mut ts: Vec<f64> = a.train.iter().map(|o| o.ctx.t).collect();
     ts.sort_by(f64::total_cmp);
     let t_split = ts[ts.len() * 3 / 4];
-    let early: Vec<data::Obs> = a
+    let early: Vec<PoseObs> = a
         .train
         .iter()
         .filter(|o| o.ctx.t < t_split)
         .cloned()
         .collect();
-    let late: Vec<data::Obs> = a
+    let late: Vec<PoseObs> = a
         .held
         .iter()
         .filter(|o| o.ctx.t >= t_split)

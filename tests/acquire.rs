@@ -149,7 +149,6 @@ fn cell(plan: &[PlannedPose], journal_path: Option<&Path>) -> Cell {
         tracker: Some(Arc::new(tracker)),
         range: Some(Arc::new(range.clone())),
         clock: clock.clone(),
-        thermometer: None,
         camera: None,
     };
     Cell {

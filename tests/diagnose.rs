@@ -5,8 +5,10 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use robocal::dataset::{CalibrationFile, PoseRecord};
-use robocal::diagnose::{self, data, effects, Options};
+use robocal::diagnose::effects::EffectModel;
+use robocal::diagnose::{self, effects, Options};
 use robocal::model::KinematicModel;
+use robocal::solve::obs::{session_observations, PoseObs};
 
 fn case_dir(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -27,20 +29,24 @@ fn truth(name: &str) -> HashMap<u64, [f64; 3]> {
 
 struct Case {
     model: KinematicModel,
-    train: Vec<data::Obs>,
-    held: Vec<data::Obs>,
+    train: Vec<PoseObs>,
+    held: Vec<PoseObs>,
     truth: HashMap<u64, [f64; 3]>,
 }
 
 fn load(name: &str) -> Case {
-    let tr = data::load_jsonl(&case_dir(name).join("train.jsonl")).unwrap();
-    let he = data::load_jsonl(&case_dir(name).join("heldout.jsonl")).unwrap();
+    let tr = robocal::dataset::read_dataset(case_dir(name).join("train.jsonl"))
+        .unwrap()
+        .dataset;
+    let he = robocal::dataset::read_dataset(case_dir(name).join("heldout.jsonl"))
+        .unwrap()
+        .dataset;
     let model = KinematicModel::from_robot_block(&tr.header.robot).unwrap();
-    let session: Vec<&PoseRecord> = tr.poses.iter().chain(he.poses.iter()).collect();
-    let trr: Vec<&PoseRecord> = tr.poses.iter().collect();
-    let her: Vec<&PoseRecord> = he.poses.iter().collect();
-    let train = data::observations(&trr, &session, model.dof());
-    let held = data::observations(&her, &session, model.dof());
+    let session: Vec<&PoseRecord> = tr.poses().chain(he.poses()).collect();
+    let trr: Vec<&PoseRecord> = tr.poses().collect();
+    let her: Vec<&PoseRecord> = he.poses().collect();
+    let train = session_observations(&trr, &session, model.dof()).0;
+    let held = session_observations(&her, &session, model.dof()).0;
     Case {
         model,
         train,

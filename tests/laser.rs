@@ -16,7 +16,7 @@ fn run_compare() -> laser::Comparison {
     let held = Dataset::load(data("heldout.jsonl")).unwrap();
     let obs = laser::observations(&train).unwrap();
     let val = laser::observations(&held).unwrap();
-    let truth = robocal::cli::calibrate::laser::read_points_csv(&data("truth.csv")).unwrap();
+    let truth = robocal::schema::points_csv::read(&data("truth.csv")).unwrap();
     laser::compare(&obs, &val, Some(&truth), None).unwrap()
 }
 
@@ -130,8 +130,8 @@ fn cli_calibrates_and_predict_reproduces_the_truth() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let p = robocal::cli::calibrate::laser::read_points_csv(&pred).unwrap();
-    let t = robocal::cli::calibrate::laser::read_points_csv(&data("truth.csv")).unwrap();
+    let p = robocal::schema::points_csv::read(&pred).unwrap();
+    let t = robocal::schema::points_csv::read(&data("truth.csv")).unwrap();
     assert_eq!(p.len(), t.len());
     let rms = (t
         .iter()
@@ -147,7 +147,7 @@ fn a_truth_file_with_a_bad_field_names_file_line_and_field() {
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("t.csv");
     std::fs::write(&f, "id,x_mm,y_mm,z_mm\n1,2,3,4\n2,x,3,4\n").unwrap();
-    let e = robocal::cli::calibrate::laser::read_points_csv(&f).unwrap_err();
+    let e = robocal::schema::points_csv::read(&f).unwrap_err();
     let msg = format!("{e:#}");
     assert!(msg.contains("t.csv:3") && msg.contains("x_mm"), "{msg}");
 }

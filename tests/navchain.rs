@@ -467,8 +467,9 @@ use crate::diagnose::table;
 fn seed_network_vs_physical_and_nonparametric() {
     use robocal::chain::nn::{NetOptions, SeedNet};
     use robocal::dataset::PoseRecord;
-    use robocal::diagnose::{self, data, effects, Options};
+    use robocal::diagnose::{self, effects, Options};
     use robocal::model::KinematicModel;
+    use robocal::solve::obs::{session_observations, PoseObs};
     use robocal_mocks::scenario::Scenario;
     use robocal_mocks::synth::{synthesize, SynthConfig};
     use robocal_mocks::WorldHandle;
@@ -492,12 +493,17 @@ fn seed_network_vs_physical_and_nonparametric() {
             ..SynthConfig::default()
         };
         let out = synthesize(&wh, &cfg).unwrap();
-        let tr = data::parse_jsonl(&out.train_jsonl, "train").unwrap();
-        let he = data::parse_jsonl(&out.heldout_jsonl, "heldout").unwrap();
+        let parse = |text: &str, label: &str| {
+            robocal::dataset::parse_dataset(text.as_bytes(), std::path::Path::new(label))
+                .unwrap()
+                .dataset
+        };
+        let tr = parse(&out.train_jsonl, "train");
+        let he = parse(&out.heldout_jsonl, "heldout");
         let model = KinematicModel::from_robot_block(&tr.header.robot).unwrap();
-        let session: Vec<&PoseRecord> = tr.poses.iter().chain(he.poses.iter()).collect();
-        let train = data::observations(&tr.poses.iter().collect::<Vec<_>>(), &session, model.dof());
-        let held = data::observations(&he.poses.iter().collect::<Vec<_>>(), &session, model.dof());
+        let session: Vec<&PoseRecord> = tr.poses().chain(he.poses()).collect();
+        let train = session_observations(&tr.poses().collect::<Vec<_>>(), &session, model.dof()).0;
+        let held = session_observations(&he.poses().collect::<Vec<_>>(), &session, model.dof()).0;
         let truth: HashMap<u64, [f64; 3]> = out
             .truth_csv
             .lines()
@@ -509,7 +515,7 @@ fn seed_network_vs_physical_and_nonparametric() {
             .collect();
         let d = diagnose::diagnose(&model, &train, &held, &Options::default()).unwrap();
         let geo = &d.geometric;
-        let pose6 = |ctx: &data::ObsCtx| -> [f64; 6] {
+        let pose6 = |ctx: &robocal::solve::obs::PoseCtx| -> [f64; 6] {
             let t = geo.model.tool_pose_in_base(&ctx.q);
             let (r, p, y) = t.rotation.euler_angles();
             let v = t.translation.vector;
@@ -519,12 +525,12 @@ fn seed_network_vs_physical_and_nonparametric() {
         let ys: Vec<[f64; 6]> = train
             .iter()
             .map(|o| {
-                let r = o.y - effects::apply_effects(&geo.model, &geo.effects, &o.ctx);
+                let r = o.p - effects::apply_effects(&geo.model, &geo.effects, &o.ctx);
                 [r.x, r.y, r.z, 0.0, 0.0, 0.0]
             })
             .collect();
         let net = SeedNet::train(&xs, &ys, &NetOptions::default());
-        let rms = |f: &dyn Fn(&data::Obs) -> [f64; 3]| {
+        let rms = |f: &dyn Fn(&PoseObs) -> [f64; 3]| {
             let (mut s, mut n) = (0.0, 0);
             for o in &held {
                 if let Some(t) = truth.get(&o.ctx.id) {

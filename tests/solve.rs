@@ -310,23 +310,17 @@ fn huber_lists_gross_outliers_and_keeps_accuracy() {
     let mut obs: Vec<PoseObs> = (0..200)
         .map(|i| {
             let q = random_q(&mut rng);
-            PoseObs {
-                id: i,
-                t: i as f64,
-                p: truth.measured_point(&q)
-                    + Vector3::new(
-                        rng.random_range(-0.03..0.03),
-                        rng.random_range(-0.03..0.03),
-                        rng.random_range(-0.03..0.03),
-                    ),
-                q,
-                q_cmd: None,
-                quat: None,
-                point: Some(i),
-                branch: Some(0),
-                group: Some("train".into()),
-                temp_c: None,
-            }
+            let p = truth.measured_point(&q)
+                + Vector3::new(
+                    rng.random_range(-0.03..0.03),
+                    rng.random_range(-0.03..0.03),
+                    rng.random_range(-0.03..0.03),
+                );
+            let mut o = PoseObs::at(i, i as f64, q, p);
+            o.point = Some(i);
+            o.branch = Some(0);
+            o.group = Some("train".into());
+            o
         })
         .collect();
     for i in [5usize, 77, 150] {
@@ -335,12 +329,12 @@ fn huber_lists_gross_outliers_and_keeps_accuracy() {
     let test: Vec<PoseObs> = (0..50)
         .map(|i| {
             let q = random_q(&mut rng);
-            PoseObs {
-                id: 1000 + i,
-                p: truth.measured_point(&q),
-                q,
-                ..obs[0].clone()
-            }
+            let mut o = obs[0].clone();
+            o.ctx.id = 1000 + i;
+            o.p = truth.measured_point(&q);
+            o.ctx.approach = vec![0.0; q.len()];
+            o.ctx.q = q;
+            o
         })
         .collect();
     let opts = IdentOptions {
@@ -377,18 +371,9 @@ fn tool_with_identified_arm_recovers_marker_orientation_and_base() {
         .map(|i| {
             let q = random_q(&mut rng);
             let pose = truth.measured_pose(&q);
-            PoseObs {
-                id: i,
-                t: 0.0,
-                q,
-                q_cmd: None,
-                p: Point3::from(pose.translation.vector),
-                quat: Some(pose.rotation),
-                point: None,
-                branch: None,
-                group: None,
-                temp_c: None,
-            }
+            let mut o = PoseObs::at(i, 0.0, q, Point3::from(pose.translation.vector));
+            o.quat = Some(pose.rotation);
+            o
         })
         .collect();
     // The arm is known (identified); base and tool are not.
@@ -427,18 +412,9 @@ fn coincidence_error_drops_after_identification_with_ik_branches() {
             n_multi += 1;
         }
         for s in sols {
-            let o = PoseObs {
-                id,
-                t: id as f64,
-                p: truth.measured_point(&s.q),
-                q: s.q.clone(),
-                q_cmd: None,
-                quat: None,
-                point: Some(point),
-                branch: Some(s.branch as u64),
-                group: None,
-                temp_c: None,
-            };
+            let mut o = PoseObs::at(id, id as f64, s.q.clone(), truth.measured_point(&s.q));
+            o.point = Some(point);
+            o.branch = Some(s.branch as u64);
             id += 1;
             if point % 4 == 3 {
                 held.push(o);

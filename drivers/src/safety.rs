@@ -295,6 +295,9 @@ macro_rules! delegate_reads {
             async fn recover(&self) -> DriverResult<()> {
                 self.inner.recover().await
             }
+            fn link_recoveries(&self) -> u64 {
+                self.inner.link_recoveries()
+            }
         }
     };
 }

@@ -136,6 +136,12 @@ pub trait ArmStatus: Send + Sync {
             "this arm cannot recover from a protective stop remotely",
         ))
     }
+    /// How many times the driver has rebuilt a lost link on its own so far (a dropped
+    /// connection reopened inside a call that then succeeded). The acquisition records each
+    /// one as a `fault` event, so a recovery the caller never saw as an error is still logged.
+    fn link_recoveries(&self) -> u64 {
+        0
+    }
 }
 
 /// Everything an arm offers; implemented automatically for any type with all four capabilities.
@@ -156,6 +162,10 @@ pub enum RangeReading {
 pub trait RangeSensor: Send + Sync {
     /// One reading.
     async fn read_range(&self) -> DriverResult<RangeReading>;
+    /// Links rebuilt by the driver on its own so far (see [`ArmStatus::link_recoveries`]).
+    fn link_recoveries(&self) -> u64 {
+        0
+    }
 }
 
 /// Visibility of one tool in one tracker frame.
@@ -215,6 +225,10 @@ impl TrackerFrame {
 pub trait MarkerTracker: Send + Sync {
     /// The next frame (blocks until the tracker delivers a new one).
     async fn frame(&self) -> DriverResult<TrackerFrame>;
+    /// Links rebuilt by the driver on its own so far (see [`ArmStatus::link_recoveries`]).
+    fn link_recoveries(&self) -> u64 {
+        0
+    }
 }
 
 /// An 8-bit grey image.
@@ -294,14 +308,17 @@ macro_rules! forward_ptr {
         impl<T: ArmStatus + ?Sized> ArmStatus for $ptr<T> {
             async fn state(&self) -> DriverResult<ArmState> { (**self).state().await }
             async fn recover(&self) -> DriverResult<()> { (**self).recover().await }
+            fn link_recoveries(&self) -> u64 { (**self).link_recoveries() }
         }
         #[async_trait]
         impl<T: RangeSensor + ?Sized> RangeSensor for $ptr<T> {
             async fn read_range(&self) -> DriverResult<RangeReading> { (**self).read_range().await }
+            fn link_recoveries(&self) -> u64 { (**self).link_recoveries() }
         }
         #[async_trait]
         impl<T: MarkerTracker + ?Sized> MarkerTracker for $ptr<T> {
             async fn frame(&self) -> DriverResult<TrackerFrame> { (**self).frame().await }
+            fn link_recoveries(&self) -> u64 { (**self).link_recoveries() }
         }
         #[async_trait]
         impl<T: ImageSource + ?Sized> ImageSource for $ptr<T> {

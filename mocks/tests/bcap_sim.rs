@@ -463,23 +463,40 @@ async fn drop_gives_the_arm_back() {
     a.move_joints(&[0.0, 0.0, 1.5, 0.0, 0.0, 0.0], MoveSpeed::default())
         .await
         .unwrap();
-    let b = sim.arm().await;
+    // Another session holding the arm for longer than `take_arm_wait`: refused, named.
+    let mut impatient = sim.config();
+    impatient.take_arm_wait = Duration::from_millis(200);
+    let b = DensoArm::connect(impatient).await.unwrap();
+    let t0 = std::time::Instant::now();
     let e = b
         .move_joints(&[0.1, 0.0, 1.5, 0.0, 0.0, 0.0], MoveSpeed::default())
         .await
         .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::DeviceRejected, "{e}");
-    drop(a);
-    let mut ok = false;
-    for _ in 0..50 {
-        tokio::time::sleep(Duration::from_millis(20)).await;
-        if b.move_joints(&[0.1, 0.0, 1.5, 0.0, 0.0, 0.0], MoveSpeed::default())
-            .await
-            .is_ok()
-        {
-            ok = true;
-            break;
-        }
-    }
-    assert!(ok, "the dropped arm never gave the arm back");
+    assert!(e.to_string().contains("E_ACCESSDENIED"), "{e}");
+    assert!(
+        t0.elapsed() >= Duration::from_millis(150),
+        "{:?}",
+        t0.elapsed()
+    );
+    // A session whose holder goes away while it waits (a dead connection of our own after a
+    // dropped link) gets the arm as soon as the controller releases it: no failed move.
+    let mut patient = sim.config();
+    patient.take_arm_wait = Duration::from_secs(5);
+    let c = DensoArm::connect(patient).await.unwrap();
+    let dropper = tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        drop(a);
+    });
+    let t0 = std::time::Instant::now();
+    c.move_joints(&[0.1, 0.0, 1.5, 0.0, 0.0, 0.0], MoveSpeed::default())
+        .await
+        .expect("the move waits for the release");
+    assert!(
+        t0.elapsed() >= Duration::from_millis(250),
+        "{:?}",
+        t0.elapsed()
+    );
+    dropper.await.unwrap();
+    drop(b);
 }

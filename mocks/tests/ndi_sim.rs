@@ -239,6 +239,71 @@ async fn dropped_link_is_disconnected_and_a_reconnect_recovers() {
     assert_eq!(reply.handles.len(), 1);
 }
 
+/// A tracker opened with `connect_tcp` rebuilds its session by itself: a dropped link, a
+/// silence past the reply deadline and a truncated reply each cost one frame's retry, never
+/// an error, and the rebuilt session tracks the same tool (the old handle freed, not doubled).
+#[tokio::test]
+async fn reconnecting_tracker_survives_drop_silence_and_truncation() {
+    let pose = MarkerToTracker(Isometry3::translation(1.0, 2.0, -1200.0));
+    let src = Arc::new(StaticTracker::new(vec![ToolStatus::Visible {
+        pose,
+        rms_mm: 0.1,
+    }]));
+    let sim = ndi::serve_tcp(
+        src.clone(),
+        SimNdiConfig::default(),
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .expect("bind");
+    let addr = sim.addr().unwrap().to_string();
+    let tracker = NdiTracker::connect_tcp(
+        &addr,
+        fast(),
+        &[("probe".into(), rom(1))],
+        ReplyMode::Binary,
+    )
+    .await
+    .expect("connect + start-up");
+    for fault in [
+        Fault::DropLink,
+        Fault::Silence { secs: 1.0 },
+        Fault::Truncated,
+        Fault::DropLink,
+    ] {
+        src.inject(fault.clone());
+        let f = tracker
+            .frame()
+            .await
+            .unwrap_or_else(|e| panic!("after {fault:?} the tracker must reconnect: {e}"));
+        assert_eq!(f.tools.len(), 1, "after {fault:?}: {:?}", f.tools);
+        assert_eq!(f.tools[0].tool, "probe");
+        assert!(pose_close(
+            &visible(&f.tools[0].status),
+            &pose.0,
+            0.01,
+            1e-4
+        ));
+        assert_eq!(tracker.tools().await.len(), 1);
+    }
+    // A fault that is not a link problem is still reported (and the next frame is good).
+    src.inject(Fault::ErrorReply { code: 0x0C });
+    let err = tracker.frame().await.expect_err("device error");
+    assert_eq!(err.kind(), ErrorKind::DeviceRejected, "{err}");
+    tracker.frame().await.expect("next frame");
+    // A tracker that cannot reach its device at all says where it tried.
+    drop(sim);
+    let err = NdiTracker::connect_tcp(
+        "127.0.0.1:9",
+        fast(),
+        &[("probe".into(), rom(1))],
+        ReplyMode::Binary,
+    )
+    .await
+    .expect_err("nothing listens on port 9");
+    assert!(err.to_string().contains("127.0.0.1:9"), "{err}");
+}
+
 #[tokio::test]
 async fn device_errors_for_protocol_misuse() {
     let src: Arc<dyn TrackerSource> = Arc::new(StaticTracker::new(vec![]));

@@ -135,6 +135,9 @@ struct Run<'a> {
     /// Where the arm was when the next move starts (deg): the last measured joints, or the
     /// last target reached when nothing was measured there (the record's `q_prev`).
     last_q_deg: Option<Vec<f64>>,
+    /// Links each device's driver had rebuilt on its own when last looked at
+    /// ([`robocal_drivers::ArmStatus::link_recoveries`]): arm, tracker, laser.
+    link_recoveries_seen: [u64; 3],
 }
 
 fn deg(v: &[f64]) -> Vec<f64> {
@@ -202,6 +205,32 @@ impl Run<'_> {
         Ok(())
     }
 
+    /// Links rebuilt by the drivers on their own so far: arm, tracker, laser.
+    fn link_recoveries_now(&self) -> [u64; 3] {
+        [
+            self.dev.arm.link_recoveries(),
+            self.dev.tracker.as_ref().map_or(0, |t| t.link_recoveries()),
+            self.dev.range.as_ref().map_or(0, |r| r.link_recoveries()),
+        ]
+    }
+
+    /// A `fault` event for every link a driver lost and rebuilt inside a call that then
+    /// succeeded (the caller saw no error, but the fault happened and belongs in the log).
+    fn note_link_recoveries(&mut self, id: u64, what: &str) -> Result<(), AcquireError> {
+        let now = self.link_recoveries_now();
+        for (k, device) in ["arm", "tracker", "laser"].iter().enumerate() {
+            for _ in self.link_recoveries_seen[k]..now[k] {
+                self.event(
+                    "fault",
+                    Some(id),
+                    format!("{device} link lost during {what}; the driver reconnected and the call succeeded"),
+                )?;
+            }
+        }
+        self.link_recoveries_seen = now;
+        Ok(())
+    }
+
     /// Runs `op`; on a link problem (`Disconnected` / `Timeout`) records a `fault` event,
     /// backs off exponentially and retries (drivers reconnect on their next call); records
     /// `resume` once the link answers again.
@@ -219,7 +248,9 @@ impl Run<'_> {
         let mut backoff = f.backoff_initial_s;
         let mut failures = 0u32;
         loop {
-            match op().await {
+            let r = op().await;
+            self.note_link_recoveries(id, what)?;
+            match r {
                 Ok(v) => {
                     if failures > 0 {
                         self.event(
@@ -518,6 +549,14 @@ impl Run<'_> {
                 }
                 _ => None,
             },
+            Step::Failed(e) if e.kind() != ErrorKind::NotVisible => {
+                self.event(
+                    "fault",
+                    Some(id),
+                    format!("tracker frame failed while settling, frame dropped: {e}"),
+                )?;
+                None
+            }
             _ => None,
         })
     }
@@ -588,7 +627,11 @@ impl Run<'_> {
                     }
                     Step::Failed(e) if e.kind() == ErrorKind::NotVisible => {}
                     Step::Failed(e) => {
-                        tracing::warn!("tracker frame failed: {e}");
+                        self.event(
+                            "fault",
+                            Some(id),
+                            format!("tracker frame failed, frame dropped: {e}"),
+                        )?;
                     }
                     Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
                 }
@@ -643,7 +686,11 @@ impl Run<'_> {
             match step {
                 Step::Ok(RangeReading::Distance(d)) if d.is_finite() => valid.push(d),
                 Step::Ok(_) => {}
-                Step::Failed(e) => tracing::debug!("laser reading failed: {e}"),
+                Step::Failed(e) => self.event(
+                    "fault",
+                    Some(id),
+                    format!("laser reading failed, reading dropped: {e}"),
+                )?,
                 Step::LinkLost(m) => return Ok(Err(Outcome::Abort(m))),
             }
         }
@@ -859,7 +906,7 @@ impl Run<'_> {
             marker: marker_obs,
             reference: None,
             range,
-            temp_c: self.dev.thermometer.as_ref().and_then(|th| th.temp_c()),
+            temp_c: None,
             plane: p.plane.clone(),
             move_kind: p.move_kind.clone(),
             target: p.target.clone(),
@@ -956,7 +1003,9 @@ pub async fn acquire(
         postures: None,
         recoveries: 0,
         last_q_deg: None,
+        link_recoveries_seen: [0; 3],
     };
+    run.link_recoveries_seen = run.link_recoveries_now();
     if !existing.is_empty() {
         run.event(
             "resume",

@@ -44,12 +44,6 @@ use serde::{Deserialize, Serialize};
 pub use engine::{acquire, done_pose_ids, image_file_name, images_dir, AcquireError, Progress};
 pub use summary::{RunSummary, SkippedPose, TimeBreakdown};
 
-/// A source of the cell temperature (°C), when one is wired.
-pub trait Thermometer: Send + Sync {
-    /// The current temperature, `None` when unavailable.
-    fn temp_c(&self) -> Option<f64>;
-}
-
 /// The devices of one run. The arm must already be wrapped in the safety decorators
 /// (`robocal_drivers::safety::guard`).
 #[derive(Clone)]
@@ -62,8 +56,6 @@ pub struct Devices {
     pub range: Option<Arc<dyn RangeSensor>>,
     /// Time as the devices see it (wall clock, or the world's virtual clock).
     pub clock: Arc<dyn Clock>,
-    /// Cell temperature, if available.
-    pub thermometer: Option<Arc<dyn Thermometer>>,
     /// The camera, if the plan records images (one image per pose; see
     /// [`AcquireOptions::capture`] for what is done with it).
     pub camera: Option<Arc<dyn ImageSource>>,
@@ -74,7 +66,6 @@ impl std::fmt::Debug for Devices {
         f.debug_struct("Devices")
             .field("tracker", &self.tracker.is_some())
             .field("range", &self.range.is_some())
-            .field("thermometer", &self.thermometer.is_some())
             .field("camera", &self.camera.is_some())
             .finish()
     }

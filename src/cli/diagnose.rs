@@ -11,8 +11,10 @@ use anyhow::Context;
 use serde_json::{json, Map, Value};
 
 use crate::dataset::{CalibrationFile, PoseRecord};
-use crate::diagnose::{self, data, effects, plot, Options};
+use crate::diagnose::effects::EffectModel;
+use crate::diagnose::{self, effects, plot, Options};
 use crate::model::KinematicModel;
+use crate::solve::obs;
 
 /// Arguments of `robocal diagnose`.
 #[derive(Debug, clap::Args)]
@@ -75,12 +77,12 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
             &args.out,
         );
     }
-    let main = data::load_jsonl(&args.data)?;
+    let main = crate::dataset::read_dataset(&args.data)?;
     let extra = match &args.heldout {
-        Some(p) => Some(data::load_jsonl(p)?),
+        Some(p) => Some(crate::dataset::read_dataset(p)?),
         None => None,
     };
-    let mut model = KinematicModel::from_robot_block(&main.header.robot)
+    let mut model = KinematicModel::from_robot_block(&main.dataset.header.robot)
         .with_context(|| format!("{}: robot block", args.data.display()))?;
     if let Some(c) = &args.calibration {
         let cal = crate::plausible::calibration::load_for(c, &ds.header.robot, &args.data)?;
@@ -89,23 +91,23 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
             .with_context(|| format!("{}: params", c.display()))?;
     }
     let dof = model.dof();
-    let mut session: Vec<&PoseRecord> = main.poses.iter().collect();
+    let mut session: Vec<&PoseRecord> = main.dataset.poses().collect();
     if let Some(x) = &extra {
-        session.extend(x.poses.iter());
+        session.extend(x.dataset.poses());
     }
     let is_val = |p: &PoseRecord| p.group.as_deref() == Some("validation");
-    let train_recs: Vec<&PoseRecord> = main.poses.iter().filter(|p| !is_val(p)).collect();
-    let mut held_recs: Vec<&PoseRecord> = main.poses.iter().filter(|p| is_val(p)).collect();
+    let train_recs: Vec<&PoseRecord> = main.dataset.poses().filter(|p| !is_val(p)).collect();
+    let mut held_recs: Vec<&PoseRecord> = main.dataset.poses().filter(|p| is_val(p)).collect();
     if let Some(x) = &extra {
-        held_recs.extend(x.poses.iter());
+        held_recs.extend(x.dataset.poses());
     }
-    let (train, mut ref_skipped) = data::observations_skipped(&train_recs, &session, dof);
-    let (held, s2) = data::observations_skipped(&held_recs, &session, dof);
-    ref_skipped.extend(s2);
+    let (train, mut skipped) = obs::session_observations(&train_recs, &session, dof);
+    let (held, s2) = obs::session_observations(&held_recs, &session, dof);
+    skipped.extend(s2);
     if let (Some(x), Some(h)) = (&extra, &args.heldout) {
-        let recs: Vec<&PoseRecord> = x.poses.iter().collect();
+        let recs: Vec<&PoseRecord> = x.dataset.poses().collect();
         anyhow::ensure!(
-            !data::observations(&recs, &session, dof).is_empty(),
+            !obs::session_observations(&recs, &session, dof).0.is_empty(),
             "{}: no usable held-out poses (pose records with `q` and a visible marker `p`): a \
              --heldout file must hold poses to score on",
             h.display()
@@ -132,14 +134,15 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
         }
     };
     let mut d = diagnose::diagnose(&model, &train, &held, &opt)?;
-    d.warnings.extend(main.warnings.iter().cloned());
-    if !ref_skipped.is_empty() {
-        d.warnings.push(data::reference_skip_warning(&ref_skipped));
+    d.warnings
+        .extend(main.warnings.iter().map(ToString::to_string));
+    if skipped.iter().any(|s| s.no_reference) {
+        d.warnings.push(obs::reference_skip_warning(&skipped));
     }
-    let (_, inferred) = data::contexts_counted(&session, dof);
+    let (_, inferred) = obs::contexts_counted(&session, dof);
     if inferred > 0 {
         d.warnings
-            .push(data::q_prev_warning(inferred, "the backlash candidates"));
+            .push(obs::q_prev_warning(inferred, "the backlash candidates"));
     }
     for w in &d.warnings {
         eprintln!("warning: {w}");
@@ -166,19 +169,29 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     metrics.insert("heldout_rms_mm_after".into(), num(d.heldout_rms_final));
     let cal = CalibrationFile {
         format: "robocal-calibration/1".into(),
-        robot: main.header.robot.clone(),
+        robot: main.dataset.header.robot.clone(),
         params: d.state.model.to_cal_params(),
         effects: d.cal_effects(),
         metrics,
         extra: Map::new(),
     };
     w("calibration.json", &serde_json::to_string_pretty(&cal)?)?;
-    let mut csv = String::from("id,x_mm,y_mm,z_mm\n");
-    for o in &held {
-        let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
-        csv.push_str(&format!("{},{:.5},{:.5},{:.5}\n", o.ctx.id, p.x, p.y, p.z));
-    }
-    w("heldout_predictions.csv", &csv)?;
+    let rows: Vec<crate::schema::points_csv::IdPoint> = held
+        .iter()
+        .map(|o| {
+            let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
+            crate::schema::points_csv::IdPoint {
+                id: o.id,
+                x_mm: p.x,
+                y_mm: p.y,
+                z_mm: p.z,
+            }
+        })
+        .collect();
+    w(
+        "heldout_predictions.csv",
+        &crate::schema::points_csv::to_string(&rows),
+    )?;
     for (i, e) in d.state.effects.iter().enumerate() {
         let (pts, xl, yl) = plot::partial_residual(&d.state, &train, i);
         let name = format!("effect_{}_{}.svg", i + 1, e.block.kind());

@@ -11,7 +11,7 @@ use crate::acquire::Devices;
 use crate::cli::run::CellInfo;
 use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
-use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
+use robocal_drivers::ndi::{NdiConfig, NdiTracker, ReplyMode};
 use robocal_drivers::ur::{UrArm, UrConfig};
 use robocal_drivers::{Arm, Clock, ImageSource, MarkerTracker, RangeSensor, SystemClock};
 
@@ -127,25 +127,38 @@ pub async fn live_cell(
     let tracker: Option<Arc<dyn MarkerTracker>> = match first(&file, Role::Tracker) {
         None => None,
         Some(t) => Some(match t.protocol {
-            Protocol::NdiTcp => {
-                let client = NdiClient::connect(&t.target(), NdiConfig::default())
-                    .await
-                    .with_context(|| format!("NDI tracker {:?} at {}", t.name, t.target()))?;
-                Arc::new(
-                    NdiTracker::setup(client, &tool_roms(t, base)?, ReplyMode::Binary)
-                        .await
-                        .with_context(|| format!("NDI start-up on {:?}", t.name))?,
+            Protocol::NdiTcp => Arc::new(
+                NdiTracker::connect_tcp(
+                    &t.target(),
+                    NdiConfig::default(),
+                    &tool_roms(t, base)?,
+                    ReplyMode::Binary,
                 )
-            }
-            Protocol::NdiSerial => {
-                let client = NdiClient::open_serial(&t.target(), NdiConfig::default())
-                    .with_context(|| format!("NDI tracker {:?} on {}", t.name, t.target()))?;
-                Arc::new(
-                    NdiTracker::setup(client, &tool_roms(t, base)?, ReplyMode::Binary)
-                        .await
-                        .with_context(|| format!("NDI start-up on {:?}", t.name))?,
+                .await
+                .with_context(|| {
+                    format!(
+                        "NDI tracker {:?} at {} (connect and start-up)",
+                        t.name,
+                        t.target()
+                    )
+                })?,
+            ),
+            Protocol::NdiSerial => Arc::new(
+                NdiTracker::open_serial(
+                    &t.target(),
+                    NdiConfig::default(),
+                    &tool_roms(t, base)?,
+                    ReplyMode::Binary,
                 )
-            }
+                .await
+                .with_context(|| {
+                    format!(
+                        "NDI tracker {:?} on {} (open and start-up)",
+                        t.name,
+                        t.target()
+                    )
+                })?,
+            ),
             Protocol::OptotrakOapi => bail!(
                 "device {:?}: the Optotrak needs NDI's OAPI library (build with --features \
                  optotrak); live acquisition through it is not wired in this build",
@@ -181,7 +194,6 @@ pub async fn live_cell(
             tracker,
             range,
             clock,
-            thermometer: None,
             camera,
         },
         info,

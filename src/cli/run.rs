@@ -208,7 +208,6 @@ pub fn sim_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo)> {
             tracker,
             range,
             clock: world.clock(),
-            thermometer: None,
             camera,
         },
         info,

@@ -23,7 +23,7 @@ use std::time::Duration;
 use anyhow::{bail, Context as _};
 use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
-use robocal_drivers::ndi::{NdiClient, NdiConfig, NdiTracker, ReplyMode};
+use robocal_drivers::ndi::{NdiConfig, NdiTracker, ReplyMode};
 use robocal_drivers::ur::{Backoff, UrArm, UrConfig};
 use robocal_drivers::{Arm, ImageSource, MarkerTracker, RangeSensor};
 use robocal_mocks::scenario::Protocol;
@@ -136,21 +136,21 @@ async fn connect_tracker(
     Ok(match protocol {
         Protocol::NdiTcp => {
             let addr = tcp_addr(served, name, "ndi-tcp")?;
-            let client = NdiClient::connect(&addr.to_string(), NdiConfig::default())
-                .await
-                .with_context(|| format!("NDI TCP client to {name} at {addr}"))?;
-            let t = NdiTracker::setup(client, &tools, ReplyMode::Binary)
-                .await
-                .with_context(|| format!("NDI start-up sequence on {name}"))?;
+            let t = NdiTracker::connect_tcp(
+                &addr.to_string(),
+                NdiConfig::default(),
+                &tools,
+                ReplyMode::Binary,
+            )
+            .await
+            .with_context(|| format!("NDI tracker {name} at {addr} (connect and start-up)"))?;
             Arc::new(t.with_clock(world.clock()))
         }
         Protocol::NdiSerial => {
             let path = pty_path(served, name, "ndi-serial")?;
-            let client = NdiClient::open_serial(&path, NdiConfig::default())
-                .with_context(|| format!("NDI serial client to {name} on {path}"))?;
-            let t = NdiTracker::setup(client, &tools, ReplyMode::Binary)
+            let t = NdiTracker::open_serial(&path, NdiConfig::default(), &tools, ReplyMode::Binary)
                 .await
-                .with_context(|| format!("NDI start-up sequence on {name}"))?;
+                .with_context(|| format!("NDI tracker {name} on {path} (open and start-up)"))?;
             Arc::new(t.with_clock(world.clock()))
         }
         other => {
@@ -262,114 +262,9 @@ pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo
             tracker,
             range,
             clock: world.clock(),
-            thermometer: None,
             camera,
         },
         info,
         served,
     ))
-}
-
-// ----------------------------------------------------------------- for `robocal run --sim`
-
-/// The simulators' servers and the runtime driving them (and the clients' sockets), kept
-/// alive for as long as any device of the cell is. Dropping the last device stops them.
-struct Background {
-    served: Served,
-    rt: Option<tokio::runtime::Runtime>,
-}
-
-impl Drop for Background {
-    fn drop(&mut self) {
-        self.served.abort();
-        if let Some(rt) = self.rt.take() {
-            // Never blocks, also when dropped inside another runtime.
-            rt.shutdown_background();
-        }
-    }
-}
-
-/// An arm that keeps the wire cell's background runtime alive.
-struct KeepAlive {
-    arm: Arc<dyn Arm>,
-    _background: Arc<Background>,
-}
-
-#[async_trait::async_trait]
-impl robocal_drivers::JointReadout for KeepAlive {
-    async fn joints(&self) -> robocal_drivers::DriverResult<robocal_drivers::JointState> {
-        self.arm.joints().await
-    }
-}
-
-#[async_trait::async_trait]
-impl robocal_drivers::FlangePose for KeepAlive {
-    async fn flange_pose(&self) -> robocal_drivers::DriverResult<robocal_drivers::FlangeToBase> {
-        self.arm.flange_pose().await
-    }
-}
-
-#[async_trait::async_trait]
-impl robocal_drivers::MoveJoints for KeepAlive {
-    fn dof(&self) -> usize {
-        self.arm.dof()
-    }
-    async fn move_joints(
-        &self,
-        target: &[f64],
-        speed: robocal_drivers::MoveSpeed,
-    ) -> robocal_drivers::DriverResult<()> {
-        self.arm.move_joints(target, speed).await
-    }
-    async fn stop(&self) -> robocal_drivers::DriverResult<()> {
-        self.arm.stop().await
-    }
-}
-
-#[async_trait::async_trait]
-impl robocal_drivers::ArmStatus for KeepAlive {
-    async fn state(&self) -> robocal_drivers::DriverResult<robocal_drivers::ArmState> {
-        self.arm.state().await
-    }
-    async fn recover(&self) -> robocal_drivers::DriverResult<()> {
-        self.arm.recover().await
-    }
-}
-
-/// `robocal run --sim` over the wire: load the scenario (clock forced to virtual or real),
-/// build its world, and run [`wire_cell`] on a background runtime of its own (two worker
-/// threads) that serves the simulators and drives the clients' sockets, so the caller may
-/// use the devices from any runtime (`robocal run` uses a current-thread one). The runtime
-/// and servers live as long as the returned arm does.
-pub fn wire_sim_devices(
-    scenario_path: &std::path::Path,
-    virtual_clock: bool,
-) -> anyhow::Result<(Devices, CellInfo)> {
-    use robocal_mocks::scenario::ClockMode;
-    let mut scenario = robocal_mocks::Scenario::load(scenario_path)?;
-    scenario.clock = if virtual_clock {
-        ClockMode::Virtual
-    } else {
-        ClockMode::Real
-    };
-    let world = WorldHandle::from_scenario(&scenario)
-        .with_context(|| format!("building the world of {}", scenario_path.display()))?;
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .thread_name("robocal-wire-sim")
-        .enable_all()
-        .build()
-        .context("starting the simulators' runtime")?;
-    let (mut devices, info, served) = rt
-        .block_on(wire_cell(&world))
-        .with_context(|| format!("{}", scenario_path.display()))?;
-    let background = Arc::new(Background {
-        served,
-        rt: Some(rt),
-    });
-    devices.arm = Arc::new(KeepAlive {
-        arm: devices.arm,
-        _background: background,
-    });
-    Ok((devices, info))
 }

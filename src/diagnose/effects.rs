@@ -15,10 +15,10 @@ use nalgebra::{Matrix3xX, Point3, Vector3};
 use serde_json::{json, Map, Value};
 use std::borrow::Cow;
 
-use super::data::ObsCtx;
 use super::nonparam::Rbf;
 use crate::dataset::CalEffect;
 use crate::model::{KinematicModel, ParamGroup};
+use crate::solve::obs::{PoseCtx, PoseObs};
 
 /// Standard gravity (m/s²).
 pub const GRAVITY: f64 = 9.80665;
@@ -70,7 +70,7 @@ pub enum Driver {
 
 impl Driver {
     /// The driver value for one pose (hours, K or the warm-up fraction).
-    pub fn value(&self, ctx: &ObsCtx) -> f64 {
+    pub fn value(&self, ctx: &PoseCtx) -> f64 {
         match self {
             Driver::Time { t0_s } => (ctx.t - t0_s) / 3600.0,
             Driver::Temp { t0_c } => ctx.temp_c.map(|t| t - t0_c).unwrap_or(0.0),
@@ -139,9 +139,51 @@ pub enum Block {
     Nonparametric(Box<Rbf>),
 }
 
-impl Block {
+/// One effect of the library: the interface the diagnosis uses for every candidate and
+/// fitted effect. A candidate is checked for identifiability on the data
+/// ([`EffectModel::check_identifiable`]), scored by its columns of the same problem's
+/// Jacobian ([`super::fit::DiagnoseProblem`], built from [`EffectModel::columns`]), and
+/// refitted jointly with the geometry on the one LM solver ([`crate::solve::lm`]); the
+/// finite-difference test of `diagnose::fit` checks those columns for every effect.
+///
+/// The library is the closed set of [`Block`] variants (each with its arm in every method
+/// below), so calibration files round-trip by kind name.
+pub trait EffectModel {
+    /// Effect kind (the contract's names: `joint_compliance`, `backlash`, ...).
+    fn kind(&self) -> &'static str;
+    /// The joint (1-based) the effect belongs to, if any.
+    fn joint(&self) -> Option<usize>;
+    /// Number of linear parameters (coefficients).
+    fn n_params(&self) -> usize;
+    /// Names of the parameters with their internal unit (`name [unit]`).
+    fn param_names(&self) -> Vec<String>;
+    /// A short human label, e.g. `joint_compliance(j2)`.
+    fn label(&self) -> String;
+    /// Joint-angle regressor: `(joint index 0-based, parameter index, feature)` so that
+    /// `δθ_joint += coef · feature`. Empty for effects that do not act on joint angles.
+    fn joint_features(&self, model: &KinematicModel, ctx: &PoseCtx) -> Vec<(usize, usize, f64)>;
+    /// Apply a frame effect (base shift, link growth) with coefficients `coefs` to the model
+    /// one pose is predicted with; joint-angle effects leave it alone.
+    fn apply_frame(&self, coefs: &[f64], model: &mut Cow<KinematicModel>, ctx: &PoseCtx);
+    /// Analytic Jacobian: d point / d parameter at one pose, given the model the pose is
+    /// evaluated with, its full parameter Jacobian `jm` and the point `p`.
+    fn columns(
+        &self,
+        model: &KinematicModel,
+        jm: &Matrix3xX<f64>,
+        p: &Point3<f64>,
+        ctx: &PoseCtx,
+    ) -> Vec<Vector3<f64>>;
+    /// Whether the data can identify the effect at all (`Err` says why not: no approach
+    /// from both sides, a vertical axis with constant gravity torque, no joint velocity).
+    /// The numerical identifiability against the model (independence of the columns) is
+    /// part of the score.
+    fn check_identifiable(&self, model: &KinematicModel, train: &[PoseObs]) -> Result<(), String>;
+}
+
+impl EffectModel for Block {
     /// Effect kind (the contract's names).
-    pub fn kind(&self) -> &'static str {
+    fn kind(&self) -> &'static str {
         match self {
             Block::Compliance { .. } => "joint_compliance",
             Block::Backlash { .. } => "backlash",
@@ -156,7 +198,7 @@ impl Block {
         }
     }
     /// The joint (1-based) the effect belongs to, if any.
-    pub fn joint(&self) -> Option<usize> {
+    fn joint(&self) -> Option<usize> {
         match self {
             Block::Compliance { joint, .. }
             | Block::Backlash { joint }
@@ -168,7 +210,7 @@ impl Block {
         }
     }
     /// Number of linear coefficients.
-    pub fn n_coefs(&self) -> usize {
+    fn n_params(&self) -> usize {
         match self {
             Block::Compliance { points, .. } => points.len(),
             Block::Eccentricity { .. } => 4,
@@ -179,7 +221,7 @@ impl Block {
         }
     }
     /// A short human label, e.g. `joint_compliance(j2)`.
-    pub fn label(&self) -> String {
+    fn label(&self) -> String {
         let extra = match self {
             Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => {
                 format!(", {}", driver.label())
@@ -194,13 +236,13 @@ impl Block {
             ""
         };
         match self.joint() {
-            Some(j) => format!("{}(j{j}{extra})", self.kind()),
-            None if extra.is_empty() && lengths.is_empty() => self.kind().to_string(),
-            None => format!("{}({lengths}{extra})", self.kind()),
+            Some(j) => format!("{}(j{j}{extra})", EffectModel::kind(self)),
+            None if extra.is_empty() && lengths.is_empty() => EffectModel::kind(self).to_string(),
+            None => format!("{}({lengths}{extra})", EffectModel::kind(self)),
         }
     }
     /// Names of the coefficients with their internal unit.
-    pub fn coef_names(&self) -> Vec<String> {
+    fn param_names(&self) -> Vec<String> {
         match self {
             Block::Compliance { points, .. } => points
                 .iter()
@@ -241,7 +283,7 @@ impl Block {
 
     /// Sparse joint-angle regressors: `(joint index 0-based, coef index, feature)` so that
     /// `δθ_joint += coef · feature`. Empty for effects that do not act on joint angles.
-    pub fn joint_features(&self, model: &KinematicModel, ctx: &ObsCtx) -> Vec<(usize, usize, f64)> {
+    fn joint_features(&self, model: &KinematicModel, ctx: &PoseCtx) -> Vec<(usize, usize, f64)> {
         let n = model.dof();
         match self {
             Block::Compliance { joint, points } => {
@@ -292,6 +334,136 @@ impl Block {
                 None => vec![],
             },
             _ => vec![],
+        }
+    }
+
+    fn apply_frame(&self, coefs: &[f64], out: &mut Cow<KinematicModel>, ctx: &PoseCtx) {
+        match self {
+            Block::BaseShift { t_change } if ctx.t >= *t_change && coefs.len() == 6 => {
+                let m = out.to_mut();
+                for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
+                    let name = format!("base_{sfx}");
+                    if let Some(v) = m.param(&name) {
+                        let _ = m.set_param(&name, v + coefs[k]);
+                    }
+                }
+            }
+            Block::LengthDrift { driver } if coefs.len() == 1 => {
+                let f = 1.0 + coefs[0] * driver.value(ctx);
+                let m = out.to_mut();
+                let mut v = m.param_values();
+                for (i, p) in m.params().iter().enumerate() {
+                    if is_length(p) {
+                        v[i] *= f;
+                    }
+                }
+                m.set_param_values(&v);
+            }
+            _ => {}
+        }
+    }
+
+    fn columns(
+        &self,
+        model: &KinematicModel,
+        jm: &Matrix3xX<f64>,
+        p: &Point3<f64>,
+        ctx: &PoseCtx,
+    ) -> Vec<Vector3<f64>> {
+        let mut cols = vec![Vector3::zeros(); self.n_params()];
+        for (j, c, f) in self.joint_features(model, ctx) {
+            if let Some(ip) = model.param_index(&format!("phi{}", j + 1)) {
+                cols[c] += jm.column(ip) * f;
+            }
+        }
+        match self {
+            Block::BaseShift { t_change } if ctx.t >= *t_change => {
+                for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
+                    if let Some(ip) = model.param_index(&format!("base_{sfx}")) {
+                        cols[k] = jm.column(ip).into_owned();
+                    }
+                }
+            }
+            Block::LengthDrift { driver } => {
+                let x = driver.value(ctx);
+                for (i, pr) in model.params().iter().enumerate() {
+                    if is_length(pr) {
+                        cols[0] += jm.column(i) * (pr.value * x);
+                    }
+                }
+            }
+            Block::TrackerScale => cols[0] = p.coords,
+            _ => {}
+        }
+        cols
+    }
+
+    fn check_identifiable(&self, model: &KinematicModel, train: &[PoseObs]) -> Result<(), String> {
+        match self {
+            Block::Compliance { joint, points } => {
+                // A vertical axis carries a constant gravity torque: absorbed by the offset.
+                let taus: Vec<f64> = train
+                    .iter()
+                    .map(|o| gravity_torques(model, &o.q, *joint, points).iter().sum())
+                    .collect();
+                let n = taus.len().max(1) as f64;
+                let m = taus.iter().sum::<f64>() / n;
+                let sd = (taus.iter().map(|t| (t - m).powi(2)).sum::<f64>() / n).sqrt();
+                if points.is_empty() || sd <= 0.05 {
+                    return Err(format!(
+                        "the gravity torque about joint {joint} hardly varies over the poses (sd {sd:.3} N·m per kg)"
+                    ));
+                }
+                Ok(())
+            }
+            Block::Backlash { joint } => {
+                let side = |s: f64| {
+                    train
+                        .iter()
+                        .filter(|o| o.approach.get(joint - 1) == Some(&s))
+                        .count()
+                };
+                let (plus, minus) = (side(1.0), side(-1.0));
+                if plus >= 5 && minus >= 5 {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "joint {joint} is approached {plus}× from below and {minus}× from above (need ≥ 5 each)"
+                    ))
+                }
+            }
+            Block::Latency => {
+                let with_qd = train.iter().filter(|o| o.qd.is_some()).count();
+                if with_qd * 2 >= train.len() && with_qd > 0 {
+                    Ok(())
+                } else {
+                    Err("records carry no joint velocity (stop-and-measure data): latency is unobservable and irrelevant".into())
+                }
+            }
+            Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => {
+                let (lo, hi) = match driver {
+                    Driver::Temp { .. } => {
+                        let t: Vec<f64> = train.iter().filter_map(|o| o.temp_c).collect();
+                        if t.len() < train.len() || t.is_empty() {
+                            return Err("not every record carries temp_c".into());
+                        }
+                        (
+                            t.iter().copied().fold(f64::INFINITY, f64::min),
+                            t.iter().copied().fold(f64::NEG_INFINITY, f64::max) - 0.5,
+                        )
+                    }
+                    _ => (
+                        train.iter().map(|o| o.t).fold(f64::INFINITY, f64::min),
+                        train.iter().map(|o| o.t).fold(f64::NEG_INFINITY, f64::max) - 60.0,
+                    ),
+                };
+                if hi > lo {
+                    Ok(())
+                } else {
+                    Err("the session spans less than a minute (or 0.5 °C)".into())
+                }
+            }
+            _ => Ok(()),
         }
     }
 }
@@ -380,7 +552,7 @@ fn tau_param(d: &Driver, tau_std: f64) -> Option<crate::schema::EffectParameter>
 impl Effect {
     /// A zero effect of a block.
     pub fn zero(block: Block) -> Self {
-        let n = block.n_coefs();
+        let n = block.n_params();
         Effect {
             block,
             coefs: vec![0.0; n],
@@ -391,7 +563,7 @@ impl Effect {
 }
 
 /// `δθ` (rad, per joint) of all joint-angle effects at one pose.
-pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Vec<f64> {
+pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Vec<f64> {
     let mut d = vec![0.0; model.dof()];
     for e in effects {
         for (j, c, f) in e.block.joint_features(model, ctx) {
@@ -408,36 +580,11 @@ pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -
 pub fn pose_model<'a>(
     model: &'a KinematicModel,
     effects: &[Effect],
-    ctx: &ObsCtx,
+    ctx: &PoseCtx,
 ) -> Cow<'a, KinematicModel> {
     let mut out: Cow<KinematicModel> = Cow::Borrowed(model);
     for e in effects {
-        match &e.block {
-            Block::BaseShift { t_change } if ctx.t >= *t_change && e.coefs.len() == 6 => {
-                let m = out.to_mut();
-                for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
-                    let name = format!("base_{sfx}");
-                    if let Some(v) = m.param(&name) {
-                        let _ = m.set_param(&name, v + e.coefs[k]);
-                    }
-                }
-            }
-            Block::LengthDrift { driver } if e.coefs.len() == 1 => {
-                let f = 1.0 + e.coefs[0] * driver.value(ctx);
-                let m = out.to_mut();
-                let mut v = m.param_values();
-                for (i, p) in m.params().iter().enumerate() {
-                    if matches!(p.group, ParamGroup::Joint(_))
-                        && (p.name.starts_with('a') && !p.name.starts_with("alpha")
-                            || p.name.starts_with('d'))
-                    {
-                        v[i] *= f;
-                    }
-                }
-                m.set_param_values(&v);
-            }
-            _ => {}
-        }
+        e.block.apply_frame(&e.coefs, &mut out, ctx);
     }
     out
 }
@@ -451,7 +598,7 @@ fn tracker_scale(effects: &[Effect]) -> f64 {
 }
 
 /// Predicted marker origin (mm, tracker frame) of one pose with all effects applied.
-pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Point3<f64> {
+pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Point3<f64> {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
@@ -476,7 +623,7 @@ pub struct PoseEval {
 }
 
 /// Evaluate one pose (see [`PoseEval`]).
-pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> PoseEval {
+pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> PoseEval {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
@@ -500,7 +647,7 @@ pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Po
     }
     let s = 1.0 + tracker_scale(effects);
     let mut pred = p.coords * s;
-    let ncol: usize = effects.iter().map(|e| e.block.n_coefs()).sum();
+    let ncol: usize = effects.iter().map(|e| e.block.n_params()).sum();
     let mut je = Matrix3xX::zeros(ncol);
     let mut off = 0;
     for e in effects {
@@ -521,7 +668,7 @@ pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Po
         if let Block::Nonparametric(r) = &e.block {
             pred += r.correction(model, &ctx.q);
         }
-        off += e.block.n_coefs();
+        off += e.block.n_params();
     }
     PoseEval {
         pred: Point3::from(pred),
@@ -530,45 +677,71 @@ pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &ObsCtx) -> Po
     }
 }
 
-/// Columns (d point / d coef) of one block at one pose, given the model the pose is
-/// evaluated with, its full parameter Jacobian and the point.
+/// Columns (d point / d coef) of one block at one pose (see [`EffectModel::columns`]).
 pub fn block_columns(
     block: &Block,
     model: &KinematicModel,
     jm: &Matrix3xX<f64>,
     p: &Point3<f64>,
-    ctx: &ObsCtx,
+    ctx: &PoseCtx,
 ) -> Vec<Vector3<f64>> {
-    let mut cols = vec![Vector3::zeros(); block.n_coefs()];
-    let feats = block.joint_features(model, ctx);
-    for (j, c, f) in feats {
-        if let Some(ip) = model.param_index(&format!("phi{}", j + 1)) {
-            cols[c] += jm.column(ip) * f;
+    block.columns(model, jm, p, ctx)
+}
+
+/// A library effect as an extension of the kinematic identification
+/// ([`crate::solve::kinematics::Effect`]): `solve::identify` refits it jointly with the
+/// geometry on the same LM solver. Its correction is the exact change of the predicted
+/// marker point the effect makes, `p(q, model, effect) − p(q, model)`, and its Jacobian the
+/// effect's analytic columns ([`EffectModel::columns`] through [`eval_pose`]).
+#[derive(Debug, Clone)]
+pub struct LibraryEffect {
+    pub block: Block,
+    /// Starting coefficients (internal units; zeros by [`LibraryEffect::new`]).
+    pub initial: Vec<f64>,
+}
+
+impl LibraryEffect {
+    /// The effect with zero starting coefficients.
+    pub fn new(block: Block) -> Self {
+        let n = block.n_params();
+        LibraryEffect {
+            block,
+            initial: vec![0.0; n],
         }
     }
-    match block {
-        Block::BaseShift { t_change } if ctx.t >= *t_change => {
-            for (k, sfx) in ["x", "y", "z", "rx", "ry", "rz"].iter().enumerate() {
-                if let Some(ip) = model.param_index(&format!("base_{sfx}")) {
-                    cols[k] = jm.column(ip).into_owned();
-                }
-            }
-        }
-        Block::LengthDrift { driver } => {
-            let x = driver.value(ctx);
-            for (i, pr) in model.params().iter().enumerate() {
-                if matches!(pr.group, ParamGroup::Joint(_))
-                    && (pr.name.starts_with('a') && !pr.name.starts_with("alpha")
-                        || pr.name.starts_with('d'))
-                {
-                    cols[0] += jm.column(i) * (pr.value * x);
-                }
-            }
-        }
-        Block::TrackerScale => cols[0] = p.coords,
-        _ => {}
+}
+
+impl crate::solve::kinematics::Effect for LibraryEffect {
+    fn kind(&self) -> String {
+        EffectModel::kind(&self.block).into()
     }
-    cols
+    fn param_names(&self) -> Vec<String> {
+        self.block.param_names()
+    }
+    fn initial(&self) -> Vec<f64> {
+        self.initial.clone()
+    }
+    fn point_correction(
+        &self,
+        model: &KinematicModel,
+        obs: &PoseObs,
+        theta: &[f64],
+        jac: Option<&mut Matrix3xX<f64>>,
+    ) -> Vector3<f64> {
+        let e = Effect {
+            block: self.block.clone(),
+            coefs: theta.to_vec(),
+            std: vec![f64::NAN; theta.len()],
+            tau_std: f64::NAN,
+        };
+        let ev = eval_pose(model, std::slice::from_ref(&e), &obs.ctx);
+        if let Some(j) = jac {
+            if j.ncols() == ev.jac_effects.ncols() {
+                j.copy_from(&ev.jac_effects);
+            }
+        }
+        ev.pred.coords - model.measured_point(&obs.q).coords
+    }
 }
 
 // ---------------------------------------------------------------------- file form
@@ -922,28 +1095,13 @@ impl Effect {
 pub fn apply_cal_effects(
     model: &KinematicModel,
     effects: &[CalEffect],
-    ctx: &ObsCtx,
+    ctx: &PoseCtx,
 ) -> anyhow::Result<Point3<f64>> {
     let e = effects
         .iter()
         .map(Effect::from_cal)
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok(apply_effects(model, &e, ctx))
-}
-
-/// The context of one pose record within its dataset (approach direction from the
-/// records before it in time, see [`super::data::contexts`]). `None` if the record has no
-/// usable joint angles.
-pub fn record_context(
-    rec: &crate::dataset::PoseRecord,
-    ds: &crate::dataset::Dataset,
-    dof: usize,
-) -> Option<ObsCtx> {
-    let session: Vec<&crate::dataset::PoseRecord> = ds.poses().collect();
-    super::data::contexts(&session, dof)
-        .into_iter()
-        .find(|(key, _)| *key == super::data::record_key(rec))
-        .map(|(_, c)| c)
 }
 
 /// Prediction of one pose record of `ds` with a calibration's effects (the hook of
@@ -954,7 +1112,7 @@ pub fn predict_record(
     rec: &crate::dataset::PoseRecord,
     ds: &crate::dataset::Dataset,
 ) -> anyhow::Result<Point3<f64>> {
-    let ctx = record_context(rec, ds, model.dof()).ok_or_else(|| {
+    let ctx = crate::solve::obs::record_context(rec, ds, model.dof()).ok_or_else(|| {
         anyhow::anyhow!(
             "pose {}: no usable joint angles `q` for the effects",
             rec.id

@@ -3,11 +3,11 @@
 //! registration by [`crate::solve::rigid::register_points`], then base + tool position).
 use nalgebra::{DMatrix, DVector, Isometry3, Point3};
 
-use super::data::Obs;
-use super::effects::{eval_pose, Effect};
+use super::effects::{eval_pose, Effect, EffectModel};
 use super::stats::{lstsq, normal_inverse};
 use crate::model::{KinematicModel, ParamGroup};
 use crate::solve::lm::{minimize, LmOptions, LsqProblem};
+use crate::solve::obs::PoseObs;
 
 /// A model and its effects: what is fitted and what predicts.
 #[derive(Debug, Clone)]
@@ -18,15 +18,15 @@ pub struct State {
 
 /// Stacked residual (3 rows per observation, `y − pred`, mm) and Jacobian of the
 /// prediction w.r.t. [free model params, effect coefs].
-pub fn stack(state: &State, obs: &[Obs]) -> (DVector<f64>, DMatrix<f64>) {
+pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
     let free = state.model.free_indices();
-    let ne: usize = state.effects.iter().map(|e| e.block.n_coefs()).sum();
+    let ne: usize = state.effects.iter().map(|e| e.block.n_params()).sum();
     let p = free.len() + ne;
     let mut r = DVector::zeros(3 * obs.len());
     let mut j = DMatrix::zeros(3 * obs.len(), p);
     for (k, o) in obs.iter().enumerate() {
         let ev = eval_pose(&state.model, &state.effects, &o.ctx);
-        let d = o.y - ev.pred;
+        let d = o.p - ev.pred;
         for a in 0..3 {
             r[3 * k + a] = d[a];
             for (c, &fi) in free.iter().enumerate() {
@@ -41,11 +41,11 @@ pub fn stack(state: &State, obs: &[Obs]) -> (DVector<f64>, DMatrix<f64>) {
 }
 
 /// Residuals only.
-pub fn residuals(state: &State, obs: &[Obs]) -> DVector<f64> {
+pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
     let mut r = DVector::zeros(3 * obs.len());
     for (k, o) in obs.iter().enumerate() {
         let p = super::effects::apply_effects(&state.model, &state.effects, &o.ctx);
-        let d = o.y - p;
+        let d = o.p - p;
         for a in 0..3 {
             r[3 * k + a] = d[a];
         }
@@ -97,7 +97,7 @@ pub fn with_params(state: &State, x: &DVector<f64>) -> State {
 /// analytic one of [`stack`].
 pub struct DiagnoseProblem<'a> {
     pub state: &'a State,
-    pub obs: &'a [Obs],
+    pub obs: &'a [PoseObs],
 }
 
 impl LsqProblem for DiagnoseProblem<'_> {
@@ -107,7 +107,7 @@ impl LsqProblem for DiagnoseProblem<'_> {
                 .state
                 .effects
                 .iter()
-                .map(|e| e.block.n_coefs())
+                .map(|e| e.block.n_params())
                 .sum::<usize>()
     }
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
@@ -132,7 +132,7 @@ pub struct FitReport {
 /// Minimise the residual over free model params and effect coefs with the LM solver
 /// ([`crate::solve::lm::minimize`]). Effect standard deviations are set from the final
 /// Jacobian.
-pub fn fit(state: &mut State, obs: &[Obs], max_iter: usize) -> FitReport {
+pub fn fit(state: &mut State, obs: &[PoseObs], max_iter: usize) -> FitReport {
     let x0 = params_of(state);
     let rep = {
         let prob = DiagnoseProblem { state, obs };
@@ -178,7 +178,7 @@ pub fn fit(state: &mut State, obs: &[Obs], max_iter: usize) -> FitReport {
 /// Nominal fit: register the base (tracker ← robot base) from flange positions, then fit
 /// base (6) and tool position (3) with all joint parameters at nominal. Leaves the model's
 /// free flags as they were on entry.
-pub fn fit_nominal(model: &mut KinematicModel, obs: &[Obs]) -> anyhow::Result<FitReport> {
+pub fn fit_nominal(model: &mut KinematicModel, obs: &[PoseObs]) -> anyhow::Result<FitReport> {
     if obs.len() < 4 {
         anyhow::bail!("need at least 4 measured poses, got {}", obs.len());
     }
@@ -186,7 +186,7 @@ pub fn fit_nominal(model: &mut KinematicModel, obs: &[Obs]) -> anyhow::Result<Fi
         .iter()
         .map(|o| Point3::from(model.flange_pose(&o.ctx.q).translation.vector))
         .collect();
-    let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.y).collect();
+    let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.p).collect();
     let b = crate::solve::rigid::register_points(&flange, &ys)
         .map_err(|e| anyhow::anyhow!("cannot register the tracker to the robot base: {e}"))?;
     model.set_base(&b);
@@ -222,18 +222,20 @@ pub fn fit_nominal(model: &mut KinematicModel, obs: &[Obs]) -> anyhow::Result<Fi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagnose::data::ObsCtx;
     use crate::diagnose::effects::{mass_points, Block, Driver, Effect};
+    use crate::solve::obs::PoseCtx;
 
-    fn obs(model: &KinematicModel, n: usize) -> Vec<Obs> {
+    fn obs(model: &KinematicModel, n: usize) -> Vec<PoseObs> {
         (0..n)
             .map(|k| {
                 let f = k as f64;
                 let q: Vec<f64> = (0..model.dof())
                     .map(|i| 0.3 * ((f + 1.0) * (i as f64 + 1.3)).sin() + 0.1 * i as f64)
                     .collect();
-                let ctx = ObsCtx {
+                let ctx = PoseCtx {
                     id: k as u64,
+                    q_cmd: None,
+                    q_prev: None,
                     t: 400.0 * f,
                     approach: (0..model.dof())
                         .map(|i| if (k + i) % 2 == 0 { 1.0 } else { -1.0 })
@@ -243,7 +245,14 @@ mod tests {
                     q: q.clone(),
                 };
                 let y = model.measured_point(&q) + nalgebra::Vector3::new(0.1, -0.2, 0.05);
-                Obs { ctx, y }
+                PoseObs {
+                    ctx,
+                    p: y,
+                    quat: None,
+                    point: None,
+                    branch: None,
+                    group: None,
+                }
             })
             .collect()
     }

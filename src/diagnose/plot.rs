@@ -9,14 +9,14 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use std::path::Path;
 
-use super::data::Obs;
-use super::effects::{apply_effects, Effect};
+use super::effects::{apply_effects, Effect, EffectModel};
 use super::fit::State;
+use crate::solve::obs::PoseObs;
 
 /// (x, y) pairs of the partial-residual plot of `state.effects[idx]`, and axis labels.
 pub fn partial_residual(
     state: &State,
-    obs: &[Obs],
+    obs: &[PoseObs],
     idx: usize,
 ) -> (Vec<(f64, f64)>, String, String) {
     let e = &state.effects[idx];
@@ -33,7 +33,7 @@ pub fn partial_residual(
         let full = apply_effects(&state.model, &state.effects, &o.ctx);
         let without = apply_effects(&state.model, &others, &o.ctx);
         let g: Vector3<f64> = full - without;
-        let r = o.y - full;
+        let r = o.p - full;
         let pr = r + g;
         match joint {
             Some(j) => {

@@ -6,11 +6,11 @@
 //! was never fitted to, with only the setup registration re-done.
 use nalgebra::{DMatrix, DVector, Point3};
 
-use super::data::Obs;
 use super::effects::apply_effects;
 use super::fit::{residuals, rms3, stack, State};
 use crate::model::ParamGroup;
 use crate::solve::lm::{minimize, LmOptions, LsqProblem};
+use crate::solve::obs::PoseObs;
 
 /// Whether a parameter is part of the setup registration (re-fitted on a new setup).
 fn is_setup(group: ParamGroup, name: &str) -> bool {
@@ -25,7 +25,7 @@ fn is_setup(group: ParamGroup, name: &str) -> bool {
 /// parameters of `state.model` (effects fixed).
 struct SetupProblem<'a> {
     state: &'a State,
-    obs: &'a [Obs],
+    obs: &'a [PoseObs],
 }
 
 impl SetupProblem<'_> {
@@ -55,7 +55,7 @@ impl LsqProblem for SetupProblem<'_> {
 /// `state` with the tracker ← base and marker position re-fitted on `obs` (at least 6
 /// poses); everything else as identified. The free flags of the returned model are those of
 /// `state`.
-pub fn refit_setup(state: &State, obs: &[Obs]) -> anyhow::Result<State> {
+pub fn refit_setup(state: &State, obs: &[PoseObs]) -> anyhow::Result<State> {
     anyhow::ensure!(
         obs.len() >= 6,
         "re-registering a setup needs at least 6 measured poses, got {}",
@@ -70,7 +70,7 @@ pub fn refit_setup(state: &State, obs: &[Obs]) -> anyhow::Result<State> {
         .iter()
         .map(|o| inv * apply_effects(&st.model, &st.effects, &o.ctx))
         .collect();
-    let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.y).collect();
+    let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.p).collect();
     let b = crate::solve::rigid::register_points(&pred, &ys)
         .map_err(|e| anyhow::anyhow!("cannot register the new setup to the robot base: {e}"))?;
     st.model.set_base(&b);
@@ -119,7 +119,6 @@ pub fn refit_setup(state: &State, obs: &[Obs]) -> anyhow::Result<State> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagnose::data::ObsCtx;
     use crate::model::KinematicModel;
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -141,23 +140,15 @@ mod tests {
         moved
             .set_param("tool_x", truth.param("tool_x").unwrap() + 15.0)
             .unwrap();
-        let obs: Vec<Obs> = (0..30)
+        let obs: Vec<PoseObs> = (0..30)
             .map(|k| {
                 let f = k as f64;
                 let q: Vec<f64> = (0..6)
                     .map(|i| 0.8 * ((f + 1.0) * (i as f64 + 1.7)).sin())
                     .collect();
-                Obs {
-                    ctx: ObsCtx {
-                        id: k,
-                        t: f,
-                        approach: vec![1.0; 6],
-                        temp_c: None,
-                        qd: None,
-                        q: q.clone(),
-                    },
-                    y: moved.measured_point(&q),
-                }
+                let mut o = PoseObs::at(k, f, q.clone(), moved.measured_point(&q));
+                o.ctx.approach = vec![1.0; 6];
+                o
             })
             .collect();
         let state = State {

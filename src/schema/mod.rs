@@ -21,6 +21,8 @@ use std::path::Path;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub mod points_csv;
+
 pub use crate::acquire::summary::RunSummary;
 pub use crate::dataset::{CalEffect, CalibrationFile, CALIBRATION_FORMAT};
 pub use crate::plan::file::{PlanFile, PLAN_FORMAT};
@@ -262,7 +264,12 @@ pub struct DiagnosisFile {
     /// What the RMS figures measure (e.g. `3-D marker point error`).
     pub residual: String,
     pub n_train: usize,
+    /// Number of held-out poses scored in `heldout_rms` and the effects' held-out RMS.
     pub n_heldout: usize,
+    /// Held-out poses left out of every held-out RMS (change-point ambiguous, listed in
+    /// `ambiguous_heldout`).
+    #[serde(default)]
+    pub n_heldout_excluded: usize,
     pub train_rms: StageRms,
     pub heldout_rms: StageRms,
     /// Accepted effects in the order they were added.
@@ -450,6 +457,7 @@ mod tests {
             residual: "point-to-plane distance".into(),
             n_train: 10,
             n_heldout: 0,
+            n_heldout_excluded: 0,
             train_rms: StageRms {
                 nominal_mm: None,
                 base_model_mm: Some(0.2),

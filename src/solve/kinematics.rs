@@ -729,18 +729,9 @@ pub fn structural_parameters(
                 })
                 .collect();
             let pose = start.flange_pose(&q);
-            PoseObs {
-                id: i,
-                t: i as f64,
-                p: start.measured_point(&q),
-                quat: Some(pose.rotation),
-                q,
-                q_cmd: None,
-                point: None,
-                branch: None,
-                group: None,
-                temp_c: None,
-            }
+            let mut o = PoseObs::at(i, i as f64, q.clone(), start.measured_point(&q));
+            o.quat = Some(pose.rotation);
+            o
         })
         .collect();
     let none: [Arc<dyn Effect>; 0] = [];

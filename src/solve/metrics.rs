@@ -188,18 +188,10 @@ mod tests {
     use super::*;
 
     fn obs(id: u64, point: u64, branch: u64, p: [f64; 3]) -> PoseObs {
-        PoseObs {
-            id,
-            t: 0.0,
-            q: vec![0.0; 6],
-            q_cmd: None,
-            p: Point3::new(p[0], p[1], p[2]),
-            quat: None,
-            point: Some(point),
-            branch: Some(branch),
-            group: None,
-            temp_c: None,
-        }
+        let mut o = PoseObs::at(id, 0.0, vec![0.0; 6], Point3::new(p[0], p[1], p[2]));
+        o.point = Some(point);
+        o.branch = Some(branch);
+        o
     }
 
     #[test]

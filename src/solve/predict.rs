@@ -151,8 +151,8 @@ impl Predictor {
         };
         // Session context once for the whole file (approach directions, times).
         let recs: Vec<&PoseRecord> = ds.poses().collect();
-        let (ctx, inferred) = crate::diagnose::data::contexts_counted(&recs, model.dof());
-        let by_key: std::collections::HashMap<usize, &crate::diagnose::data::ObsCtx> =
+        let (ctx, inferred) = crate::solve::obs::contexts_counted(&recs, model.dof());
+        let by_key: std::collections::HashMap<usize, &crate::solve::obs::PoseCtx> =
             ctx.iter().map(|(k, c)| (*k, c)).collect();
         let parsed = effects
             .iter()
@@ -160,7 +160,7 @@ impl Predictor {
             .collect::<anyhow::Result<Vec<_>>>()?;
         let mut warnings = Vec::new();
         if inferred > 0 && effects.iter().any(|e| e.kind == "backlash") {
-            warnings.push(crate::diagnose::data::q_prev_warning(
+            warnings.push(crate::solve::obs::q_prev_warning(
                 inferred,
                 "the backlash effect",
             ));
@@ -173,7 +173,7 @@ impl Predictor {
                 model.measured_point(&q_rad)
             } else {
                 let c = by_key
-                    .get(&crate::diagnose::data::record_key(rec))
+                    .get(&crate::solve::obs::record_key(rec))
                     .ok_or_else(|| {
                         anyhow::anyhow!("pose {}: no usable time or joints for the effects", rec.id)
                     })?;

@@ -13,7 +13,7 @@
 
 use super::client::BcapClient;
 use super::error::BcapError;
-use super::frame::Variant;
+use super::frame::{hresult::E_ACCESSDENIED, Variant};
 use crate::error::{DriverError, DriverResult};
 use crate::traits::{
     ArmMode, ArmState, ArmStatus, FlangePose, FlangeToBase, JointReadout, JointState, MoveJoints,
@@ -22,6 +22,7 @@ use crate::traits::{
 use crate::ur::Backoff;
 use async_trait::async_trait;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
@@ -53,6 +54,10 @@ pub struct DensoConfig {
     pub move_margin: Duration,
     /// Reconnect policy.
     pub backoff: Backoff,
+    /// How long `TakeArm` waits while another session holds the arm (E_ACCESSDENIED) — after a
+    /// dropped link that is usually this host's own dead session, released once the controller
+    /// notices the close.
+    pub take_arm_wait: Duration,
 }
 
 impl DensoConfig {
@@ -71,6 +76,7 @@ impl DensoConfig {
             nominal_max_acc: super::NOMINAL_MAX_ACC_DEG_S2.to_radians(),
             move_margin: Duration::from_secs(5),
             backoff: Backoff::default(),
+            take_arm_wait: Duration::from_secs(15),
         }
     }
 }
@@ -90,6 +96,7 @@ struct Session {
 pub struct DensoArm {
     cfg: DensoConfig,
     reconnect: bool,
+    recoveries: AtomicU64,
     session: Mutex<Option<Session>>,
 }
 
@@ -163,6 +170,7 @@ impl DensoArm {
         Ok(Self {
             cfg,
             reconnect: true,
+            recoveries: AtomicU64::new(0),
             session: Mutex::new(Some(s)),
         })
     }
@@ -178,6 +186,7 @@ impl DensoArm {
         Ok(Self {
             cfg,
             reconnect: false,
+            recoveries: AtomicU64::new(0),
             session: Mutex::new(Some(Session {
                 client,
                 hctrl,
@@ -233,6 +242,7 @@ impl DensoArm {
                     self.cfg.addr
                 );
                 *g = Some(self.cfg.backoff.retry(|| open(&self.cfg)).await?);
+                self.recoveries.fetch_add(1, Ordering::Relaxed);
             }
             let s = g.as_mut().expect("set above");
             match f(s).await {
@@ -245,11 +255,31 @@ impl DensoArm {
         unreachable!("second attempt returns")
     }
 
-    async fn prepare(s: &mut Session) -> Result<(), BcapError> {
+    async fn prepare(s: &mut Session, take_arm_wait: Duration) -> Result<(), BcapError> {
         if !s.armed {
-            s.client
-                .robot_execute(s.hrobot, "TakeArm", Variant::I4Array(vec![0, 0]))
-                .await?;
+            // After a dropped link the controller still holds the arm for the dead session
+            // until it notices the close (or its watchdog fires): `TakeArm` is refused with
+            // E_ACCESSDENIED meanwhile. Wait for the release instead of failing the move.
+            let deadline = Instant::now() + take_arm_wait;
+            let mut pause = Duration::from_millis(50);
+            loop {
+                match s
+                    .client
+                    .robot_execute(s.hrobot, "TakeArm", Variant::I4Array(vec![0, 0]))
+                    .await
+                {
+                    Err(BcapError::Hresult { code, .. })
+                        if code == E_ACCESSDENIED && Instant::now() + pause < deadline =>
+                    {
+                        tokio::time::sleep(pause).await;
+                        pause = (pause * 2).min(Duration::from_secs(1));
+                    }
+                    r => {
+                        r?;
+                        break;
+                    }
+                }
+            }
             s.client
                 .robot_execute(s.hrobot, "Motor", Variant::I4Array(vec![1, 0]))
                 .await?;
@@ -289,6 +319,7 @@ impl DensoArm {
         let option = format!("SPEED={pv:.2},ACCEL={pa:.2},DECEL={pa:.2}");
         let pose = joint_pose_string(target);
         let margin = self.cfg.move_margin;
+        let wait = self.cfg.take_arm_wait;
         let cfg_dof = dof;
         let target = target.to_vec();
         self.with_session(false, move |s| {
@@ -296,7 +327,7 @@ impl DensoArm {
             let pose = pose.clone();
             let target = target.clone();
             Box::pin(async move {
-                Self::prepare(s).await?;
+                Self::prepare(s, wait).await?;
                 let q0 = Self::cur_jnt(s, cfg_dof).await?;
                 let d = q0
                     .iter()
@@ -400,6 +431,9 @@ impl MoveJoints for DensoArm {
 
 #[async_trait]
 impl ArmStatus for DensoArm {
+    fn link_recoveries(&self) -> u64 {
+        self.recoveries.load(Ordering::Relaxed)
+    }
     async fn state(&self) -> DriverResult<ArmState> {
         let (servo, err) = self
             .with_session(true, |s| {
@@ -446,13 +480,14 @@ impl ArmStatus for DensoArm {
         })
     }
     async fn recover(&self) -> DriverResult<()> {
-        self.with_session(true, |s| {
+        let wait = self.cfg.take_arm_wait;
+        self.with_session(true, move |s| {
             Box::pin(async move {
                 s.client
                     .controller_execute(s.hctrl, "ClearError", Variant::Empty)
                     .await?;
                 s.armed = false;
-                Self::prepare(s).await
+                Self::prepare(s, wait).await
             })
         })
         .await

@@ -17,6 +17,7 @@ use crate::traits::{
 };
 use async_trait::async_trait;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
@@ -78,6 +79,7 @@ impl UrConfig {
 pub struct UrArm {
     cfg: UrConfig,
     reconnect: bool,
+    recoveries: AtomicU64,
     rtde: Mutex<Option<Arc<RtdeClient>>>,
     dashboard: Mutex<Option<Arc<DashboardClient>>>,
     script: ScriptClient,
@@ -127,6 +129,7 @@ impl UrArm {
         let script = ScriptClient::connect(&cfg.addr(cfg.script_port), cfg.request_timeout).await?;
         Ok(Self {
             reconnect: true,
+            recoveries: AtomicU64::new(0),
             rtde: Mutex::new(Some(Arc::new(rtde))),
             dashboard: Mutex::new(Some(Arc::new(dash))),
             script,
@@ -143,6 +146,7 @@ impl UrArm {
     ) -> Self {
         Self {
             reconnect: false,
+            recoveries: AtomicU64::new(0),
             rtde: Mutex::new(Some(Arc::new(rtde))),
             dashboard: Mutex::new(Some(Arc::new(dashboard))),
             script,
@@ -165,6 +169,7 @@ impl UrArm {
             if !c.is_closed() || !self.reconnect {
                 return Ok(c.clone());
             }
+            self.recoveries.fetch_add(1, Ordering::Relaxed);
         }
         if !self.reconnect {
             return Err(UrError::Disconnected {
@@ -186,7 +191,9 @@ impl UrArm {
     }
 
     async fn drop_rtde(&self) {
-        *self.rtde.lock().await = None;
+        if self.rtde.lock().await.take().is_some() {
+            self.recoveries.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     /// A fresh-enough RTDE sample; on a broken or silent stream, reconnect once and retry.
@@ -239,6 +246,7 @@ impl UrArm {
         match f(d).await {
             Err(e) if self.reconnect && e.kind().needs_reconnect() => {
                 *self.dashboard.lock().await = None;
+                self.recoveries.fetch_add(1, Ordering::Relaxed);
                 let d = self.dashboard().await?;
                 f(d).await
             }
@@ -437,6 +445,9 @@ pub fn arm_state(robot_mode: i32, safety_mode: i32, runtime: u32) -> ArmState {
 
 #[async_trait]
 impl ArmStatus for UrArm {
+    fn link_recoveries(&self) -> u64 {
+        self.recoveries.load(Ordering::Relaxed)
+    }
     async fn state(&self) -> DriverResult<ArmState> {
         let s = self.sample(false).await.map_err(|e| self.err(e))?;
         Ok(arm_state(

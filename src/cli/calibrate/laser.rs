@@ -2,7 +2,6 @@
 
 use anyhow::{bail, Context as _};
 use nalgebra::Point3;
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use crate::dataset::{CalibrationFile, Dataset};
@@ -120,46 +119,6 @@ pub fn scan_report(
     Ok(s)
 }
 
-/// Read a truth / reference CSV `id,x_mm,y_mm,z_mm`.
-pub fn read_points_csv(path: &Path) -> anyhow::Result<HashMap<u64, Point3<f64>>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut out = HashMap::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if i == 0 || line.is_empty() {
-            if i == 0 && line != "id,x_mm,y_mm,z_mm" {
-                bail!(
-                    "{}:1: expected the header `id,x_mm,y_mm,z_mm`, found `{line}`",
-                    path.display()
-                );
-            }
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 4 {
-            bail!(
-                "{}:{}: expected 4 fields, found {}",
-                path.display(),
-                i + 1,
-                f.len()
-            );
-        }
-        let id: u64 = f[0]
-            .parse()
-            .with_context(|| format!("{}:{}: field `id`", path.display(), i + 1))?;
-        let mut v = [0.0; 3];
-        for (k, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
-            v[k] = f[k + 1]
-                .trim()
-                .parse()
-                .with_context(|| format!("{}:{}: field `{name}`", path.display(), i + 1))?;
-        }
-        out.insert(id, Point3::new(v[0], v[1], v[2]));
-    }
-    Ok(out)
-}
-
 /// The validation (target) poses of a `--heldout` file: read strictly, checked for
 /// plausibility and for the robot of `ds`; an error when it has none (never silently
 /// dropped).
@@ -199,7 +158,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         validation.extend(hd);
     }
     let truth = match &args.truth {
-        Some(p) => Some(read_points_csv(p)?),
+        Some(p) => Some(crate::schema::points_csv::read(p)?),
         None => None,
     };
     let cmp = laser::compare(&train, &validation, truth.as_ref(), args.huber)

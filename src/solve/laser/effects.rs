@@ -226,6 +226,7 @@ impl LaserDiagnosis {
             residual: "train: point-to-plane distance (mm); held-out: mean 5-direction spread of the validation targets (mm)".into(),
             n_train,
             n_heldout,
+            n_heldout_excluded: 0,
             train_rms: schema::StageRms {
                 nominal_mm: None,
                 base_model_mm: fin(self.rms_before_mm),
