@@ -31,25 +31,25 @@ use robocal_mocks::{Scenario, WorldHandle};
 
 /// Totals of one scenario's soak.
 #[derive(Default, Debug)]
-struct Tally {
-    poses: usize,
-    injected: usize,
-    consumed: usize,
-    stops: usize,
-    invocations: usize,
-    aborted: usize,
-    recorded: usize,
-    skipped: usize,
-    events: std::collections::BTreeMap<String, usize>,
-    skip_reasons: std::collections::BTreeMap<String, usize>,
+pub struct Tally {
+    pub poses: usize,
+    pub injected: usize,
+    pub consumed: usize,
+    pub stops: usize,
+    pub invocations: usize,
+    pub aborted: usize,
+    pub recorded: usize,
+    pub skipped: usize,
+    pub events: std::collections::BTreeMap<String, usize>,
+    pub skip_reasons: std::collections::BTreeMap<String, usize>,
     /// Per fault kind: (consumed, consumed and followed by at least one event).
-    consumed_by_kind: std::collections::BTreeMap<&'static str, (usize, usize)>,
+    pub consumed_by_kind: std::collections::BTreeMap<&'static str, (usize, usize)>,
     /// Faults that must surface as an error but left no event.
-    silent: Vec<String>,
+    pub silent: Vec<String>,
     /// The recorded pose ids.
-    ids: BTreeSet<u64>,
-    wall_s: f64,
-    sim_s: f64,
+    pub ids: BTreeSet<u64>,
+    pub wall_s: f64,
+    pub sim_s: f64,
 }
 
 /// The fault in flight: injected, not yet matched with its events.
@@ -162,7 +162,9 @@ fn fault(rng: &mut rand_chacha::ChaCha8Rng, device_kind: &str) -> Fault {
     }
 }
 
-fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
+/// Soak `n` random poses on the scenario `file` (relative to the crate) with fault probability
+/// `prob` per pose; every check of the module docs is an error when it fails.
+pub fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(file);
     let mut scenario = Scenario::load(&path)?;
     scenario.clock = ClockMode::Virtual;

@@ -231,7 +231,9 @@ fn k_true(sc: &Scenario) -> Intrinsics {
     }
 }
 
-/// RMS (px) of predicted corners against TRUE corners of the held-out views.
+/// RMS (px) of predicted corners against TRUE corners of the held-out views, under the full
+/// model of an estimate (board scale and bend; the flange poses of `data`, which the caller
+/// corrects for identified joint offsets).
 fn truth_rms(
     data: &CameraData,
     acq: &Acquired,
@@ -239,25 +241,24 @@ fn truth_rms(
     x: &Isometry3<f64>,
     target: &Isometry3<f64>,
     scale: f64,
+    bend: [f64; 2],
 ) -> f64 {
-    let mut board = data.board;
-    board.square_mm *= scale;
+    // The held-out views with the world's true corners in place of the detected ones: the
+    // residuals of the prediction are then prediction minus truth.
+    let views = data
+        .views
+        .iter()
+        .enumerate()
+        .map(|(v, view)| camera::View {
+            corners: acq.truth[v].0.clone(),
+            ..view.clone()
+        })
+        .collect();
     let d = CameraData {
-        board,
+        views,
         ..data.clone()
     };
-    let pred = camera::predict(&d, k, x, target);
-    let ids: Vec<u64> = data.views.iter().map(|v| v.id).collect();
-    let mut se = 0.0;
-    let mut n = 0;
-    for (id, c, uv) in pred {
-        let v = ids.iter().position(|i| *i == id).unwrap();
-        if let Some(t) = acq.truth[v].0[c] {
-            se += (uv[0] - t[0]).powi(2) + (uv[1] - t[1]).powi(2);
-            n += 1;
-        }
-    }
-    (se / n.max(1) as f64).sqrt()
+    camera::heldout_rms(&d, k, x, target, scale, bend)
 }
 
 fn he_err(x: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
@@ -393,6 +394,7 @@ fn main() {
                     &e.x,
                     &e.target,
                     1.0,
+                    [0.0; 2],
                 ),
                 ktruth_err(&e.intrinsics),
             ));
@@ -417,18 +419,41 @@ fn main() {
             }
             if let Some(f) = &d.final_estimate {
                 let (dt, dr) = he_err(&f.x, &x_true);
+                // Held-out flange poses through the identified joint offsets, if any.
+                let mut hd = held.data.clone();
+                if !d.joint_offsets_deg.is_empty() {
+                    let m = robocal::model::KinematicModel::from_robot_block(
+                        &held.dataset.header.robot,
+                    )
+                    .unwrap();
+                    for v in hd.views.iter_mut() {
+                        let rec = held.dataset.poses().find(|r| r.id == v.id).unwrap();
+                        let mut q: Vec<f64> = rec
+                            .q
+                            .as_ref()
+                            .unwrap()
+                            .iter()
+                            .map(|d| d.to_radians())
+                            .collect();
+                        for (j, o) in &d.joint_offsets_deg {
+                            q[j - 1] += o.to_radians();
+                        }
+                        v.flange = m.flange_pose(&q);
+                    }
+                }
                 rows.push((
                     "robocal ml+diagnosis".to_string(),
                     dt,
                     dr,
                     f.heldout_rms_px.unwrap_or(f64::NAN),
                     truth_rms(
-                        &held.data,
+                        &hd,
                         held_views_acq,
                         &f.intrinsics,
                         &f.x,
                         &f.target,
                         d.scale,
+                        d.bend_mm,
                     ),
                     ktruth_err(&f.intrinsics),
                 ));
@@ -536,7 +561,7 @@ fn main() {
                     dt,
                     dr,
                     hr,
-                    truth_rms(&held.data, held_views_acq, &kcv, &x, &target, 1.0),
+                    truth_rms(&held.data, held_views_acq, &kcv, &x, &target, 1.0, [0.0; 2]),
                     ktruth_err(&kcv),
                 ));
             }

@@ -2,7 +2,8 @@
 //! simulated UR5e + eye-in-hand camera, seed-004 shell plan) records images, `robocal calibrate
 //! camera` detects the board (pure Rust), calibrates intrinsics + hand-eye and writes a
 //! calibration that loads back; `robocal predict` writes `id,corner,u_px,v_px`; `robocal
-//! diagnose` on a board printed 0.4 % large (declared as designed) names `target_scale`.
+//! diagnose` on a board printed 0.4 % large (declared as designed) names `target_scale` and
+//! brings the hand-eye back to the truth.
 use std::path::{Path, PathBuf};
 
 use robocal::dataset::CalibrationFile;
@@ -87,7 +88,6 @@ fn run(dir: &Path, plan: &Path, scenario: &Path, name: &str) -> PathBuf {
 }
 
 #[test]
-#[ignore = "issue 17 open: on the simulated UR5e cell the ML hand-eye is 0.92 mm / 0.020 deg off (fx 898.5 vs 900), above this test's 0.2 mm bound"]
 fn run_calibrate_predict_camera_on_the_simulated_cell() {
     let tmp = tempfile::tempdir().unwrap();
     let sc = scenario(tmp.path(), 30.0);
@@ -144,13 +144,15 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
         "camera on 20 views: hand-eye error {d:.4} mm {ang:.5} deg, fx {:.3} (true 900), held-out {heldout:.4} px",
         b.intrinsics.fx
     );
-    assert!(d < 0.2 && ang < 0.02, "hand-eye {d} mm {ang} deg");
+    // Issue 17's targets on a clean world (measured: 0.0112 mm, 0.0052 deg, fx 900.016,
+    // 0.0124 px; the ML fit's own 1σ is 0.047 mm along the optical axis).
+    assert!(d <= 0.02 && ang <= 0.01, "hand-eye {d} mm {ang} deg");
     assert!(
-        (b.intrinsics.fx - 900.0).abs() < 1.0,
+        (b.intrinsics.fx - 900.0).abs() < 0.1,
         "fx {}",
         b.intrinsics.fx
     );
-    assert!(heldout < 0.2, "held-out {heldout} px");
+    assert!(heldout <= 0.02, "held-out {heldout} px");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("camera_report.json")).unwrap())
             .unwrap();
@@ -180,7 +182,6 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
 }
 
 #[test]
-#[ignore = "issue 17 open: the camera diagnosis does not yet name the world's undeclared 0.4 % board scale"]
 fn diagnose_names_an_undeclared_board_scale() {
     let tmp = tempfile::tempdir().unwrap();
     // The board is printed 0.4 % large; the header declares the design (30 mm).
@@ -227,11 +228,40 @@ fn diagnose_names_an_undeclared_board_scale() {
     let eff = d["effects"].as_array().unwrap();
     eprintln!("{}", serde_json::to_string_pretty(&d).unwrap());
     assert_eq!(eff[0]["kind"], "target_scale", "{d}");
-    let sc = eff[0]["parameters"][0]["value"].as_f64().unwrap();
-    assert!((sc - 1.004).abs() < 3e-4, "scale {sc}");
+    let scale = eff[0]["parameters"][0]["value"].as_f64().unwrap();
+    assert!((scale - 1.004).abs() < 3e-4, "scale {scale}");
     let (b, a) = (
         d["heldout_rms_px_before"].as_f64().unwrap(),
         d["heldout_rms_px_after"].as_f64().unwrap(),
     );
-    assert!(a < 0.5 * b, "held-out {b} -> {a}");
+    // Most of a board scale is absorbed by the focal length and the camera's depth (a scaled
+    // board at a scaled distance looks the same; only the robot's metric translations tell
+    // them apart), so the held-out pixels improve little; the hand-eye is what it corrupts.
+    let truth = Scenario::load(&sc).unwrap().cameras[0].placement.isometry();
+    let err = |k: &str| {
+        let h = &d[k];
+        let p = |i: usize| h["xyz_mm"][i].as_f64().unwrap();
+        let q = |i: usize| h["quat"][i].as_f64().unwrap();
+        let x = nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::new(p(0), p(1), p(2)),
+            nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                q(0),
+                q(1),
+                q(2),
+                q(3),
+            )),
+        );
+        (
+            (x.translation.vector - truth.translation.vector).norm(),
+            x.rotation.angle_to(&truth.rotation).to_degrees(),
+        )
+    };
+    let (eb, ea) = (err("hand_eye_before"), err("hand_eye_after"));
+    eprintln!(
+        "board scale {scale:.5}: held-out {b:.4} -> {a:.4} px; hand-eye vs truth {:.4} mm {:.5} deg -> {:.4} mm {:.5} deg",
+        eb.0, eb.1, ea.0, ea.1
+    );
+    assert!(a < b, "held-out {b} -> {a}");
+    assert!(ea.0 < 0.5 * eb.0 && ea.1 < 0.5 * eb.1, "{eb:?} -> {ea:?}");
+    assert!(ea.0 < 0.05 && ea.1 < 0.01, "{ea:?}");
 }

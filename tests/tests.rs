@@ -18,6 +18,7 @@ mod rcm;
 mod report;
 mod run_integrity;
 mod session;
+mod soak;
 mod solve;
 mod wire_cell;
 mod world_vs_model;

@@ -84,6 +84,29 @@ pub struct CameraDiagnosisFile {
     pub heldout_rms_px_after: Option<f64>,
     pub train_rms_px_before: f64,
     pub train_rms_px_after: f64,
+    /// The hand-eye (camera in flange, or in base eye-to-hand) before and after the accepted
+    /// effects: what the compensation changes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_before: Option<HandEyePose>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_after: Option<HandEyePose>,
+}
+
+/// A hand-eye pose in file units: `xyz_mm`, `quat` `[w, x, y, z]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct HandEyePose {
+    pub xyz_mm: [f64; 3],
+    pub quat: [f64; 4],
+}
+
+impl HandEyePose {
+    fn of(x: &Isometry3<f64>) -> Self {
+        let (t, q) = (x.translation.vector, x.rotation);
+        HandEyePose {
+            xyz_mm: [t.x, t.y, t.z],
+            quat: [q.w, q.i, q.j, q.k],
+        }
+    }
 }
 
 /// What [`diagnose`] returns.
@@ -113,6 +136,8 @@ impl CameraDiagnosis {
             heldout_rms_px_after: last.heldout_rms_px,
             train_rms_px_before: self.baseline.train_rms_px,
             train_rms_px_after: last.train_rms_px,
+            hand_eye_before: Some(HandEyePose::of(&self.baseline.x)),
+            hand_eye_after: Some(HandEyePose::of(&last.x)),
         }
     }
 }
@@ -326,6 +351,8 @@ pub fn diagnose(
         cands.push(Cand::Distortion);
     }
     loop {
+        // The candidates rejected on top of the final model are the ones reported.
+        rejected.clear();
         let mut best: Option<(Cand, St, LmReport, f64, Option<f64>)> = None;
         for &c in cands.iter().filter(|c| !st.on.contains(c)) {
             let mut s = st.clone();

@@ -93,14 +93,25 @@ pub fn detect_chessboard(
             )
         })
         .collect();
-    label(
+    let mut out = label(
         &grid,
         (gw as usize, gh as usize),
         data,
         width,
         height,
         board,
-    )
+    )?;
+    if refine_enabled() {
+        let radius = super::subpix::grid_radius(&out, board.cols, board.rows);
+        super::subpix::refine(data, width, height, &mut out, &radius);
+    }
+    Ok(out)
+}
+
+/// Whether [`detect_chessboard`] refines the detector's corners on the image
+/// ([`super::subpix`]); on unless `ROBOCAL_SUBPIX=off` (benchmarks compare both).
+fn refine_enabled() -> bool {
+    std::env::var("ROBOCAL_SUBPIX").map_or(true, |v| v != "off")
 }
 
 /// Assign board indices to a whole labelled grid (see the module docs).

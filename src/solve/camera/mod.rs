@@ -22,6 +22,7 @@ pub mod detect;
 pub mod geom;
 pub mod handeye;
 pub mod problem;
+pub mod subpix;
 pub mod zhang;
 
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
