@@ -411,8 +411,8 @@ fn main() {
                     "diagnosis: {} {} (held-out {:.4} -> {:.4} px, X change {:.4} mm {:.5} deg)",
                     eff.kind,
                     eff.summary,
-                    eff.heldout_rms_before_px,
-                    eff.heldout_rms_after_px,
+                    eff.heldout_rms_before_px.unwrap_or(f64::NAN),
+                    eff.heldout_rms_after_px.unwrap_or(f64::NAN),
                     eff.hand_eye_change_mm,
                     eff.hand_eye_change_deg
                 );

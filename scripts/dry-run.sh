@@ -61,6 +61,9 @@ mkdir -p "$OUT/camera"
 # Camera intrinsics + hand-eye from those images (pure-Rust detection, every method side by side).
 "$BIN" calibrate camera --data "$OUT/camera/run/dataset.jsonl" --out "$OUT/camera/calibrate" \
     --quiet | tail -n 12
+# Close the loop on the camera data: what the camera model lacks (the world's arm carries joint
+# offsets the nominal UR5e model does not know: `arm_kinematics`).
+"$BIN" diagnose --data "$OUT/camera/run/dataset.jsonl" --out "$OUT/camera/diagnose" | head -n 6
 
 printf '\ndry run done in %d s: %s\n' "$((SECONDS - START))" "$OUT"
 printf 'VERDICT: %s\n' "$(head -n 1 "$OUT/headline.txt")"

@@ -44,12 +44,12 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     );
     for e in &d.effects {
         s += &format!(
-            "  effect {}: {} (F {:.1}; held-out {:.4} -> {:.4} px; hand-eye moved {:.4} mm {:.5} deg)\n",
+            "  effect {}: {} (F {:.1}; held-out {} -> {} px; hand-eye moved {:.4} mm {:.5} deg)\n",
             e.kind,
             e.summary,
             e.evidence.f_stat,
-            e.heldout_rms_before_px,
-            e.heldout_rms_after_px,
+            fmt(e.heldout_rms_before_px),
+            fmt(e.heldout_rms_after_px),
             e.hand_eye_change_mm,
             e.hand_eye_change_deg
         );

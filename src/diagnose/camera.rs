@@ -58,8 +58,11 @@ pub struct CameraEffect {
     pub parameters: Vec<EffectParam>,
     pub evidence: Evidence,
     pub summary: String,
-    pub heldout_rms_before_px: f64,
-    pub heldout_rms_after_px: f64,
+    /// Held-out reprojection RMS before / after the effect (px; absent without held-out views).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rms_before_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rms_after_px: Option<f64>,
     /// Change of the hand-eye when the effect was added (mm, deg).
     pub hand_eye_change_mm: f64,
     pub hand_eye_change_deg: f64,
@@ -411,8 +414,8 @@ pub fn diagnose(
                 ],
             },
             summary,
-            heldout_rms_before_px: cur_held.unwrap_or(f64::NAN),
-            heldout_rms_after_px: h.unwrap_or(f64::NAN),
+            heldout_rms_before_px: cur_held,
+            heldout_rms_after_px: h,
             hand_eye_change_mm: dmm,
             hand_eye_change_deg: ddeg,
         });
