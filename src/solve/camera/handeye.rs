@@ -506,23 +506,26 @@ mod noisy_tests {
         }
     }
 
-    /// Views recorded from the simulated UR5e cell (flange in base, board in camera from the
-    /// intrinsics-only fit, 0.4 % focal error): the data on which Daniilidis used to flip by
-    /// 180°. True X: (0, 50, 40) mm, no rotation.
-    #[test]
-    fn no_method_flips_on_recorded_views() {
-        let v: Vec<(Vec<f64>, Vec<f64>)> = serde_json::from_str(include_str!(
-            "../../../tests/data/camera/handeye_noisy_views.json"
-        ))
-        .unwrap();
+    /// `[[flange xyz + quat wxyz], [target-in-camera xyz + quat wxyz]]` per view → poses.
+    fn recorded_views(json: &str) -> (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>) {
+        let v: Vec<(Vec<f64>, Vec<f64>)> = serde_json::from_str(json).unwrap();
         let iso = |p: &[f64]| {
             Isometry3::from_parts(
                 Translation3::new(p[0], p[1], p[2]),
                 UnitQuaternion::from_quaternion(Quaternion::new(p[3], p[4], p[5], p[6])),
             )
         };
-        let fl: Vec<Isometry3<f64>> = v.iter().map(|(a, _)| iso(a)).collect();
-        let tc: Vec<Isometry3<f64>> = v.iter().map(|(_, b)| iso(b)).collect();
+        v.iter().map(|(a, b)| (iso(a), iso(b))).unzip()
+    }
+
+    /// Views recorded from the simulated UR5e cell (flange in base, board in camera from the
+    /// intrinsics-only fit, 0.4 % focal error): the data on which Daniilidis used to flip by
+    /// 180°. True X: (0, 50, 40) mm, no rotation.
+    #[test]
+    fn no_method_flips_on_recorded_views() {
+        let (fl, tc) = recorded_views(include_str!(
+            "../../../tests/data/camera/handeye_noisy_views.json"
+        ));
         let x = Isometry3::translation(0.0, 50.0, 40.0);
         let pairs = motion_pairs(&fl, &tc, 2.0);
         for m in Method::ALL {
@@ -584,18 +587,9 @@ mod noisy_tests {
     /// near-null direction); every method must now be within 0.2 mm / 0.02°.
     #[test]
     fn daniilidis_survives_a_near_degenerate_shell() {
-        let v: Vec<(Vec<f64>, Vec<f64>)> = serde_json::from_str(include_str!(
+        let (fl, tc) = recorded_views(include_str!(
             "../../../tests/data/camera/handeye_shell60_views.json"
-        ))
-        .unwrap();
-        let iso = |p: &[f64]| {
-            Isometry3::from_parts(
-                Translation3::new(p[0], p[1], p[2]),
-                UnitQuaternion::from_quaternion(Quaternion::new(p[3], p[4], p[5], p[6])),
-            )
-        };
-        let fl: Vec<Isometry3<f64>> = v.iter().map(|(a, _)| iso(a)).collect();
-        let tc: Vec<Isometry3<f64>> = v.iter().map(|(_, b)| iso(b)).collect();
+        ));
         let x = Isometry3::translation(0.0, 50.0, 40.0);
         let pairs = motion_pairs(&fl, &tc, 2.0);
         for m in Method::ALL {
