@@ -730,3 +730,64 @@ fn icp_500_trials_from_15_and_30_deg() {
         }
     }
 }
+
+/// The chain's input files for a simulated room (seed `seed`) in `d`: `targets.csv` (3 CT
+/// targets), `registration.json` (`robocal register` on the room's fiducials) and
+/// `robot_world.json` (`robocal calibrate robot-world` on 20 flange / marker poses). Returns
+/// their paths in that order.
+pub(crate) fn write_chain_inputs(d: &std::path::Path, seed: u64) -> [PathBuf; 3] {
+    let p = |n: &str| d.join(n).display().to_string();
+    let noise = NavNoise::default();
+    let mut w = NavWorld::new(seed, noise);
+    write_csv(&d.join("ct.csv"), &w.ct_fiducials());
+    write_csv(&d.join("trk.csv"), &w.tracker_fiducials());
+    let targets: Vec<_> = (0..3)
+        .map(|i| (format!("T{i}"), w.random_target()))
+        .collect();
+    write_csv(&d.join("targets.csv"), &targets);
+    let model = sim::model_of(&noise);
+    std::fs::write(p("model.json"), serde_json::to_string(&model).unwrap()).unwrap();
+    let (ok, out, err) = robocal(&[
+        "register",
+        "--ct",
+        &p("ct.csv"),
+        "--tracker",
+        &p("trk.csv"),
+        "--tracker-model",
+        &p("model.json"),
+        "--ct-sigma-mm",
+        "0.25",
+        "--out",
+        &p("registration.json"),
+    ]);
+    assert!(ok, "{out}{err}");
+    let mut lines = vec![
+        serde_json::json!({"format": "robocal-dataset/1", "robot": {"model": "ur5e"}}).to_string(),
+    ];
+    for (i, (a, b)) in w.robot_world_poses(20).into_iter().enumerate() {
+        let (at, bt) = (a.translation.vector, b.translation.vector);
+        lines.push(
+            serde_json::json!({"kind": "pose", "id": i, "t": i as f64,
+                "flange": {"p": [at.x, at.y, at.z], "quat": quat(&a)},
+                "marker": {"p": [bt.x, bt.y, bt.z], "quat": quat(&b)}})
+            .to_string(),
+        );
+    }
+    std::fs::write(p("rw.jsonl"), lines.join("\n") + "\n").unwrap();
+    let (ok, out, err) = robocal(&[
+        "calibrate",
+        "robot-world",
+        "--data",
+        &p("rw.jsonl"),
+        "--tracker-model",
+        &p("model.json"),
+        "--out",
+        &p("robot_world.json"),
+    ]);
+    assert!(ok, "{out}{err}");
+    [
+        d.join("targets.csv"),
+        d.join("registration.json"),
+        d.join("robot_world.json"),
+    ]
+}

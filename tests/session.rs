@@ -553,3 +553,86 @@ fn json_output_of_calibrate_kinematics() {
     let v: Value = serde_json::from_str(&out).expect("stdout is one JSON document");
     assert_eq!(v["format"], "robocal-calibration/1");
 }
+
+/// Issue 19: a session can end with the navigation-chain report for a set of CT targets — the
+/// validation run's measured held-out error is the robot link, first order and Monte Carlo agree.
+/// A calibration without any uncertainty is refused by `robocal chain` rather than read as a
+/// perfect robot.
+#[test]
+fn session_ends_with_a_chain_report_for_ct_targets() {
+    let (dir, _, _) = lab_session();
+    let copy = std::env::temp_dir().join(format!("robocal-session-chain-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&copy);
+    copy_dir(dir, &copy);
+    let inputs = tempfile::tempdir().unwrap();
+    let [targets, reg, rw] = crate::navchain::write_chain_inputs(inputs.path(), 41);
+    let (code, out, err) = robocal(&[
+        "session",
+        "--resume",
+        copy.to_str().unwrap(),
+        "--no-history",
+        "--chain-targets",
+        targets.to_str().unwrap(),
+        "--chain-registration",
+        reg.to_str().unwrap(),
+        "--chain-robot-world",
+        rw.to_str().unwrap(),
+        "--chain-tool-sigma-mm",
+        "0.05",
+    ]);
+    println!("{out}");
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(out.starts_with("PASS"), "the verdict stays first: {out}");
+    assert!(
+        out.contains("chain report") && out.contains("robot link"),
+        "{out}"
+    );
+    let r = robocal::chain::ChainReport::load(&copy.join("chain.json")).expect("chain.json loads");
+    assert_eq!(r.targets.len(), 3);
+    for t in &r.targets {
+        assert!(t.rms_mm.is_finite() && t.rms_mm > 0.0, "{t:?}");
+        let rel = (t.rms_mm - t.mc_rms_mm).abs() / t.rms_mm;
+        assert!(
+            rel < 0.05,
+            "{}: first order {} vs MC {}",
+            t.name,
+            t.rms_mm,
+            t.mc_rms_mm
+        );
+        let robot = t
+            .links
+            .iter()
+            .find(|l| l.link == "robot kinematics")
+            .expect("a robot link");
+        assert!(
+            robot.rms_mm > 0.0,
+            "the calibration's covariance reaches the tip: {robot:?}"
+        );
+    }
+    let (code, _, err) = robocal(&[
+        "chain",
+        "--registration",
+        reg.to_str().unwrap(),
+        "--robot-world",
+        rw.to_str().unwrap(),
+        "--targets",
+        targets.to_str().unwrap(),
+        "--calibration",
+        copy.join("deploy/calibration.json").to_str().unwrap(),
+        "--joints-deg",
+        "0,10,90,0,45,0",
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("no parameter carries an uncertainty"), "{err}");
+    // Without the registration the chain flags are refused before anything runs.
+    let (code, _, err) = robocal(&[
+        "session",
+        "--resume",
+        copy.to_str().unwrap(),
+        "--chain-targets",
+        targets.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("chain-registration"), "{err}");
+    let _ = std::fs::remove_dir_all(&copy);
+}

@@ -386,7 +386,8 @@ pub fn robot_link_from_calibration(
         return Ok((c, "bootstrap covariance"));
     }
     let mut std = vec![0.0; model.params().len()];
-    let mut source = "LM std";
+    let mut source = "LM std (parameters treated as independent: correlated kinematic parameters make this an over-estimate; prefer `--bootstrap`'s covariance)";
+    let mut with_sigma = 0usize;
     for p in &cal.params {
         let Some(i) = model.param_index(&p.name) else {
             continue;
@@ -397,7 +398,7 @@ pub fn robot_link_from_calibration(
             .and_then(|b| b.get("std"))
             .and_then(|v| v.as_f64());
         if boot.is_some() {
-            source = "bootstrap std";
+            source = "bootstrap std (parameters treated as independent: an over-estimate when they are correlated)";
         }
         let Some(s) = boot.or(p.std) else { continue };
         if !(s.is_finite() && s >= 0.0) {
@@ -414,6 +415,17 @@ pub fn robot_link_from_calibration(
         } else {
             s
         };
+        with_sigma += 1;
+    }
+    if with_sigma == 0 {
+        // A calibration without any uncertainty would make the robot link exactly zero: a
+        // confident wrong answer.
+        return Err(RegisterError::Invalid(
+            "calibration: no parameter carries an uncertainty (`std` or `bootstrap`), so the \
+             robot link cannot be estimated: use the calibration written by `robocal calibrate \
+             kinematics` (with `--bootstrap` for the full covariance), or give a tool-tip σ"
+                .into(),
+        ));
     }
     Ok((robot_tip_covariance(&model, &std, q)?, source))
 }
@@ -590,4 +602,133 @@ mod tests {
         assert!(rel < 0.05, "{rel}");
         assert!(rel_diag > 0.05, "{rel_diag}");
     }
+}
+
+/// Where the robot link of a chain evaluation comes from.
+#[derive(Debug, Clone, Copy)]
+pub enum RobotLinkSource<'a> {
+    /// A calibration file (its bootstrap covariance, else per-parameter std) propagated to the
+    /// tool tip at these joints (deg).
+    Calibration {
+        path: &'a std::path::Path,
+        joints_deg: &'a [f64],
+    },
+    /// An isotropic tool-tip σ (mm).
+    SigmaMm(f64),
+}
+
+/// The files of a chain evaluation: what `robocal chain` and a session's closing chain stage
+/// read.
+#[derive(Debug, Clone, Copy)]
+pub struct ChainFiles<'a> {
+    /// CT → tracker registration (`robocal-registration/1`).
+    pub registration: &'a std::path::Path,
+    /// Tracker → robot base (`robocal calibrate robot-world`).
+    pub robot_world: &'a std::path::Path,
+    /// CT targets (`name,x_mm,y_mm,z_mm`).
+    pub targets: &'a std::path::Path,
+    pub robot: RobotLinkSource<'a>,
+    /// Tool-tip offset σ (mm).
+    pub tool_sigma_mm: f64,
+}
+
+/// Read the chain's files, build the links and evaluate every CT target with `mc` Monte Carlo
+/// draws. `notes` receives what the user should be told (where the robot link came from, a
+/// registration without a CT / tracker split).
+pub fn chain_from_files(
+    f: &ChainFiles,
+    mc: usize,
+    seed: u64,
+    notes: &mut Vec<String>,
+) -> anyhow::Result<ChainReport> {
+    use crate::register::file::cov_from_file;
+    use crate::register::robot_world::RobotWorldFile;
+    use crate::register::{points, RegistrationFile};
+    use anyhow::{bail, Context as _};
+    let sigma = match f.robot {
+        RobotLinkSource::SigmaMm(s) => s,
+        RobotLinkSource::Calibration { .. } => 0.0,
+    };
+    for (v, n) in [(sigma, "robot σ"), (f.tool_sigma_mm, "tool σ")] {
+        if !(v.is_finite() && v >= 0.0) {
+            bail!("{n} must be a finite number ≥ 0 (mm), got {v}");
+        }
+    }
+    if mc == 0 || mc > 10_000_000 {
+        bail!("the Monte Carlo draws must be in 1..=10000000, got {mc}");
+    }
+    let reg = RegistrationFile::load(f.registration)?;
+    let rw = RobotWorldFile::load(f.robot_world)?;
+    let (y, cov_y) = rw.y()?;
+    let t = reg.transform()?;
+    let cov_total = reg.covariance()?.unwrap_or_else(Matrix6::zeros);
+    let (cov_ct, cov_trk) = match (
+        &reg.t_tracker_ct.covariance_ct,
+        &reg.t_tracker_ct.covariance_tracker,
+    ) {
+        (Some(c), Some(k)) => (
+            cov_from_file(c, "T_tracker_ct.covariance_ct")?,
+            cov_from_file(k, "T_tracker_ct.covariance_tracker")?,
+        ),
+        _ => {
+            notes.push("the registration's covariance is not split into CT and tracker parts (no noise model at registration): all of it is reported under `registration: CT localisation`".into());
+            (cov_total, Matrix6::zeros())
+        }
+    };
+    let cov_robot = match f.robot {
+        RobotLinkSource::Calibration { path, joints_deg } => {
+            let cal = crate::dataset::CalibrationFile::load(path)?;
+            let q: Vec<f64> = joints_deg.iter().map(|d| d.to_radians()).collect();
+            let (c, source) = robot_link_from_calibration(&cal, &q)
+                .with_context(|| format!("{}", path.display()))?;
+            notes.push(format!(
+                "robot link: {source} of {} at joints {:?} deg: tip RMS {:.4} mm",
+                path.display(),
+                joints_deg,
+                c.trace().max(0.0).sqrt()
+            ));
+            c
+        }
+        RobotLinkSource::SigmaMm(s) => Matrix3::identity() * s.powi(2),
+    };
+    let inp = ChainInputs {
+        t_tracker_ct: t,
+        cov_reg_ct: cov_ct,
+        cov_reg_tracker: cov_trk,
+        t_base_tracker: y,
+        cov_y,
+        cov_robot,
+        cov_tool: Matrix3::identity() * f.tool_sigma_mm.powi(2),
+    };
+    let targets: Vec<_> = points::read_points_csv(f.targets)?
+        .into_iter()
+        .map(|p| (p.name, p.p))
+        .collect();
+    Ok(chain_report(&inp, &targets, mc, seed)?)
+}
+
+/// The report as text: one line per target and one per link.
+pub fn report_text(r: &ChainReport) -> String {
+    let mut s = String::new();
+    for t in &r.targets {
+        s += &format!(
+            "{}: tip error {:.3} mm RMS (MC {:.3}), 95 % ellipsoid {:.3} x {:.3} x {:.3} mm, MC inside 95 %: {:.1} %\n",
+            t.name,
+            t.rms_mm,
+            t.mc_rms_mm,
+            t.ellipsoid95_mm[0],
+            t.ellipsoid95_mm[1],
+            t.ellipsoid95_mm[2],
+            100.0 * t.mc_inside95
+        );
+        for l in &t.links {
+            s += &format!(
+                "    {:<36} {:>7.3} mm  {:>5.1} %\n",
+                l.link,
+                l.rms_mm,
+                100.0 * l.share
+            );
+        }
+    }
+    s
 }

@@ -3,11 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _};
-use nalgebra::{Matrix3, Matrix6};
 
-use crate::chain::{chain_report, ChainInputs};
-use crate::register::robot_world::RobotWorldFile;
-use crate::register::{file::cov_from_file, points, RegistrationFile};
+use crate::chain::{chain_from_files, report_text, ChainFiles, RobotLinkSource};
 
 /// Arguments of `robocal chain`.
 #[derive(Debug, clap::Args)]
@@ -70,76 +67,33 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     if a.mc == 0 || a.mc > 10_000_000 {
         bail!("--mc must be in 1..=10000000");
     }
-    let reg = RegistrationFile::load(&a.registration)?;
-    let rw = RobotWorldFile::load(&a.robot_world)?;
-    let (y, cov_y) = rw.y()?;
-    let t = reg.transform()?;
-    let cov_total = reg.covariance()?.unwrap_or_else(Matrix6::zeros);
-    let (cov_ct, cov_trk) = match (
-        &reg.t_tracker_ct.covariance_ct,
-        &reg.t_tracker_ct.covariance_tracker,
-    ) {
-        (Some(c), Some(k)) => (
-            cov_from_file(c, "T_tracker_ct.covariance_ct")?,
-            cov_from_file(k, "T_tracker_ct.covariance_tracker")?,
-        ),
-        _ => {
-            eprintln!("note: the registration's covariance is not split into CT and tracker parts (no noise model at registration): all of it is reported under `registration: CT localisation`");
-            (cov_total, Matrix6::zeros())
-        }
-    };
-    let cov_robot = match (&a.calibration, a.robot_sigma_mm) {
-        (Some(path), _) => {
-            let cal = crate::dataset::CalibrationFile::load(path)?;
-            let q: Vec<f64> = a.joints_deg.iter().map(|d| d.to_radians()).collect();
-            let (c, source) = crate::chain::robot_link_from_calibration(&cal, &q)
-                .with_context(|| format!("{}", path.display()))?;
-            println!(
-                "robot link: {source} of {} at the given joints: tip RMS {:.4} mm",
-                path.display(),
-                c.trace().max(0.0).sqrt()
-            );
-            c
-        }
-        (None, Some(s)) => Matrix3::identity() * s.powi(2),
+    let robot = match (&a.calibration, a.robot_sigma_mm) {
+        (Some(path), _) => RobotLinkSource::Calibration {
+            path,
+            joints_deg: &a.joints_deg,
+        },
+        (None, Some(s)) => RobotLinkSource::SigmaMm(s),
         (None, None) => {
             bail!("give --calibration calibration.json --joints-deg ... or --robot-sigma-mm")
         }
     };
-    let inp = ChainInputs {
-        t_tracker_ct: t,
-        cov_reg_ct: cov_ct,
-        cov_reg_tracker: cov_trk,
-        t_base_tracker: y,
-        cov_y,
-        cov_robot,
-        cov_tool: Matrix3::identity() * a.tool_sigma_mm.powi(2),
+    let files = ChainFiles {
+        registration: &a.registration,
+        robot_world: &a.robot_world,
+        targets: &a.targets,
+        robot,
+        tool_sigma_mm: a.tool_sigma_mm,
     };
-    let targets: Vec<_> = points::read_points_csv(&a.targets)?
-        .into_iter()
-        .map(|p| (p.name, p.p))
-        .collect();
-    let r = chain_report(&inp, &targets, a.mc, a.seed)?;
-    for t in &r.targets {
-        println!(
-            "{}: tip error {:.3} mm RMS (MC {:.3}), 95 % ellipsoid {:.3} x {:.3} x {:.3} mm, MC inside 95 %: {:.1} %",
-            t.name,
-            t.rms_mm,
-            t.mc_rms_mm,
-            t.ellipsoid95_mm[0],
-            t.ellipsoid95_mm[1],
-            t.ellipsoid95_mm[2],
-            100.0 * t.mc_inside95
-        );
-        for l in &t.links {
-            println!(
-                "    {:<36} {:>7.3} mm  {:>5.1} %",
-                l.link,
-                l.rms_mm,
-                100.0 * l.share
-            );
+    let mut notes = Vec::new();
+    let r = chain_from_files(&files, a.mc, a.seed, &mut notes)?;
+    for n in &notes {
+        if n.starts_with("robot link") {
+            println!("{n}");
+        } else {
+            eprintln!("note: {n}");
         }
     }
+    print!("{}", report_text(&r));
     if let Some(out) = &a.out {
         r.save(out)
             .with_context(|| format!("writing {}", out.display()))?;

@@ -87,6 +87,66 @@ pub struct Args {
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
+    /// End with the navigation-chain report (seed 003) for these CT targets
+    /// (`name,x_mm,y_mm,z_mm`): the predicted tool-tip error at each target and each link's
+    /// share, the calibrated robot's link being its measured held-out error; written to
+    /// `DIR/chain.json`. Needs `--chain-registration` and `--chain-robot-world`.
+    #[arg(long, value_name = "T.csv", requires_all = ["chain_registration", "chain_robot_world"])]
+    pub chain_targets: Option<PathBuf>,
+    /// CT → tracker registration for the chain (`robocal register`).
+    #[arg(long, value_name = "registration.json", requires = "chain_targets")]
+    pub chain_registration: Option<PathBuf>,
+    /// Tracker → robot base for the chain (`robocal calibrate robot-world`).
+    #[arg(long, value_name = "robot_world.json", requires = "chain_targets")]
+    pub chain_robot_world: Option<PathBuf>,
+    /// Tool-tip offset σ for the chain (mm; from the pivot calibration).
+    #[arg(long, value_name = "MM", default_value_t = 0.0)]
+    pub chain_tool_sigma_mm: f64,
+}
+
+/// The session's closing chain report (`--chain-targets`): the validation run's held-out error
+/// as the robot link; writes `DIR/chain.json` and returns the text to print.
+fn chain_stage(a: &Args, dir: &std::path::Path) -> anyhow::Result<Option<String>> {
+    let (Some(targets), Some(reg), Some(rw)) = (
+        &a.chain_targets,
+        &a.chain_registration,
+        &a.chain_robot_world,
+    ) else {
+        return Ok(None);
+    };
+    // The robot link: the validation run's measured held-out error (the calibrated robot's
+    // positioning error as measured, tracker noise included: conservative) as an isotropic σ.
+    // The identification's per-parameter σ would ignore the strong correlations of kinematic
+    // parameters and overstate the tip error by orders of magnitude.
+    let s = session::SessionFile::load(&dir.join("session.json"))?;
+    let Some(rms) = s.measured.heldout_rms_mm_after.filter(|r| r.is_finite()) else {
+        bail!(
+            "the chain report needs the session's held-out RMS (validation stage): none measured"
+        );
+    };
+    let sigma = rms / 3f64.sqrt();
+    let files = crate::chain::ChainFiles {
+        registration: reg,
+        robot_world: rw,
+        targets,
+        robot: crate::chain::RobotLinkSource::SigmaMm(sigma),
+        tool_sigma_mm: a.chain_tool_sigma_mm,
+    };
+    let mut notes = vec![format!(
+        "robot link: the session's held-out RMS {rms:.4} mm (validation run) as σ {sigma:.4} mm per axis"
+    )];
+    let r = crate::chain::chain_from_files(&files, 20_000, 1, &mut notes)
+        .context("the session's chain report")?;
+    let out = dir.join("chain.json");
+    r.save(&out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    let mut text = String::from("chain report (CT target → tool tip):\n");
+    for n in &notes {
+        text += &format!("  {n}\n");
+    }
+    text += &crate::chain::report_text(&r);
+    text += &format!("chain: {}\n", out.display());
+    Ok(Some(text))
 }
 
 fn frame(p: &robocal_mocks::scenario::Placement) -> FrameSpec {
@@ -505,6 +565,11 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             .with_context(|| format!("recording the session in {loc}"))?;
         eprintln!("==> recorded in the fleet history {loc}");
     }
+    let chain = if s.setup.plan_only {
+        None
+    } else {
+        chain_stage(&a, &dir)?
+    };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
     } else {
@@ -533,6 +598,9 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             println!("plan only: {}", dir.join("plan").display());
         } else {
             println!("report: {}", dir.join("report.html").display());
+        }
+        if let Some(c) = &chain {
+            print!("{c}");
         }
     }
     Ok(if s.setup.plan_only {
