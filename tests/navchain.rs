@@ -339,31 +339,9 @@ fn cli_register_predict_robot_world_chain() {
     let p = |n: &str| d.path().join(n).display().to_string();
     let noise = NavNoise::default();
     let mut w = NavWorld::new(31, noise);
-    write_csv(d.path().join("ct.csv").as_path(), &w.ct_fiducials());
-    write_csv(d.path().join("trk.csv").as_path(), &w.tracker_fiducials());
-    let targets: Vec<_> = (0..3)
-        .map(|i| (format!("T{i}"), w.random_target()))
-        .collect();
-    write_csv(d.path().join("targets.csv").as_path(), &targets);
-    let model = sim::model_of(&noise);
-    std::fs::write(p("model.json"), serde_json::to_string(&model).unwrap()).unwrap();
-    let (ok, out, err) = robocal(&[
-        "register",
-        "--ct",
-        &p("ct.csv"),
-        "--tracker",
-        &p("trk.csv"),
-        "--targets",
-        &p("targets.csv"),
-        "--tracker-model",
-        &p("model.json"),
-        "--ct-sigma-mm",
-        "0.25",
-        "--out",
-        &p("registration.json"),
-    ]);
-    assert!(ok, "{out}{err}");
+    let (_, targets, out, rw_out) = write_chain_inputs(d.path(), &mut w, &noise);
     assert!(out.contains("FRE") && out.contains("target T0"), "{out}");
+    assert!(rw_out.contains("closed form shah"), "{rw_out}");
     // predict maps the CT targets into the tracker frame.
     let (ok, out, err) = robocal(&[
         "predict",
@@ -414,37 +392,6 @@ fn cli_register_predict_robot_world_chain() {
     let t = f.transform().unwrap();
     assert!(t.rotation.angle_to(&w.t_tracker_ct.rotation).to_degrees() < 1.0);
     assert_eq!(f.points.len(), 150);
-    // Robot-world from a dataset with flange poses.
-    let mut lines = vec![
-        serde_json::json!({"format": "robocal-dataset/1", "robot": {"model": "ur5e"}}).to_string(),
-    ];
-    for (i, (a, b)) in w.robot_world_poses(20).into_iter().enumerate() {
-        let at = a.translation.vector;
-        let bt = b.translation.vector;
-        lines.push(
-            serde_json::json!({"kind": "pose", "id": i, "t": i as f64,
-                "flange": {"p": [at.x, at.y, at.z], "quat": quat(&a)},
-                "marker": {"p": [bt.x, bt.y, bt.z], "quat": quat(&b)}})
-            .to_string(),
-        );
-    }
-    std::fs::write(p("rw.jsonl"), lines.join("\n") + "\n").unwrap();
-    let (ok, out, err) = robocal(&[
-        "calibrate",
-        "robot-world",
-        "--data",
-        &p("rw.jsonl"),
-        "--tracker-model",
-        &p("model.json"),
-        "--sigma-pos-mm",
-        "0.15",
-        "--sigma-rot-deg",
-        "0.03",
-        "--out",
-        &p("robot_world.json"),
-    ]);
-    assert!(ok, "{out}{err}");
-    assert!(out.contains("closed form shah"), "{out}");
     // The on-site check against itself passes.
     let (ok, out, err) = robocal(&[
         "calibrate",
@@ -731,28 +678,37 @@ fn icp_500_trials_from_15_and_30_deg() {
     }
 }
 
-/// The chain's input files for a simulated room (seed `seed`) in `d`: `targets.csv` (3 CT
-/// targets), `registration.json` (`robocal register` on the room's fiducials) and
-/// `robot_world.json` (`robocal calibrate robot-world` on 20 flange / marker poses). Returns
-/// their paths in that order.
-pub(crate) fn write_chain_inputs(d: &std::path::Path, seed: u64) -> [PathBuf; 3] {
+/// Paths (targets, registration, robot-world), the named CT targets, and the stdout of
+/// `register` and `calibrate robot-world`.
+pub(crate) type ChainInputFiles = ([PathBuf; 3], Vec<(String, Point3<f64>)>, String, String);
+
+/// The chain's input files for the simulated room `w` in `d`: `targets.csv` (3 CT targets),
+/// `registration.json` (`robocal register` on the room's fiducials, TRE at the targets) and
+/// `robot_world.json` (`robocal calibrate robot-world` on 20 flange / marker poses), with
+/// `model.json` (the tracker model). Returns their paths in that order, the targets, and the
+/// two commands' standard output.
+pub(crate) fn write_chain_inputs(
+    d: &std::path::Path,
+    w: &mut NavWorld,
+    noise: &NavNoise,
+) -> ChainInputFiles {
     let p = |n: &str| d.join(n).display().to_string();
-    let noise = NavNoise::default();
-    let mut w = NavWorld::new(seed, noise);
     write_csv(&d.join("ct.csv"), &w.ct_fiducials());
     write_csv(&d.join("trk.csv"), &w.tracker_fiducials());
     let targets: Vec<_> = (0..3)
         .map(|i| (format!("T{i}"), w.random_target()))
         .collect();
     write_csv(&d.join("targets.csv"), &targets);
-    let model = sim::model_of(&noise);
+    let model = sim::model_of(noise);
     std::fs::write(p("model.json"), serde_json::to_string(&model).unwrap()).unwrap();
-    let (ok, out, err) = robocal(&[
+    let (ok, reg_out, err) = robocal(&[
         "register",
         "--ct",
         &p("ct.csv"),
         "--tracker",
         &p("trk.csv"),
+        "--targets",
+        &p("targets.csv"),
         "--tracker-model",
         &p("model.json"),
         "--ct-sigma-mm",
@@ -760,7 +716,7 @@ pub(crate) fn write_chain_inputs(d: &std::path::Path, seed: u64) -> [PathBuf; 3]
         "--out",
         &p("registration.json"),
     ]);
-    assert!(ok, "{out}{err}");
+    assert!(ok, "{reg_out}{err}");
     let mut lines = vec![
         serde_json::json!({"format": "robocal-dataset/1", "robot": {"model": "ur5e"}}).to_string(),
     ];
@@ -774,20 +730,29 @@ pub(crate) fn write_chain_inputs(d: &std::path::Path, seed: u64) -> [PathBuf; 3]
         );
     }
     std::fs::write(p("rw.jsonl"), lines.join("\n") + "\n").unwrap();
-    let (ok, out, err) = robocal(&[
+    let (ok, rw_out, err) = robocal(&[
         "calibrate",
         "robot-world",
         "--data",
         &p("rw.jsonl"),
         "--tracker-model",
         &p("model.json"),
+        "--sigma-pos-mm",
+        "0.15",
+        "--sigma-rot-deg",
+        "0.03",
         "--out",
         &p("robot_world.json"),
     ]);
-    assert!(ok, "{out}{err}");
-    [
-        d.join("targets.csv"),
-        d.join("registration.json"),
-        d.join("robot_world.json"),
-    ]
+    assert!(ok, "{rw_out}{err}");
+    (
+        [
+            d.join("targets.csv"),
+            d.join("registration.json"),
+            d.join("robot_world.json"),
+        ],
+        targets,
+        reg_out,
+        rw_out,
+    )
 }

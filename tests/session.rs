@@ -565,7 +565,10 @@ fn session_ends_with_a_chain_report_for_ct_targets() {
     let _ = std::fs::remove_dir_all(&copy);
     copy_dir(dir, &copy);
     let inputs = tempfile::tempdir().unwrap();
-    let [targets, reg, rw] = crate::navchain::write_chain_inputs(inputs.path(), 41);
+    let noise = robocal_mocks::navchain::NavNoise::default();
+    let mut room = robocal_mocks::navchain::NavWorld::new(41, noise);
+    let ([targets, reg, rw], _, _, _) =
+        crate::navchain::write_chain_inputs(inputs.path(), &mut room, &noise);
     let (code, out, err) = robocal(&[
         "session",
         "--resume",
