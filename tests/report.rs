@@ -252,6 +252,12 @@ fn report_shows_laser_diagnosis_effects() {
         train_rms_mm_after: Some(0.02),
         heldout_rms_mm_before: None,
         heldout_rms_mm_after: None,
+        train_rms_px_before: None,
+        train_rms_px_after: None,
+        heldout_rms_px_before: None,
+        heldout_rms_px_after: None,
+        hand_eye_change_mm: None,
+        hand_eye_change_deg: None,
         calibration: robocal::dataset::CalEffect {
             kind: "laser_scale".into(),
             joint: None,

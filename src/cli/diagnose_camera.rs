@@ -1,9 +1,12 @@
 //! `robocal diagnose` on a camera dataset (its header has a `camera` block): the camera
-//! diagnosis of [`crate::diagnose::camera`]. Writes `DIR/diagnosis.json` and
-//! `DIR/calibration.json` (the final camera calibration with the effects found).
+//! diagnosis of [`crate::diagnose::camera`]. Writes `DIR/diagnosis.json`
+//! (`robocal-diagnosis/2`, [`crate::schema::DiagnosisFile`], RMS in `_px` fields) and
+//! `DIR/calibration.json` (the final camera calibration with the effects found: board scale
+//! and bend in the camera block, the arm's joint offsets in `metrics`).
 use std::path::Path;
 
 use anyhow::Context as _;
+use serde_json::json;
 
 use crate::dataset::Dataset;
 use crate::solve::camera::data::{load, Overrides};
@@ -28,26 +31,41 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     )?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let file = d.to_file();
-    crate::fsio::write(
-        out.join("diagnosis.json"),
-        serde_json::to_string_pretty(&file)? + "\n",
-    )
-    .with_context(|| format!("writing {}", out.join("diagnosis.json").display()))?;
+    crate::schema::write(&out.join("diagnosis.json"), &file)?;
+    // The final calibration: the maximum-likelihood fit with every accepted effect.
+    let mut res = d.calibration.clone();
+    res.ml = d.last().clone();
+    res.board_scale = d.scale;
+    res.board_bend_mm = d.bend_mm;
+    res.uncertainty = d.uncertainty.clone();
+    let mut cal = super::calibrate::camera::calibration_file(&train, &res);
+    if !d.joint_offsets_deg.is_empty() {
+        cal.metrics.insert(
+            "arm_joint_offsets_deg".into(),
+            json!(d
+                .joint_offsets_deg
+                .iter()
+                .map(|(j, o)| (format!("j{j}"), json!(o)))
+                .collect::<serde_json::Map<_, _>>()),
+        );
+    }
+    crate::dataset::write_calibration(out.join("calibration.json"), &cal)
+        .with_context(|| format!("writing {}", out.join("calibration.json").display()))?;
     let mut s = String::new();
     let fmt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.4}"));
     s += &format!(
-        "camera diagnosis: held-out {} px -> {} px (train {:.4} -> {:.4} px)\n",
-        fmt(file.heldout_rms_px_before),
-        fmt(file.heldout_rms_px_after),
-        file.train_rms_px_before,
-        file.train_rms_px_after
+        "camera diagnosis: held-out {} px -> {} px (train {} -> {} px)\n",
+        fmt(file.heldout_rms.base_model_px),
+        fmt(file.heldout_rms.final_px),
+        fmt(file.train_rms.base_model_px),
+        fmt(file.train_rms.final_px)
     );
     for e in &d.effects {
         s += &format!(
             "  effect {}: {} (F {:.1}; held-out {} -> {} px; hand-eye moved {:.4} mm {:.5} deg)\n",
             e.kind,
             e.summary,
-            e.evidence.f_stat,
+            e.evidence.f.unwrap_or(f64::NAN),
             fmt(e.heldout_rms_before_px),
             fmt(e.heldout_rms_after_px),
             e.hand_eye_change_mm,

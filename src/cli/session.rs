@@ -17,10 +17,24 @@ use robocal_mocks::Scenario;
 use crate::acquire::RunSummary;
 use crate::plan::cell::{CellGeometry, Occluder, VolumeFrustum};
 use crate::plan::spec::FrameSpec;
-use crate::session::{self, AcceptSpec, CellDescription, Mode, SessionSetup};
+use crate::session::{self, AcceptSpec, CellDescription, Mode, SessionKind, SessionSetup};
 
 /// The default plan spec (seed 001 annulus).
 const DEFAULT_SPEC: &str = include_str!("../../plans/seed001-annulus.toml");
+/// The default camera plan specs (seed 004 shell) per robot preset; the session centres the
+/// shell on the cell's board.
+const CAMERA_SPECS: [(&str, &str); 2] = [
+    (
+        "ur5e",
+        include_str!("../../plans/seed004-ur5e-camera.toml"),
+    ),
+    (
+        "denso-vs060",
+        include_str!("../../plans/seed004-vs060-camera.toml"),
+    ),
+];
+/// The default acceptance spec of a camera session.
+const CAMERA_ACCEPT: &str = include_str!("../../accept/camera.toml");
 
 /// Arguments of `robocal session`.
 #[derive(Debug, Clone, clap::Args)]
@@ -56,12 +70,14 @@ pub struct Args {
     /// Which arm of a multi-arm scenario (default: the first).
     #[arg(long, value_name = "NAME")]
     pub arm: Option<String>,
-    /// Training poses kept (greedy D-optimal selection).
-    #[arg(long, default_value_t = 120)]
-    pub poses: usize,
-    /// Held-out validation points (separate plan, another seed).
-    #[arg(long, default_value_t = 40)]
-    pub heldout_points: usize,
+    /// Training poses kept (greedy D-optimal selection); camera cells: training viewpoints
+    /// on the seed 004 shell [default: 120; camera cells 24].
+    #[arg(long)]
+    pub poses: Option<usize>,
+    /// Held-out validation points (separate plan, another seed); camera cells: held-out
+    /// viewpoints [default: 40; camera cells 12].
+    #[arg(long)]
+    pub heldout_points: Option<usize>,
     /// Tracker frames averaged per pose.
     #[arg(long, default_value_t = 30)]
     pub frames: usize,
@@ -217,6 +233,30 @@ pub fn describe_scenario(
         .map(|l| format!("laser {} ({})", l.name, l.kind))
         .collect();
     sensors.extend(one.cameras.iter().map(|c| format!("camera {}", c.name)));
+    let camera = one.cameras.first().map(|c| {
+        let board = one.scene.chessboard.as_ref().map(|b| {
+            let centre = b.placement.isometry()
+                * nalgebra::Point3::new(
+                    b.cols as f64 * b.square_mm / 2.0,
+                    b.rows as f64 * b.square_mm / 2.0,
+                    0.0,
+                );
+            session::camera::BoardCell {
+                kind: "chessboard".into(),
+                cols: b.cols.saturating_sub(1),
+                rows: b.rows.saturating_sub(1),
+                square_mm: b.square_mm,
+                center_mm: [centre.x, centre.y, centre.z],
+            }
+        });
+        session::camera::CameraCell {
+            name: c.name.clone(),
+            width: c.width,
+            height: c.height,
+            mount: if c.arm.is_some() { "flange" } else { "base" }.into(),
+            board,
+        }
+    });
     Ok((
         CellDescription {
             robot_model: a.model.clone(),
@@ -230,6 +270,7 @@ pub fn describe_scenario(
             geometry,
             tracker_rate_hz: t.map(|t| t.rate_hz),
             settle_s: Some(a.motion.settle_s),
+            camera,
         },
         one,
     ))
@@ -278,6 +319,7 @@ fn describe_devices(path: &Path) -> anyhow::Result<CellDescription> {
 
 /// The devices of the session: `robocal run`'s acquisition on the session's cell file copy.
 struct RunCell {
+    kind: SessionKind,
     mode: Mode,
     cell_file: PathBuf,
     setup: SessionSetup,
@@ -304,8 +346,10 @@ impl session::Cell for RunCell {
             max_poses: None,
             json: false,
             in_process: self.in_process,
+            // Camera sessions plan camera viewpoints (a shell): the run records an image per
+            // pose by default; kinematic sessions never use the camera.
             camera: false,
-            no_camera: !resume,
+            no_camera: !resume && self.kind != SessionKind::Camera,
             board: None,
         };
         super::run::exec(args)?;
@@ -319,28 +363,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
     let Some(dir) = &a.out else {
         bail!("--out DIR is required (or --resume DIR)");
     };
-    let accept = match &a.accept {
-        Some(p) => AcceptSpec::from_file(p)?,
-        None => AcceptSpec::default_surgical(),
-    };
-    let spec_text = match &a.spec {
-        Some(p) => {
-            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
-        }
-        None => DEFAULT_SPEC.to_string(),
-    };
-    crate::plan::PlanSpec::from_toml_str(&spec_text).with_context(|| {
-        format!(
-            "plan spec {}",
-            a.spec
-                .as_ref()
-                .map_or("(default)".into(), |p| p.display().to_string())
-        )
-    })?;
-    if a.poses < 10 || a.heldout_points < 5 {
-        bail!("--poses must be ≥ 10 and --heldout-points ≥ 5");
-    }
-    let (mode, cell, cell_file, scenario_text) = match (&a.sim, &a.devices) {
+    let (mode, cell, cell_file, scenario_text, kind) = match (&a.sim, &a.devices) {
         (Some(s), None) => {
             let sc = Scenario::load(s).with_context(|| format!("reading {}", s.display()))?;
             if sc.arms.len() > 1 && a.arm.is_none() {
@@ -352,16 +375,20 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                 );
             }
             let (cell, one) = describe_scenario(&sc, a.arm.as_deref())?;
-            if one.trackers.is_empty() {
+            let kind = if !one.trackers.is_empty() {
+                SessionKind::Kinematic
+            } else if !one.cameras.is_empty() {
+                SessionKind::Camera
+            } else {
                 bail!(
-                    "{}: arm {:?} has no tracker: a kinematic session needs one (camera cells: use \
-                     `robocal plan` + `robocal run`)",
+                    "{}: arm {:?} has neither a tracker (kinematic session) nor a camera \
+                     (camera session)",
                     s.display(),
                     one.arms[0].name
                 );
-            }
+            };
             let text = toml::to_string(&one).context("writing the session's scenario")?;
-            (Mode::Sim, cell, "scenario.toml", Some(text))
+            (Mode::Sim, cell, "scenario.toml", Some(text), kind)
         }
         (None, Some(d)) => {
             if !a.live && !a.plan_only {
@@ -370,21 +397,69 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                     d.display()
                 );
             }
-            (Mode::Live, describe_devices(d)?, "devices.toml", None)
+            (
+                Mode::Live,
+                describe_devices(d)?,
+                "devices.toml",
+                None,
+                SessionKind::Kinematic,
+            )
         }
         _ => bail!("give --sim SCENARIO.toml (dry run) or --devices CELL.toml --live"),
     };
+    let camera = kind == SessionKind::Camera;
+    let accept = match &a.accept {
+        Some(p) => AcceptSpec::from_file(p)?,
+        None if camera => AcceptSpec::from_toml_str(CAMERA_ACCEPT, "accept/camera.toml")?,
+        None => AcceptSpec::default_surgical(),
+    };
+    let spec_text = match &a.spec {
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
+        None if camera => CAMERA_SPECS
+            .iter()
+            .find(|(m, _)| *m == cell.robot_model)
+            .map(|(_, t)| t.to_string())
+            .with_context(|| {
+                format!(
+                    "no default camera plan for robot {:?}: give --spec SPEC.toml with a [shell] \
+                     (see plans/seed004-shell.toml)",
+                    cell.robot_model
+                )
+            })?,
+        None => DEFAULT_SPEC.to_string(),
+    };
+    let spec_name = a
+        .spec
+        .as_ref()
+        .map_or("(default)".into(), |p| p.display().to_string());
+    let spec = crate::plan::PlanSpec::from_toml_str(&spec_text)
+        .with_context(|| format!("plan spec {spec_name}"))?;
+    if camera {
+        session::camera::check_spec(&spec, &spec_name)?;
+    }
+    let poses = a.poses.unwrap_or(if camera { 24 } else { 120 });
+    let heldout_points = a.heldout_points.unwrap_or(if camera { 12 } else { 40 });
+    if camera {
+        if poses < 6 || heldout_points < 3 {
+            bail!("camera session: --poses must be ≥ 6 and --heldout-points ≥ 3 (views)");
+        }
+    } else if poses < 10 || heldout_points < 5 {
+        bail!("--poses must be ≥ 10 and --heldout-points ≥ 5");
+    }
     let setup = SessionSetup {
         mode,
         cell_file: cell_file.into(),
         spec_file: "spec.toml".into(),
-        poses: a.poses,
-        heldout_points: a.heldout_points,
+        poses,
+        heldout_points,
         frames: a.frames.max(1),
         speed_deg_s: a.speed_deg_s,
         accel_deg_s2: a.accel_deg_s2,
         operator_note: a.note.clone(),
         plan_only: a.plan_only,
+        kind,
     };
     let src = a
         .sim
@@ -549,6 +624,7 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         }
     }
     let mut cell = RunCell {
+        kind: s0.setup.kind,
         mode: s0.setup.mode,
         cell_file: dir.join(&s0.setup.cell_file),
         setup: s0.setup.clone(),
@@ -582,6 +658,25 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             s.duration_s.map_or("—".into(), |d| format!("{d:.0} s"))
         );
         let f = |v: Option<f64>| v.map_or("—".into(), |x| format!("{x:.4}"));
+        if let Some(c) = &s.camera {
+            let b = c.diagnosed.as_ref().unwrap_or(&c.calibrated);
+            let (x, sd) = (b.hand_eye.xyz_mm, b.hand_eye.std_mm.unwrap_or([f64::NAN; 3]));
+            println!(
+                "camera: {} training + {} held-out views; held-out reprojection RMS {} px (calibration) → {} px (diagnosed); hand-eye xyz [{:.3}, {:.3}, {:.3}] ± [{:.3}, {:.3}, {:.3}] mm (1σ); fx {:.2} fy {:.2} px",
+                c.views_train,
+                c.views_heldout,
+                f(s.measured.heldout_reprojection_px_before),
+                f(s.measured.heldout_reprojection_px_after),
+                x[0],
+                x[1],
+                x[2],
+                sd[0],
+                sd[1],
+                sd[2],
+                b.intrinsics.fx,
+                b.intrinsics.fy
+            );
+        } else {
         println!(
             "held-out RMS {} → {} mm, max {} → {} mm, relative distance {} → {} %",
             f(s.measured.heldout_rms_mm_before),
@@ -591,6 +686,7 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             f(s.measured.relative_distance_pct_before),
             f(s.measured.relative_distance_pct_after)
         );
+        }
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {
             println!("WORSE: {w}");
         }

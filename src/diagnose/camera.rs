@@ -17,9 +17,9 @@
 //! 1σ intervals), the evidence, the held-out RMS before / after and the hand-eye change — the
 //! same shape as the kinematic diagnosis' `effects[]` so the two schemas unify.
 use nalgebra::{DVector, Isometry3};
-use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
+use crate::schema;
 use crate::model::KinematicModel;
 use crate::solve::camera::geom::{Intrinsics, N_INTR};
 use crate::solve::camera::problem::{ArmOffsets, BoardModel, Layout, Obs, Reproj};
@@ -28,40 +28,18 @@ use crate::solve::camera::{
 };
 use crate::solve::lm::{minimize, LmOptions, LmReport};
 
-/// One parameter of an effect.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct EffectParam {
-    pub name: String,
-    pub value: f64,
-    pub std: f64,
-    pub unit: String,
-    /// ±1.96σ.
-    pub interval: [f64; 2],
-}
-
-/// Why an effect was accepted.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Evidence {
-    pub train_rms_before_px: f64,
-    pub train_rms_after_px: f64,
-    /// Nested-model F statistic and its degrees of freedom.
-    pub f_stat: f64,
-    pub dof: [usize; 2],
-}
-
-/// One accepted effect (shape of the kinematic diagnosis' `effects[]`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// One accepted effect, before it is put in the file form ([`crate::schema::DiagnosedEffect`]).
+#[derive(Debug, Clone)]
 pub struct CameraEffect {
     pub kind: String,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub joint: Option<usize>,
-    pub parameters: Vec<EffectParam>,
-    pub evidence: Evidence,
+    pub parameters: Vec<schema::EffectParameter>,
+    pub evidence: schema::Evidence,
     pub summary: String,
+    pub train_rms_before_px: f64,
+    pub train_rms_after_px: f64,
     /// Held-out reprojection RMS before / after the effect (px; absent without held-out views).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heldout_rms_before_px: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heldout_rms_after_px: Option<f64>,
     /// Change of the hand-eye when the effect was added (mm, deg).
     pub hand_eye_change_mm: f64,
@@ -69,78 +47,126 @@ pub struct CameraEffect {
 }
 
 /// A candidate that was tested and not accepted.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone)]
 pub struct Rejected {
     pub kind: String,
     pub f_stat: f64,
     pub heldout_rms_px: Option<f64>,
 }
 
-/// `diagnosis.json` of a camera dataset.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct CameraDiagnosisFile {
-    pub format: String,
-    pub kind: String,
-    pub effects: Vec<CameraEffect>,
-    pub rejected: Vec<Rejected>,
-    pub heldout_rms_px_before: Option<f64>,
-    pub heldout_rms_px_after: Option<f64>,
-    pub train_rms_px_before: f64,
-    pub train_rms_px_after: f64,
-    /// The hand-eye (camera in flange, or in base eye-to-hand) before and after the accepted
-    /// effects: what the compensation changes.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub hand_eye_before: Option<HandEyePose>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub hand_eye_after: Option<HandEyePose>,
-}
-
-/// A hand-eye pose in file units: `xyz_mm`, `quat` `[w, x, y, z]`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct HandEyePose {
-    pub xyz_mm: [f64; 3],
-    pub quat: [f64; 4],
-}
-
-impl HandEyePose {
-    fn of(x: &Isometry3<f64>) -> Self {
-        let (t, q) = (x.translation.vector, x.rotation);
-        HandEyePose {
-            xyz_mm: [t.x, t.y, t.z],
-            quat: [q.w, q.i, q.j, q.k],
-        }
+fn pose_of(x: &Isometry3<f64>) -> schema::PoseMmQuat {
+    let t = x.translation.vector;
+    let q = x.rotation;
+    let q = if q.w < 0.0 {
+        -q.into_inner()
+    } else {
+        q.into_inner()
+    };
+    schema::PoseMmQuat {
+        xyz_mm: [t.x, t.y, t.z],
+        quat: [q.w, q.i, q.j, q.k],
     }
 }
 
 /// What [`diagnose`] returns.
 #[derive(Debug, Clone)]
 pub struct CameraDiagnosis {
+    /// The camera calibration the diagnosis starts from (`robocal calibrate camera`'s).
+    pub calibration: camera::CameraResult,
     pub baseline: Estimate,
     pub effects: Vec<CameraEffect>,
     pub rejected: Vec<Rejected>,
+    /// Every candidate scored per round (round 0 on top of the calibration), best first.
+    pub rounds: Vec<Vec<schema::Evidence>>,
     /// The final estimate with every accepted effect.
     pub final_estimate: Option<Estimate>,
+    /// 1σ of the final fit (the calibration's when no effect was added).
+    pub uncertainty: camera::Uncertainty,
     pub scale: f64,
     pub bend_mm: [f64; 2],
     /// Joint offsets (deg) per joint (1-based), when identified.
     pub joint_offsets_deg: Vec<(usize, f64)>,
+    /// Training / held-out views scored.
+    pub n_train: usize,
+    pub n_heldout: usize,
+    /// Candidates that could not be tested, and why.
+    pub untestable: Vec<(String, String)>,
 }
 
 impl CameraDiagnosis {
-    /// The file form.
-    pub fn to_file(&self) -> CameraDiagnosisFile {
-        let last = self.final_estimate.as_ref().unwrap_or(&self.baseline);
-        CameraDiagnosisFile {
-            format: "robocal-diagnosis/1".into(),
-            kind: "camera".into(),
-            effects: self.effects.clone(),
-            rejected: self.rejected.clone(),
-            heldout_rms_px_before: self.baseline.heldout_rms_px,
-            heldout_rms_px_after: last.heldout_rms_px,
-            train_rms_px_before: self.baseline.train_rms_px,
-            train_rms_px_after: last.train_rms_px,
-            hand_eye_before: Some(HandEyePose::of(&self.baseline.x)),
-            hand_eye_after: Some(HandEyePose::of(&last.x)),
+    /// The final estimate (the baseline when no effect was accepted).
+    pub fn last(&self) -> &Estimate {
+        self.final_estimate.as_ref().unwrap_or(&self.baseline)
+    }
+
+    /// The `diagnosis.json` form: the one shape of every sensor (`robocal-diagnosis/2`,
+    /// [`schema::DiagnosisFile`]) with its RMS figures in `_px` fields.
+    pub fn to_file(&self) -> schema::DiagnosisFile {
+        let fin = schema::fin;
+        let last = self.last();
+        let effects = self
+            .effects
+            .iter()
+            .map(|e| {
+                let mut params = serde_json::Map::new();
+                for p in &e.parameters {
+                    params.insert(p.name.clone(), serde_json::json!(fin(p.value)));
+                }
+                schema::DiagnosedEffect {
+                    kind: e.kind.clone(),
+                    joint: e.joint,
+                    label: e.kind.clone(),
+                    parameters: e.parameters.clone(),
+                    evidence: e.evidence.clone(),
+                    train_rms_mm_before: None,
+                    train_rms_mm_after: None,
+                    heldout_rms_mm_before: None,
+                    heldout_rms_mm_after: None,
+                    train_rms_px_before: fin(e.train_rms_before_px),
+                    train_rms_px_after: fin(e.train_rms_after_px),
+                    heldout_rms_px_before: e.heldout_rms_before_px.and_then(fin),
+                    heldout_rms_px_after: e.heldout_rms_after_px.and_then(fin),
+                    hand_eye_change_mm: fin(e.hand_eye_change_mm),
+                    hand_eye_change_deg: fin(e.hand_eye_change_deg),
+                    calibration: crate::dataset::CalEffect {
+                        kind: e.kind.clone(),
+                        joint: e.joint,
+                        params,
+                        extra: Default::default(),
+                    },
+                }
+            })
+            .collect();
+        let px = |base: Option<f64>, fin_: Option<f64>| schema::StageRms {
+            base_model_px: base.and_then(fin),
+            final_px: fin_.and_then(fin),
+            ..Default::default()
+        };
+        schema::DiagnosisFile {
+            format: schema::DIAGNOSIS_FORMAT.into(),
+            sensor: schema::DiagnosisSensor::Camera,
+            residual: "board corner reprojection error (px)".into(),
+            n_train: self.n_train,
+            n_heldout: self.n_heldout,
+            n_heldout_excluded: 0,
+            train_rms: px(Some(self.baseline.train_rms_px), Some(last.train_rms_px)),
+            heldout_rms: px(self.baseline.heldout_rms_px, last.heldout_rms_px),
+            effects,
+            nonparametric_used: false,
+            rounds: self.rounds.clone(),
+            not_identifiable: vec![],
+            untestable: self
+                .untestable
+                .iter()
+                .map(|(a, b)| schema::Untestable {
+                    effect: a.clone(),
+                    reason: b.clone(),
+                })
+                .collect(),
+            ambiguous_heldout: vec![],
+            warnings: vec![],
+            hand_eye_before: Some(pose_of(&self.baseline.x)),
+            hand_eye_after: Some(pose_of(&last.x)),
         }
     }
 }
@@ -346,9 +372,20 @@ pub fn diagnose(
     let mut cur_held = heldout(&ctx, &st);
     let mut effects = vec![];
     let mut rejected = vec![];
+    let mut rounds: Vec<Vec<schema::Evidence>> = vec![];
+    let mut untestable = vec![];
     let mut cands = vec![Cand::Scale, Cand::Bend];
     if ctx.model.is_some() && !ctx.joints.is_empty() {
         cands.push(Cand::Arm);
+    } else {
+        untestable.push((
+            Cand::Arm.kind().to_string(),
+            if train.mount != Mount::Flange {
+                "eye-to-hand: the arm's joint offsets are not separable from the board on the flange".to_string()
+            } else {
+                "the records carry no joint angles `q` (or the robot model is unknown)".to_string()
+            },
+        ));
     }
     if base.distortion != DistModel::K1K2P1P2K3 {
         cands.push(Cand::Distortion);
@@ -356,6 +393,7 @@ pub fn diagnose(
     loop {
         // The candidates rejected on top of the final model are the ones reported.
         rejected.clear();
+        let mut round = vec![];
         let mut best: Option<(Cand, St, LmReport, f64, Option<f64>)> = None;
         for &c in cands.iter().filter(|c| !st.on.contains(c)) {
             let mut s = st.clone();
@@ -376,6 +414,18 @@ pub fn diagnose(
                 (Some(a), Some(b)) => b < 0.98 * a,
                 _ => true,
             };
+            round.push(schema::Evidence {
+                candidate: c.kind().into(),
+                kind: c.kind().into(),
+                joint: None,
+                df: Some(p),
+                f: schema::fin(f),
+                cv_gain: match (cur_held, h) {
+                    (Some(a), Some(b)) if a > 0.0 => schema::fin((a - b) / a),
+                    _ => None,
+                },
+                ..Default::default()
+            });
             if f > 25.0 && held_ok {
                 if best.as_ref().is_none_or(|b| f > b.3) {
                     best = Some((c, s1, r1, f, h));
@@ -388,6 +438,10 @@ pub fn diagnose(
                 });
             }
         }
+        round.sort_by(|a, b| b.f.unwrap_or(f64::MIN).total_cmp(&a.f.unwrap_or(f64::MIN)));
+        if !round.is_empty() {
+            rounds.push(round);
+        }
         let Some((c, s1, r1, f, h)) = best else {
             break;
         };
@@ -397,23 +451,37 @@ pub fn diagnose(
         let params = effect_params(c, &s1, &std, &ctx, r1.jacobian.ncols());
         let summary = params
             .iter()
-            .map(|p| format!("{} = {:.5} ± {:.5} {}", p.name, p.value, p.std, p.unit))
+            .map(|p| {
+                format!(
+                    "{} = {:.5} ± {:.5} {}",
+                    p.name,
+                    p.value,
+                    p.std.unwrap_or(f64::NAN),
+                    p.unit
+                )
+            })
             .collect::<Vec<_>>()
             .join(", ");
+        let df = r1.jacobian.ncols() - rep.jacobian.ncols();
         effects.push(CameraEffect {
             kind: c.kind().into(),
             joint: None,
             parameters: params,
-            evidence: Evidence {
-                train_rms_before_px: rms(&rep.residuals),
-                train_rms_after_px: rms(&r1.residuals),
-                f_stat: f,
-                dof: [
-                    r1.jacobian.ncols() - rep.jacobian.ncols(),
-                    r1.residuals.len() - r1.jacobian.ncols(),
-                ],
+            evidence: schema::Evidence {
+                candidate: c.kind().into(),
+                kind: c.kind().into(),
+                joint: None,
+                df: Some(df),
+                f: schema::fin(f),
+                cv_gain: match (cur_held, h) {
+                    (Some(a), Some(b)) if a > 0.0 => schema::fin((a - b) / a),
+                    _ => None,
+                },
+                ..Default::default()
             },
             summary,
+            train_rms_before_px: rms(&rep.residuals),
+            train_rms_after_px: rms(&r1.residuals),
             heldout_rms_before_px: cur_held,
             heldout_rms_after_px: h,
             hand_eye_change_mm: dmm,
@@ -431,10 +499,21 @@ pub fn diagnose(
         train_rms_px: rms(&rep.residuals),
         heldout_rms_px: cur_held,
     });
+    let n_heldout = held.map_or(0, |h| h.views.len());
+    let uncertainty = if effects.is_empty() {
+        base.uncertainty.clone()
+    } else {
+        uncertainty_of(&stds(&rep), &st.mask, base.uncertainty.bootstrap)
+    };
     Ok(CameraDiagnosis {
+        uncertainty,
         baseline: base.ml.clone(),
+        n_train: base.used_views.len(),
+        n_heldout,
+        calibration: base,
         effects,
         rejected,
+        rounds,
         final_estimate,
         scale: st.scale,
         bend_mm: st.bend,
@@ -444,6 +523,7 @@ pub fn diagnose(
             .zip(&st.offsets)
             .map(|(j, o)| (j + 1, o.to_degrees()))
             .collect(),
+        untestable,
     })
 }
 
@@ -464,6 +544,34 @@ fn camera_obs(views: &[camera::View], data: &CameraData) -> Vec<Obs> {
     out
 }
 
+/// The camera parameters' 1σ from the final fit's standard deviations (same layout as the
+/// calibration: free intrinsics, X rotation + translation, target rotation + translation).
+fn uncertainty_of(
+    std: &[f64],
+    mask: &[bool; N_INTR],
+    bootstrap: Option<(usize, [f64; 3], [f64; 3])>,
+) -> camera::Uncertainty {
+    let sd = |i: usize| std.get(i).copied().unwrap_or(f64::NAN);
+    let mut u = camera::Uncertainty {
+        bootstrap,
+        ..Default::default()
+    };
+    let mut k = 0;
+    for (i, f) in mask.iter().enumerate() {
+        if *f {
+            u.intrinsics[i] = sd(k);
+            k += 1;
+        }
+    }
+    for a in 0..3 {
+        u.x_deg[a] = sd(k + a).to_degrees();
+        u.x_mm[a] = sd(k + 3 + a);
+        u.target_deg[a] = sd(k + 6 + a).to_degrees();
+        u.target_mm[a] = sd(k + 9 + a);
+    }
+    u
+}
+
 fn stds(r: &LmReport) -> Vec<f64> {
     let (m, n) = (r.jacobian.nrows(), r.jacobian.ncols());
     let s2 = 2.0 * r.cost / (m.saturating_sub(n)).max(1) as f64;
@@ -474,13 +582,15 @@ fn stds(r: &LmReport) -> Vec<f64> {
     }
 }
 
-fn effect_params(c: Cand, s: &St, std: &[f64], ctx: &Ctx, n: usize) -> Vec<EffectParam> {
-    let p = |name: String, value: f64, sd: f64, unit: &str| EffectParam {
-        name,
-        value,
-        std: sd,
-        unit: unit.into(),
-        interval: [value - 1.96 * sd, value + 1.96 * sd],
+fn effect_params(
+    c: Cand,
+    s: &St,
+    std: &[f64],
+    ctx: &Ctx,
+    n: usize,
+) -> Vec<schema::EffectParameter> {
+    let p = |name: String, value: f64, sd: f64, unit: &str| {
+        schema::EffectParameter::new(&name, unit, value, sd)
     };
     // Index of the extras: intrinsics, 12 pose params, then scale, bend (2), offsets.
     let ni = s.mask.iter().filter(|f| **f).count();

@@ -873,6 +873,12 @@ impl Diagnosis {
                 train_rms_mm_after: fin(s.train_rms_after),
                 heldout_rms_mm_before: ofin(s.heldout_rms_before),
                 heldout_rms_mm_after: ofin(s.heldout_rms_after),
+                train_rms_px_before: None,
+                train_rms_px_after: None,
+                heldout_rms_px_before: None,
+                heldout_rms_px_after: None,
+                hand_eye_change_mm: None,
+                hand_eye_change_deg: None,
                 calibration: s.effect.to_cal(),
             })
             .collect();
@@ -887,11 +893,13 @@ impl Diagnosis {
                 nominal_mm: fin(self.train_rms_nominal),
                 base_model_mm: fin(self.train_rms_geometric),
                 final_mm: fin(self.train_rms_final),
+                ..Default::default()
             },
             heldout_rms: schema::StageRms {
                 nominal_mm: ofin(self.heldout_rms_nominal),
                 base_model_mm: ofin(self.heldout_rms_geometric),
                 final_mm: ofin(self.heldout_rms_final),
+                ..Default::default()
             },
             effects,
             nonparametric_used: self.nonparametric.is_some(),
@@ -911,6 +919,8 @@ impl Diagnosis {
                 .collect(),
             ambiguous_heldout: self.ambiguous_heldout.clone(),
             warnings: self.warnings.clone(),
+            hand_eye_before: None,
+            hand_eye_after: None,
         }
     }
 

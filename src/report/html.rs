@@ -211,22 +211,36 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         h,
         "<tr><th>poses planned</th><td>{}</td></tr><tr><th>poses skipped</th><td>{}</td></tr>\
          <tr><th>predicted / measured acquisition time</th><td>{:.0} s / {}</td></tr>\
-         <tr><th>held-out poses</th><td>{}</td></tr>\
-         <tr><th>held-out RMS (mm), nominal → calibrated</th><td>{}</td></tr>\
-         <tr><th>held-out max error (mm)</th><td>{}</td></tr>\
-         <tr><th>relative distance error (%)</th><td>{}</td></tr>",
+         <tr><th>held-out poses</th><td>{}</td></tr>",
         s.poses_planned,
         s.poses_skipped,
         s.predicted_duration_s,
         s.duration_s.map_or("—".into(), |d| format!("{d:.0} s")),
         m.heldout_poses,
-        ba(m.heldout_rms_mm_before, m.heldout_rms_mm_after),
-        ba(m.heldout_max_mm_before, m.heldout_max_mm_after),
-        ba(
-            m.relative_distance_pct_before,
-            m.relative_distance_pct_after
-        ),
     );
+    if s.camera.is_some() {
+        let _ = write!(
+            h,
+            "<tr><th>held-out reprojection RMS (px), calibration → diagnosed</th><td>{}</td></tr>",
+            ba(
+                m.heldout_reprojection_px_before,
+                m.heldout_reprojection_px_after
+            ),
+        );
+    } else {
+        let _ = write!(
+            h,
+            "<tr><th>held-out RMS (mm), nominal → calibrated</th><td>{}</td></tr>\
+             <tr><th>held-out max error (mm)</th><td>{}</td></tr>\
+             <tr><th>relative distance error (%)</th><td>{}</td></tr>",
+            ba(m.heldout_rms_mm_before, m.heldout_rms_mm_after),
+            ba(m.heldout_max_mm_before, m.heldout_max_mm_after),
+            ba(
+                m.relative_distance_pct_before,
+                m.relative_distance_pct_after
+            ),
+        );
+    }
     h.push_str("</table>\n");
     // Plots.
     if !s.heldout_errors.is_empty() {
@@ -239,10 +253,17 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
             svg::histogram(&b, &a)
         );
     }
+    if let Some(c) = &s.camera {
+        camera_section(&mut h, c);
+    }
     // Effects.
     h.push_str("<h2>What the diagnosis found</h2>");
     if s.effects.is_empty() {
-        h.push_str("<p id=\"effects\">No physical effect beyond the geometry was found.</p>");
+        h.push_str(if s.camera.is_some() {
+            "<p id=\"effects\">No effect beyond the camera model (intrinsics, hand-eye, board pose) was found.</p>"
+        } else {
+            "<p id=\"effects\">No physical effect beyond the geometry was found.</p>"
+        });
     } else {
         h.push_str("<ul id=\"effects\">");
         for e in &s.effects {
@@ -340,7 +361,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     if !s.deploy.is_empty() {
         h.push_str("<ul id=\"deploy\">");
         for d in &s.deploy {
-            let what = if d.ends_with(".urdf") {
+            let what = if s.camera.is_some() {
+                "the camera calibration (robocal-calibration/1 `camera` block: intrinsics, hand-eye, board pose with their uncertainties; mm / degrees / px): `robocal predict --calibration` projects the board corners"
+            } else if d.ends_with(".urdf") {
                 "the calibrated geometry as URDF (metres, radians): load it in ROS / the navigation software in place of the nominal model; effects are not in it"
             } else {
                 "the calibration file (robocal-calibration/1: geometry and effects, mm / degrees): `robocal predict --calibration` applies it"
@@ -376,4 +399,161 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         esc(&s.format)
     );
     Ok(h)
+}
+
+/// The camera calibration of a camera session: intrinsics, hand-eye and board pose with
+/// their 95 % intervals (the deployed, diagnosed values and the calibration stage's), every
+/// method side by side, held-out pixels before / after the diagnosis.
+fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
+    let d = c.diagnosed.as_ref().unwrap_or(&c.calibrated);
+    let ci = |sd: Option<f64>, p: usize| {
+        sd.filter(|x| x.is_finite() && *x > 0.0)
+            .map_or("—".into(), |x| format!("± {:.p$}", 1.96 * x))
+    };
+    let _ = write!(
+        h,
+        "<h2>Camera calibration</h2><section id=\"camera\"><p>{} training views with a board, {} held-out views{}; distortion model <code>{}</code> (chosen by validation error); {} views and {} corners rejected by residual. Intervals are 95 % (1.96 σ of the final fit's covariance).</p>",
+        c.views_train,
+        c.views_heldout,
+        if c.views_without_board > 0 {
+            format!(", {} without a usable board", c.views_without_board)
+        } else {
+            String::new()
+        },
+        esc(&c.distortion),
+        c.rejected_views.len(),
+        c.rejected_corners
+    );
+    // Intrinsics.
+    let i = &d.intrinsics;
+    let ic = &c.calibrated.intrinsics;
+    let sd = |k: usize| i.std.map(|s| s[k]);
+    h.push_str("<h3>Intrinsics</h3><table id=\"camera-intrinsics\"><tr><th>parameter</th><th>deployed (diagnosed)</th><th>95 %</th><th>calibration stage</th></tr>");
+    let names = ["fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2", "p1", "p2", "k3"];
+    let vals = [i.fx, i.fy, i.cx, i.cy, i.dist[0], i.dist[1], i.dist[2], i.dist[3], i.dist[4]];
+    let cal = [
+        ic.fx, ic.fy, ic.cx, ic.cy, ic.dist[0], ic.dist[1], ic.dist[2], ic.dist[3], ic.dist[4],
+    ];
+    for k in 0..9 {
+        let p = if k < 4 { 3 } else { 6 };
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{:.p$}</td><td>{}</td><td>{:.p$}</td></tr>",
+            names[k],
+            vals[k],
+            ci(sd(k), p),
+            cal[k]
+        );
+    }
+    let _ = write!(
+        h,
+        "<tr><td>image</td><td colspan=\"3\">{} × {} px</td></tr></table>",
+        i.width, i.height
+    );
+    // Hand-eye and board pose.
+    let pose_rows = |h: &mut String, label: &str, p: ([f64; 3], [f64; 4], Option<[f64; 3]>, Option<[f64; 3]>), before: Option<([f64; 3], [f64; 4])>| {
+        let (xyz, q, smm, sdeg) = p;
+        let axes = ["x", "y", "z"];
+        for k in 0..3 {
+            let _ = write!(
+                h,
+                "<tr><td>{label} {} (mm)</td><td>{:.3}</td><td>{}</td><td>{}</td></tr>",
+                axes[k],
+                xyz[k],
+                ci(smm.map(|s| s[k]), 3),
+                before.map_or("—".into(), |b| format!("{:.3}", b.0[k]))
+            );
+        }
+        let _ = write!(
+            h,
+            "<tr><td>{label} quaternion [w, x, y, z]</td><td>[{:.6}, {:.6}, {:.6}, {:.6}]</td><td>rotation {}</td><td>{}</td></tr>",
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            sdeg.map_or("—".into(), |s| format!(
+                "± {:.4}°, {:.4}°, {:.4}° (about x, y, z)",
+                1.96 * s[0],
+                1.96 * s[1],
+                1.96 * s[2]
+            )),
+            before.map_or("—".into(), |b| format!(
+                "[{:.6}, {:.6}, {:.6}, {:.6}]",
+                b.1[0], b.1[1], b.1[2], b.1[3]
+            ))
+        );
+    };
+    let he = &d.hand_eye;
+    let _ = write!(
+        h,
+        "<h3>Hand-eye</h3><p>The camera frame (OpenCV axes) in the {} frame{}.</p><table id=\"camera-hand-eye\"><tr><th>parameter</th><th>deployed (diagnosed)</th><th>95 %</th><th>calibration stage</th></tr>",
+        if he.mount == "flange" { "flange" } else { "robot base" },
+        if he.mount == "flange" { " (eye-in-hand)" } else { " (eye-to-hand)" }
+    );
+    pose_rows(
+        h,
+        "hand-eye",
+        (he.xyz_mm, he.quat, he.std_mm, he.std_deg),
+        Some((c.calibrated.hand_eye.xyz_mm, c.calibrated.hand_eye.quat)),
+    );
+    let (tlabel, t, tc) = match (&d.target_in_base, &d.target_in_flange) {
+        (Some(t), _) => (
+            "board in base",
+            t,
+            c.calibrated.target_in_base.as_ref(),
+        ),
+        (None, Some(t)) => (
+            "board in flange",
+            t,
+            c.calibrated.target_in_flange.as_ref(),
+        ),
+        _ => {
+            h.push_str("</table>");
+            return;
+        }
+    };
+    pose_rows(
+        h,
+        tlabel,
+        (t.xyz_mm, t.quat, t.std_mm, t.std_deg),
+        tc.map(|p| (p.xyz_mm, p.quat)),
+    );
+    if let Some(sc) = d.target_scale {
+        let _ = write!(
+            h,
+            "<tr><td>board scale (printed / declared)</td><td>{sc:.6}</td><td>—</td><td>1</td></tr>"
+        );
+    }
+    if let Some(b) = d.target_bend_mm {
+        let _ = write!(
+            h,
+            "<tr><td>board sag x, y (mm)</td><td>{:.4}, {:.4}</td><td>—</td><td>0, 0</td></tr>",
+            b[0], b[1]
+        );
+    }
+    h.push_str("</table>");
+    // Held-out pixels.
+    let _ = write!(
+        h,
+        "<h3>Reprojection</h3><table id=\"camera-reprojection\"><tr><th></th><th>calibration (maximum likelihood)</th><th>diagnosed (deployed)</th></tr>\
+         <tr><th>held-out RMS (px)</th><td>{}</td><td>{}</td></tr><tr><th>training RMS (px)</th><td>{:.4}</td><td>—</td></tr></table>",
+        f4(c.heldout_rms_px_calibrated),
+        f4(c.heldout_rms_px_diagnosed),
+        c.train_rms_px
+    );
+    // Methods side by side.
+    h.push_str("<h3>Hand-eye methods side by side</h3><table id=\"camera-methods\"><tr><th>method</th><th>train RMS (px)</th><th>held-out RMS (px)</th><th>hand-eye x, y, z (mm)</th></tr>");
+    for r in &c.methods {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{:.4}</td><td>{}</td><td>{:.3}, {:.3}, {:.3}</td></tr>",
+            esc(&r.method),
+            r.train_rms_px,
+            f4(r.heldout_rms_px),
+            r.hand_eye_xyz_mm[0],
+            r.hand_eye_xyz_mm[1],
+            r.hand_eye_xyz_mm[2]
+        );
+    }
+    h.push_str("</table></section>\n");
 }

@@ -187,6 +187,10 @@ pub struct Headline {
     pub after_mm: Option<f64>,
     /// Where the two numbers come from.
     pub source: String,
+    /// Camera: held-out reprojection RMS before / after the diagnosis (px), from a camera
+    /// `diagnosis.json`.
+    pub before_px: Option<f64>,
+    pub after_px: Option<f64>,
     /// Effects found by the diagnoses (labels, every sensor), sorted.
     pub effects: Vec<String>,
     /// Poses skipped during acquisition (None without a run summary).
@@ -236,6 +240,18 @@ impl Session {
                 }
             }
         }
+        let (mut before_px, mut after_px) = (None, None);
+        for d in &self.diagnoses {
+            let h = &d.value.heldout_rms;
+            if let (Some(b), Some(a)) = (h.base_model_px, h.final_px) {
+                before_px = Some(b);
+                after_px = Some(a);
+                if before.is_none() {
+                    source = format!("{} (held-out reprojection, calibration → final)", d.rel);
+                }
+                break;
+            }
+        }
         let mut effects: Vec<String> = self
             .diagnoses
             .iter()
@@ -253,6 +269,8 @@ impl Session {
             before_mm: before,
             after_mm: after,
             source,
+            before_px,
+            after_px,
             effects,
             skipped,
             recorded,
@@ -262,8 +280,11 @@ impl Session {
     /// The one-line headline for a field engineer.
     pub fn headline_text(&self) -> String {
         let h = self.headline();
-        let mut s = match (h.before_mm, h.after_mm) {
-            (Some(b), Some(a)) => format!("held-out error {b:.3} mm → {a:.3} mm"),
+        let mut s = match (h.before_mm, h.after_mm, h.before_px, h.after_px) {
+            (Some(b), Some(a), _, _) => format!("held-out error {b:.3} mm → {a:.3} mm"),
+            (_, _, Some(b), Some(a)) => {
+                format!("held-out reprojection error {b:.4} px → {a:.4} px")
+            }
             _ => "held-out error: not available".to_string(),
         };
         if self.diagnoses.is_empty() {
@@ -289,6 +310,7 @@ impl Session {
             "format": "robocal-report/1",
             "headline": self.headline_text(),
             "heldout_rms_mm": { "before": h.before_mm, "after": h.after_mm, "source": h.source },
+            "heldout_rms_px": { "before": h.before_px, "after": h.after_px },
             "effects": h.effects,
             "poses_skipped": h.skipped,
             "poses_recorded": h.recorded,
@@ -493,19 +515,29 @@ fn md_diagnosis(m: &mut String, d: &Found<DiagnosisFile>) {
     };
     let _ = writeln!(m, "## Diagnosis (`{}`)\n", d.rel);
     let _ = writeln!(m, "Sensor: {sensor}; residual: {}.\n", v.residual);
-    let (tr, ho) = (&v.train_rms, &v.heldout_rms);
+    let ((unit, tn, tb, tf), (_, hn, hb, hf)) =
+        (v.train_rms.with_unit(), v.heldout_rms.with_unit());
     let _ = writeln!(
         m,
-        "| RMS (mm) | nominal | base model | final |\n|---|---:|---:|---:|\n| train ({}) | {} | {} | {} |\n| held-out ({}) | {} | {} | {} |\n",
+        "| RMS ({unit}) | nominal | base model | final |\n|---|---:|---:|---:|\n| train ({}) | {} | {} | {} |\n| held-out ({}) | {} | {} | {} |\n",
         v.n_train,
-        f3(tr.nominal_mm),
-        f3(tr.base_model_mm),
-        f3(tr.final_mm),
+        f3(tn),
+        f3(tb),
+        f3(tf),
         v.n_heldout,
-        f3(ho.nominal_mm),
-        f3(ho.base_model_mm),
-        f3(ho.final_mm),
+        f3(hn),
+        f3(hb),
+        f3(hf),
     );
+    if let (Some(b), Some(a)) = (&v.hand_eye_before, &v.hand_eye_after) {
+        let xyz = |x: &[f64; 3]| format!("[{:.3}, {:.3}, {:.3}]", x[0], x[1], x[2]);
+        let _ = writeln!(
+            m,
+            "Hand-eye xyz (mm): {} → {} (after the effects).\n",
+            xyz(&b.xyz_mm),
+            xyz(&a.xyz_mm)
+        );
+    }
     if v.effects.is_empty() {
         let _ = writeln!(m, "No effect found beyond the base model.\n");
     } else {
@@ -515,19 +547,24 @@ fn md_diagnosis(m: &mut String, d: &Found<DiagnosisFile>) {
         );
         for (i, c) in v.effects.iter().enumerate() {
             let ev = &c.evidence;
+            let (u, tb, ta, hb, ha) = c.rms_with_unit();
+            let moved = match (c.hand_eye_change_mm, c.hand_eye_change_deg) {
+                (Some(mm), Some(deg)) => format!("; hand-eye moved {mm:.4} mm, {deg:.5}°"),
+                _ => String::new(),
+            };
             let _ = writeln!(
                 m,
-                "{}. train {} mm → **{}** (F {}, p {}, ΔBIC {}, CV gain {}) → {} mm; held-out {} → {} mm",
+                "{}. train {} {u} → **{}** (F {}, p {}, ΔBIC {}, CV gain {}) → {} {u}; held-out {} → {} {u}{moved}",
                 i + 1,
-                f3(c.train_rms_mm_before),
+                f3(tb),
                 cell(&c.label),
                 ev.f.map_or("—".into(), |x| format!("{x:.1}")),
                 ev.p_value.map_or("—".into(), |x| format!("{x:.2e}")),
                 ev.delta_bic.map_or("—".into(), |x| format!("{x:.1}")),
                 f3(ev.cv_gain),
-                f3(c.train_rms_mm_after),
-                f3(c.heldout_rms_mm_before),
-                f3(c.heldout_rms_mm_after),
+                f3(ta),
+                f3(hb),
+                f3(ha),
             );
             for p in &c.parameters {
                 let ci = p

@@ -148,7 +148,11 @@ pub enum DiagnosisSensor {
     Camera,
 }
 
-/// RMS (mm) of one data set at the stages of a diagnosis.
+/// RMS of one data set at the stages of a diagnosis. The unit is in the field name: `_mm`
+/// for kinematic and laser diagnoses (3-D point / point-to-plane error), `_px` for camera
+/// diagnoses (corner reprojection error). A file fills the fields of its sensor's unit; the
+/// `_px` fields are absent from kinematic / laser files (files written before they existed
+/// load unchanged).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct StageRms {
     /// Before any identification (nominal model with only the registration fitted).
@@ -157,6 +161,27 @@ pub struct StageRms {
     pub base_model_mm: Option<f64>,
     /// With every accepted effect.
     pub final_mm: Option<f64>,
+    /// Camera: the nominal stage (not defined for a camera: always absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nominal_px: Option<f64>,
+    /// Camera: after the maximum-likelihood camera + hand-eye fit, before effects (px).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base_model_px: Option<f64>,
+    /// Camera: with every accepted effect (px).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_px: Option<f64>,
+}
+
+impl StageRms {
+    /// `(unit, nominal, base model, final)` in the unit the file uses (`px` when any `_px`
+    /// field is set, else `mm`).
+    pub fn with_unit(&self) -> (&'static str, Option<f64>, Option<f64>, Option<f64>) {
+        if self.nominal_px.is_some() || self.base_model_px.is_some() || self.final_px.is_some() {
+            ("px", self.nominal_px, self.base_model_px, self.final_px)
+        } else {
+            ("mm", self.nominal_mm, self.base_model_mm, self.final_mm)
+        }
+    }
 }
 
 /// One parameter of a diagnosed effect, in file units with its 95 % interval.
@@ -224,12 +249,70 @@ pub struct DiagnosedEffect {
     /// Parameters in file units with intervals.
     pub parameters: Vec<EffectParameter>,
     pub evidence: Evidence,
+    /// Train / held-out RMS before and after adding the effect, kinematic / laser (mm).
     pub train_rms_mm_before: Option<f64>,
     pub train_rms_mm_after: Option<f64>,
     pub heldout_rms_mm_before: Option<f64>,
     pub heldout_rms_mm_after: Option<f64>,
+    /// The same for a camera diagnosis (corner reprojection, px); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_rms_px_before: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_rms_px_after: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rms_px_before: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rms_px_after: Option<f64>,
+    /// Camera: how far adding the effect moved the hand-eye (mm, deg); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_change_mm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_change_deg: Option<f64>,
     /// The effect as written into `calibration.json` (what `robocal predict` applies).
     pub calibration: CalEffect,
+}
+
+impl DiagnosedEffect {
+    /// `(unit, train before, train after, held-out before, held-out after)` in the unit the
+    /// effect's RMS figures use (`px` for camera effects, else `mm`).
+    pub fn rms_with_unit(
+        &self,
+    ) -> (
+        &'static str,
+        Option<f64>,
+        Option<f64>,
+        Option<f64>,
+        Option<f64>,
+    ) {
+        if self.train_rms_px_before.is_some()
+            || self.train_rms_px_after.is_some()
+            || self.heldout_rms_px_before.is_some()
+            || self.heldout_rms_px_after.is_some()
+        {
+            (
+                "px",
+                self.train_rms_px_before,
+                self.train_rms_px_after,
+                self.heldout_rms_px_before,
+                self.heldout_rms_px_after,
+            )
+        } else {
+            (
+                "mm",
+                self.train_rms_mm_before,
+                self.train_rms_mm_after,
+                self.heldout_rms_mm_before,
+                self.heldout_rms_mm_after,
+            )
+        }
+    }
+}
+
+/// A pose in file units: `xyz_mm`, `quat` `[w, x, y, z]` (camera diagnoses: the hand-eye).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseMmQuat {
+    pub xyz_mm: [f64; 3],
+    pub quat: [f64; 4],
 }
 
 /// An effect the data could not test, and why.
@@ -287,6 +370,12 @@ pub struct DiagnosisFile {
     /// Warnings of the diagnosis (missing `q_prev`, dropped torn lines, ...).
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// Camera: the hand-eye (camera in the flange, or in the base eye-to-hand) before and
+    /// after the accepted effects: what the compensation changes. Absent for other sensors.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_before: Option<PoseMmQuat>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hand_eye_after: Option<PoseMmQuat>,
 }
 
 impl SchemaFile for DiagnosisFile {
@@ -462,6 +551,7 @@ mod tests {
                 nominal_mm: None,
                 base_model_mm: Some(0.2),
                 final_mm: Some(0.1),
+                ..Default::default()
             },
             heldout_rms: StageRms::default(),
             effects: vec![DiagnosedEffect {
@@ -474,6 +564,12 @@ mod tests {
                 train_rms_mm_after: Some(0.1),
                 heldout_rms_mm_before: None,
                 heldout_rms_mm_after: None,
+                train_rms_px_before: None,
+                train_rms_px_after: None,
+                heldout_rms_px_before: None,
+                heldout_rms_px_after: None,
+                hand_eye_change_mm: None,
+                hand_eye_change_deg: None,
                 calibration: CalEffect {
                     kind: "laser_scale".into(),
                     joint: None,
@@ -487,6 +583,8 @@ mod tests {
             untestable: vec![],
             ambiguous_heldout: vec![],
             warnings: vec![],
+            hand_eye_before: None,
+            hand_eye_after: None,
         };
         let text = serde_json::to_string(&d).unwrap();
         let back: DiagnosisFile = parse(&text, "mem").unwrap();

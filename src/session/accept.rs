@@ -65,6 +65,16 @@ pub struct AcceptSpec {
     /// At least this many held-out poses (else INCOMPLETE).
     #[serde(default = "d_min_heldout")]
     pub min_heldout_poses: usize,
+    /// Camera sessions: held-out reprojection RMS of the board corners after calibration
+    /// and diagnosis must be ≤ this (px).
+    #[serde(default)]
+    pub heldout_reprojection_px_max: Option<f64>,
+    /// Camera sessions: the largest 95 % half-interval of the hand-eye translation (mm).
+    #[serde(default)]
+    pub hand_eye_ci95_mm_max: Option<f64>,
+    /// Camera sessions: the largest 95 % half-interval of the hand-eye rotation (deg).
+    #[serde(default)]
+    pub hand_eye_ci95_deg_max: Option<f64>,
 }
 
 fn yes() -> bool {
@@ -101,6 +111,13 @@ impl AcceptSpec {
         check("skipped_fraction_max", spec.skipped_fraction_max, 1.0)?;
         check("param_ci95_mm_max", spec.param_ci95_mm_max, 1e4)?;
         check("param_ci95_deg_max", spec.param_ci95_deg_max, 360.0)?;
+        check(
+            "heldout_reprojection_px_max",
+            spec.heldout_reprojection_px_max,
+            1e3,
+        )?;
+        check("hand_eye_ci95_mm_max", spec.hand_eye_ci95_mm_max, 1e4)?;
+        check("hand_eye_ci95_deg_max", spec.hand_eye_ci95_deg_max, 360.0)?;
         Ok(spec)
     }
 
@@ -143,6 +160,17 @@ pub struct Measured {
     /// Largest 95 % half-interval of a free length parameter (mm) and angle parameter (deg).
     pub param_ci95_mm: Option<f64>,
     pub param_ci95_deg: Option<f64>,
+    /// Camera: held-out reprojection RMS (px) with the calibration and after the diagnosis.
+    #[serde(default)]
+    pub heldout_reprojection_px_before: Option<f64>,
+    #[serde(default)]
+    pub heldout_reprojection_px_after: Option<f64>,
+    /// Camera: largest 95 % half-interval of the deployed hand-eye's translation (mm) and
+    /// rotation (deg).
+    #[serde(default)]
+    pub hand_eye_ci95_mm: Option<f64>,
+    #[serde(default)]
+    pub hand_eye_ci95_deg: Option<f64>,
 }
 
 impl Measured {
@@ -170,6 +198,11 @@ impl Measured {
             "relative distance error (%)",
             self.relative_distance_pct_before,
             self.relative_distance_pct_after,
+        );
+        push(
+            "held-out reprojection RMS (px)",
+            self.heldout_reprojection_px_before,
+            self.heldout_reprojection_px_after,
         );
         v
     }
@@ -277,31 +310,34 @@ fn le(name: &str, unit: &str, v: Option<f64>, limit: Option<f64>, out: &mut Vec<
 
 /// Judge `m` against `spec`. `incomplete` lists stages that did not finish.
 pub fn judge(spec: &AcceptSpec, m: &Measured, incomplete: Vec<String>) -> Verdict {
+    judge_kind(spec, m, incomplete, super::SessionKind::Kinematic)
+}
+
+/// Judge `m` against `spec` for a session of `kind`: a kinematic session is judged by the
+/// position criteria (mm, %), a camera session by the reprojection and hand-eye criteria
+/// (px, mm, deg); both by "must improve", skipped poses and the held-out count. A camera
+/// session judged by a spec without any camera criterion is INCOMPLETE, never PASS.
+pub fn judge_kind(
+    spec: &AcceptSpec,
+    m: &Measured,
+    incomplete: Vec<String>,
+    kind: super::SessionKind,
+) -> Verdict {
+    let camera = kind == super::SessionKind::Camera;
     let mut c = Vec::new();
-    le(
-        "held-out RMS error",
-        "mm",
-        m.heldout_rms_mm_after,
-        spec.heldout_rms_mm_max,
-        &mut c,
-    );
-    le(
-        "held-out max error",
-        "mm",
-        m.heldout_max_mm_after,
-        spec.heldout_max_mm_max,
-        &mut c,
-    );
-    le(
-        "relative distance error",
-        "%",
-        m.relative_distance_pct_after,
-        spec.relative_distance_pct_max,
-        &mut c,
-    );
+    let mut incomplete = incomplete;
+    if camera {
+        camera_criteria(spec, m, &mut c, &mut incomplete);
+    } else {
+        kinematic_criteria(spec, m, &mut c);
+    }
     let worse = m.worse();
     if spec.must_improve {
-        let have = m.heldout_rms_mm_before.is_some() && m.heldout_rms_mm_after.is_some();
+        let have = if camera {
+            m.heldout_reprojection_px_before.is_some() && m.heldout_reprojection_px_after.is_some()
+        } else {
+            m.heldout_rms_mm_before.is_some() && m.heldout_rms_mm_after.is_some()
+        };
         c.push(Criterion {
             name: "no held-out metric worse than nominal".into(),
             limit: "none worse".into(),
@@ -335,21 +371,22 @@ pub fn judge(spec: &AcceptSpec, m: &Measured, incomplete: Vec<String>) -> Verdic
             ok: frac.map(|f| f <= lim),
         });
     }
-    le(
-        "parameter 95 % half-interval (lengths)",
-        "mm",
-        m.param_ci95_mm,
-        spec.param_ci95_mm_max,
-        &mut c,
-    );
-    le(
-        "parameter 95 % half-interval (angles)",
-        "deg",
-        m.param_ci95_deg,
-        spec.param_ci95_deg_max,
-        &mut c,
-    );
-    let mut incomplete = incomplete;
+    if !camera {
+        le(
+            "parameter 95 % half-interval (lengths)",
+            "mm",
+            m.param_ci95_mm,
+            spec.param_ci95_mm_max,
+            &mut c,
+        );
+        le(
+            "parameter 95 % half-interval (angles)",
+            "deg",
+            m.param_ci95_deg,
+            spec.param_ci95_deg_max,
+            &mut c,
+        );
+    }
     if m.heldout_poses < spec.min_heldout_poses {
         incomplete.push(format!(
             "only {} held-out poses (need ≥ {})",
@@ -375,6 +412,71 @@ pub fn judge(spec: &AcceptSpec, m: &Measured, incomplete: Vec<String>) -> Verdic
     }
 }
 
+/// The camera criteria: held-out reprojection, the hand-eye's 95 % half-intervals.
+fn camera_criteria(
+    spec: &AcceptSpec,
+    m: &Measured,
+    c: &mut Vec<Criterion>,
+    incomplete: &mut Vec<String>,
+) {
+    if spec.heldout_reprojection_px_max.is_none()
+        && spec.hand_eye_ci95_mm_max.is_none()
+        && spec.hand_eye_ci95_deg_max.is_none()
+    {
+        incomplete.push(format!(
+            "the acceptance spec {:?} has no camera criterion (heldout_reprojection_px_max, \
+             hand_eye_ci95_mm_max, hand_eye_ci95_deg_max): see accept/camera.toml",
+            spec.name
+        ));
+    }
+    le(
+        "held-out reprojection RMS",
+        "px",
+        m.heldout_reprojection_px_after,
+        spec.heldout_reprojection_px_max,
+        c,
+    );
+    le(
+        "hand-eye 95 % half-interval (translation)",
+        "mm",
+        m.hand_eye_ci95_mm,
+        spec.hand_eye_ci95_mm_max,
+        c,
+    );
+    le(
+        "hand-eye 95 % half-interval (rotation)",
+        "deg",
+        m.hand_eye_ci95_deg,
+        spec.hand_eye_ci95_deg_max,
+        c,
+    );
+}
+
+/// The kinematic (position) criteria.
+fn kinematic_criteria(spec: &AcceptSpec, m: &Measured, c: &mut Vec<Criterion>) {
+    le(
+        "held-out RMS error",
+        "mm",
+        m.heldout_rms_mm_after,
+        spec.heldout_rms_mm_max,
+        c,
+    );
+    le(
+        "held-out max error",
+        "mm",
+        m.heldout_max_mm_after,
+        spec.heldout_max_mm_max,
+        c,
+    );
+    le(
+        "relative distance error",
+        "%",
+        m.relative_distance_pct_after,
+        spec.relative_distance_pct_max,
+        c,
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -392,6 +494,7 @@ mod tests {
             relative_distance_pct_after: Some(0.02),
             param_ci95_mm: Some(0.05),
             param_ci95_deg: Some(0.004),
+            ..Default::default()
         }
     }
 

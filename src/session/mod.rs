@@ -15,6 +15,7 @@
 //! URDF of the calibrated geometry), `report.html`.
 //! Units: mm, degrees, seconds in every file.
 pub mod accept;
+pub mod camera;
 pub mod deploy;
 pub mod history;
 pub mod svg;
@@ -96,6 +97,9 @@ pub struct CellDescription {
     pub tracker_rate_hz: Option<f64>,
     /// Arm settling time after a move (s), for the time model.
     pub settle_s: Option<f64>,
+    /// The camera and its board, for a camera session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<camera::CameraCell>,
 }
 
 /// How the session was started (everything `--resume` needs).
@@ -120,6 +124,20 @@ pub struct SessionSetup {
     pub operator_note: Option<String>,
     /// Stop after planning.
     pub plan_only: bool,
+    /// What the session calibrates (sessions written before camera sessions: kinematic).
+    #[serde(default)]
+    pub kind: SessionKind,
+}
+
+/// What a session calibrates.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SessionKind {
+    /// The arm's kinematics, measured by a tracker (seed 001).
+    #[default]
+    Kinematic,
+    /// A camera's intrinsics and hand-eye from board images (seed 004).
+    Camera,
 }
 
 /// One dataset of the session and its SHA-256.
@@ -170,6 +188,11 @@ pub struct EffectFound {
     /// Held-out RMS before / after adding it (mm).
     pub heldout_rms_mm_before: Option<f64>,
     pub heldout_rms_mm_after: Option<f64>,
+    /// Camera effects: held-out reprojection RMS before / after adding it (px).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rms_px_before: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heldout_rms_px_after: Option<f64>,
     /// Its residual plot (relative path), if any.
     pub plot: Option<String>,
 }
@@ -228,6 +251,10 @@ pub struct SessionFile {
     pub deploy: Vec<String>,
     /// Warnings collected on the way.
     pub warnings: Vec<String>,
+    /// Camera sessions: the camera calibration (intrinsics, hand-eye, target pose with their
+    /// uncertainties, every method side by side, held-out pixels before / after diagnosis).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<camera::CameraSummary>,
 }
 
 impl SessionFile {
@@ -329,6 +356,9 @@ pub fn fit_spec_to_cell(
         + settle_opts.poll_s * settle_opts.window as f64
         + settle_opts.window as f64 / rate;
     spec.timing.sample_s = setup.frames as f64 / rate;
+    if setup.kind == SessionKind::Camera {
+        notes.extend(camera::fit_shell(spec, cell, setup));
+    }
     notes
 }
 
@@ -341,10 +371,16 @@ pub fn validation_spec(spec: &PlanSpec, points: usize) -> PlanSpec {
     if let Some(a) = v.annulus.as_mut() {
         a.points = points;
     }
+    if let Some(sh) = v.shell.as_mut() {
+        // Other viewpoints than the training shell's: random inside the strata (another
+        // seed), about `points` of them.
+        sh.jitter = true;
+        sh.strata = camera::shell_strata(points, 1);
+    }
     v
 }
 
-fn rel(dir: &Path, p: &Path) -> String {
+pub(crate) fn rel(dir: &Path, p: &Path) -> String {
     p.strip_prefix(dir)
         .unwrap_or(p)
         .to_string_lossy()
@@ -404,6 +440,7 @@ pub fn create(
         heldout_errors: vec![],
         deploy: vec![],
         warnings: vec![],
+        camera: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -483,9 +520,15 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         ));
         step(&mut s, stage)?;
     }
+    let cam = s.setup.kind == SessionKind::Camera;
     if !s.done(Stage::Calibrate) {
-        log("calibrate: kinematic identification on the training poses");
-        calibrate_stage(dir, &mut s)?;
+        if cam {
+            log("calibrate: camera intrinsics + hand-eye (maximum likelihood) on the training images");
+            camera::calibrate_stage(dir, &mut s, &mut *log)?;
+        } else {
+            log("calibrate: kinematic identification on the training poses");
+            calibrate_stage(dir, &mut s)?;
+        }
         step(&mut s, Stage::Calibrate)?;
     }
     if !s.done(Stage::Diagnose) {
@@ -494,8 +537,13 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         step(&mut s, Stage::Diagnose)?;
     }
     if !s.done(Stage::Validate) {
-        log("validate: held-out poses, before / after");
-        validate_stage(dir, &mut s)?;
+        if cam {
+            log("validate: held-out images, reprojection before / after the diagnosis");
+            camera::validate_stage(dir, &mut s)?;
+        } else {
+            log("validate: held-out poses, before / after");
+            validate_stage(dir, &mut s)?;
+        }
         step(&mut s, Stage::Validate)?;
     }
     if !s.done(Stage::Report) {
@@ -526,7 +574,7 @@ pub fn judge_into(s: &mut SessionFile) {
     m.poses_planned = s.poses_planned;
     m.poses_skipped = s.poses_skipped;
     s.measured = m.clone();
-    let v = accept::judge(&s.accept, &m, missing);
+    let v = accept::judge_kind(&s.accept, &m, missing, s.setup.kind);
     s.verdict = v.verdict;
     s.verdict_line = v.line();
     s.heldout_rms_mm_before = m.heldout_rms_mm_before;
@@ -555,7 +603,8 @@ fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
         robot.clone(),
         &model,
         &PlanOptions {
-            select: Some(s.setup.poses),
+            // Camera viewpoints are a stratified shell (seed 004), not a D-optimal selection.
+            select: (s.setup.kind == SessionKind::Kinematic).then_some(s.setup.poses),
         },
     )?;
     let val = plan::build_plan(&vspec, robot, &model, &PlanOptions::default())?;
@@ -616,7 +665,7 @@ fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn load_ds(dir: &Path, s: &SessionFile, role: &str) -> anyhow::Result<(PathBuf, Dataset)> {
+pub(crate) fn load_ds(dir: &Path, s: &SessionFile, role: &str) -> anyhow::Result<(PathBuf, Dataset)> {
     let d = s
         .datasets
         .iter()
@@ -709,7 +758,6 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
         json: false,
     })?;
     // Every artifact records the datasets it came from.
-    let mut diag = serde_json::Value::Null;
     for name in ["diagnosis.json", "calibration.json"] {
         let p = out.join(name);
         let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
@@ -719,38 +767,31 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
             o.insert("datasets".into(), s.dataset_hashes());
         }
         write_atomic(&p, serde_json::to_string_pretty(&v)?.as_bytes())?;
-        if name == "diagnosis.json" {
-            diag = v;
-        }
     }
     log(&format!("  {}", summary.lines().next().unwrap_or("")));
+    let diag: crate::schema::DiagnosisFile = crate::schema::read(&out.join("diagnosis.json"))?;
     s.effects = effects_in_words(&diag, &out, dir);
+    if s.setup.kind == SessionKind::Camera {
+        camera::after_diagnosis(dir, s, &diag)?;
+    }
     Ok(())
 }
 
-/// The effects of a `diagnosis.json` chain in plain words.
-pub fn effects_in_words(diag: &serde_json::Value, out: &Path, dir: &Path) -> Vec<EffectFound> {
-    let Some(chain) = diag.get("chain").and_then(|c| c.as_array()) else {
-        return vec![];
-    };
-    chain
+/// The effects of a `diagnosis.json` ([`crate::schema::DiagnosisFile`], every sensor) in
+/// plain words.
+pub fn effects_in_words(
+    diag: &crate::schema::DiagnosisFile,
+    out: &Path,
+    dir: &Path,
+) -> Vec<EffectFound> {
+    diag.effects
         .iter()
         .enumerate()
         .map(|(i, st)| {
-            let label = st.get("label").and_then(|v| v.as_str()).unwrap_or("?");
-            let kind = st
-                .pointer("/effect/kind")
-                .and_then(|v| v.as_str())
-                .unwrap_or_else(|| label.split('(').next().unwrap_or(label))
-                .to_string();
-            let joint = label.split("(j").nth(1).and_then(|r| {
-                r.chars()
-                    .take_while(|c| c.is_ascii_digit())
-                    .collect::<String>()
-                    .parse::<usize>()
-                    .ok()
-            });
-            let j = joint.map_or("a joint".to_string(), |j| format!("joint {j}"));
+            let kind = st.kind.clone();
+            let j = st
+                .joint
+                .map_or("a joint".to_string(), |j| format!("joint {j}"));
             let what = match kind.as_str() {
                 "joint_compliance" => format!("{j} bends under the gravity load it carries"),
                 "backlash" => format!("{j} has lost motion (backlash) when it reverses"),
@@ -767,44 +808,61 @@ pub fn effects_in_words(diag: &serde_json::Value, out: &Path, dir: &Path) -> Vec
                 "nonparametric" => {
                     "a residual no physical effect explains was learnt from the data".to_string()
                 }
+                "target_scale" => {
+                    "the board is printed at another scale than its declared square size"
+                        .to_string()
+                }
+                "target_flatness" => "the board is not flat (it sags or bows)".to_string(),
+                "arm_kinematics" => "the arm's joint zeros are off (seen through the camera; \
+                                     the hand-eye no longer absorbs them)"
+                    .to_string(),
+                "distortion" => {
+                    "the lens distorts more than the chosen distortion model".to_string()
+                }
                 other => format!("effect {other}"),
             };
             let coefs: Vec<String> = st
-                .get("coefficients")
-                .and_then(|c| c.as_array())
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|c| {
-                            let n = c.get("name")?.as_str()?;
-                            let v = c.get("value")?.as_f64()?;
-                            let sd = c.get("std").and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
-                            Some(format!("{n} = {v:.3e} ± {:.1e}", 1.96 * sd))
-                        })
-                        .collect()
+                .parameters
+                .iter()
+                .map(|p| match p.std {
+                    Some(sd) => format!(
+                        "{} = {:.4e} ± {:.1e} {}",
+                        p.name,
+                        p.value,
+                        1.96 * sd,
+                        p.unit
+                    ),
+                    None => format!("{} = {:.4e} {}", p.name, p.value, p.unit),
                 })
-                .unwrap_or_default();
-            let hb = st.get("heldout_rms_mm_before").and_then(|v| v.as_f64());
-            let ha = st.get("heldout_rms_mm_after").and_then(|v| v.as_f64());
-            let effect_on = match (hb, ha) {
-                (Some(b), Some(a)) if a <= b => {
-                    format!("; compensating it cut the held-out error from {b:.3} to {a:.3} mm")
-                }
+                .collect();
+            let (unit, _, _, hb, ha) = st.rms_with_unit();
+            let prec = if unit == "px" { 4 } else { 3 };
+            let mut effect_on = match (hb, ha) {
+                (Some(b), Some(a)) if a <= b => format!(
+                    "; compensating it cut the held-out error from {b:.prec$} to {a:.prec$} {unit}"
+                ),
                 (Some(b), Some(a)) => format!(
-                    "; compensating it RAISED the held-out error from {b:.3} to {a:.3} mm (WORSE)"
+                    "; compensating it RAISED the held-out error from {b:.prec$} to {a:.prec$} {unit} (WORSE)"
                 ),
                 _ => String::new(),
             };
+            if let (Some(mm), Some(deg)) = (st.hand_eye_change_mm, st.hand_eye_change_deg) {
+                effect_on += &format!("; the hand-eye moved {mm:.3} mm, {deg:.4}°");
+            }
             let coef_text = if coefs.is_empty() {
                 String::new()
             } else {
                 format!(" ({})", coefs.join(", "))
             };
             let plot = out.join(format!("effect_{}_{}.svg", i + 1, kind));
+            let px = unit == "px";
             EffectFound {
                 kind: kind.clone(),
                 words: format!("{what}{coef_text}{effect_on}."),
-                heldout_rms_mm_before: hb,
-                heldout_rms_mm_after: ha,
+                heldout_rms_mm_before: if px { None } else { hb },
+                heldout_rms_mm_after: if px { None } else { ha },
+                heldout_rms_px_before: if px { hb } else { None },
+                heldout_rms_px_after: if px { ha } else { None },
                 plot: plot.is_file().then(|| rel(dir, &plot)),
             }
         })

@@ -268,7 +268,7 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
     Ok(camera::predict(&cd, &k, &x, &target))
 }
 
-fn report_json(
+pub fn report_json(
     train: &Loaded,
     held: Option<&Loaded>,
     res: &CameraResult,

@@ -203,6 +203,12 @@ impl LaserDiagnosis {
                     train_rms_mm_after: fin(f.rms_after_mm),
                     heldout_rms_mm_before: f.spread_before_mm.and_then(fin),
                     heldout_rms_mm_after: f.spread_after_mm.and_then(fin),
+                    train_rms_px_before: None,
+                    train_rms_px_after: None,
+                    heldout_rms_px_before: None,
+                    heldout_rms_px_after: None,
+                    hand_eye_change_mm: None,
+                    hand_eye_change_deg: None,
                     calibration: c,
                 }
             })
@@ -231,11 +237,13 @@ impl LaserDiagnosis {
                 nominal_mm: None,
                 base_model_mm: fin(self.rms_before_mm),
                 final_mm: fin(self.rms_after_mm),
+                ..Default::default()
             },
             heldout_rms: schema::StageRms {
                 nominal_mm: None,
                 base_model_mm: self.spread_before_mm.and_then(fin),
                 final_mm: self.spread_after_mm.and_then(fin),
+                ..Default::default()
             },
             effects,
             nonparametric_used: false,
@@ -244,6 +252,8 @@ impl LaserDiagnosis {
             untestable: vec![],
             ambiguous_heldout: vec![],
             warnings: vec![],
+            hand_eye_before: None,
+            hand_eye_after: None,
         }
     }
 }

@@ -1,0 +1,282 @@
+//! The camera half of a session (seed 004): the shell of viewpoints fitted to the cell's board,
+//! the camera calibration stage (intrinsics, every closed-form hand-eye and the
+//! maximum-likelihood refinement with uncertainties), the camera diagnosis' results and the
+//! validation on the held-out images (reprojection before / after the diagnosis).
+//!
+//! The plan, acquisition, diagnosis, verdict, report and `--resume` are the kinematic
+//! session's ([`super::run`]); only what is camera-specific lives here. Units: mm, degrees,
+//! pixels (`_px`).
+use std::path::Path;
+
+use anyhow::Context as _;
+use serde::{Deserialize, Serialize};
+
+use super::{load_ds, write_atomic, CellDescription, SessionFile, SessionSetup};
+use crate::dataset::{CalibrationFile, CameraCalBlock};
+use crate::plan::PlanSpec;
+use crate::solve::camera::{self as cam, data};
+
+/// The camera of the cell and its board, as the cell file states them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraCell {
+    /// Device name.
+    pub name: String,
+    /// Image size (px).
+    pub width: u32,
+    pub height: u32,
+    /// `flange` (eye-in-hand) or `base` (eye-to-hand).
+    pub mount: String,
+    /// The board (inner corners), when the cell file declares one.
+    #[serde(default)]
+    pub board: Option<BoardCell>,
+}
+
+/// A calibration board of the cell.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoardCell {
+    /// `chessboard` or `charuco`.
+    pub kind: String,
+    /// Inner corners.
+    pub cols: u32,
+    pub rows: u32,
+    pub square_mm: f64,
+    /// The board's centre in the robot base (mm): the shell of viewpoints is centred on it.
+    pub center_mm: [f64; 3],
+}
+
+/// One method's row of the side-by-side table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MethodRow {
+    pub method: String,
+    pub train_rms_px: f64,
+    pub heldout_rms_px: Option<f64>,
+    /// Hand-eye translation (mm).
+    pub hand_eye_xyz_mm: [f64; 3],
+}
+
+/// The camera calibration of a session (`session.json` `camera`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSummary {
+    /// Training views with a usable board, held-out views, views without a board.
+    pub views_train: usize,
+    pub views_heldout: usize,
+    pub views_without_board: usize,
+    /// Views the calibration rejected by residual (`id: reason`) and corners rejected.
+    pub rejected_views: Vec<String>,
+    pub rejected_corners: usize,
+    /// Distortion model chosen by validation error.
+    pub distortion: String,
+    /// Every hand-eye method side by side (closed forms, then `ml`).
+    pub methods: Vec<MethodRow>,
+    /// The calibration stage's result (`calibrate/calibration.json`'s camera block).
+    pub calibrated: CameraCalBlock,
+    pub train_rms_px: f64,
+    /// Held-out reprojection RMS with the calibration and after the diagnosis (px).
+    pub heldout_rms_px_calibrated: Option<f64>,
+    pub heldout_rms_px_diagnosed: Option<f64>,
+    /// The diagnosed (deployed) camera block: the calibration with the effects found.
+    #[serde(default)]
+    pub diagnosed: Option<CameraCalBlock>,
+    /// Detection + calibration time of the calibrate stage (s).
+    pub calibration_s: f64,
+}
+
+/// Shell strata `[n_r, n_θ, n_α]` for about `n` viewpoints with `n_r` radii and 2 polar
+/// bands (at least 3 azimuths).
+pub fn shell_strata(n: usize, n_r: usize) -> [usize; 3] {
+    let per = (n_r * 2).max(1);
+    [n_r, 2, n.div_ceil(per).max(3)]
+}
+
+/// Fit a camera plan spec to the cell: the shell is centred on the cell's board and holds
+/// about `setup.poses` viewpoints. Returns notes for the log.
+pub fn fit_shell(spec: &mut PlanSpec, cell: &CellDescription, setup: &SessionSetup) -> Vec<String> {
+    let mut notes = vec![];
+    let Some(sh) = spec.shell.as_mut() else {
+        return notes;
+    };
+    if let Some(b) = cell.camera.as_ref().and_then(|c| c.board.as_ref()) {
+        sh.center_mm = b.center_mm;
+        notes.push(format!(
+            "viewpoints on a shell about the cell's board centre ({:.1}, {:.1}, {:.1}) mm",
+            b.center_mm[0], b.center_mm[1], b.center_mm[2]
+        ));
+    } else {
+        notes.push("the cell file does not say where the board is: shell centre from the plan spec".into());
+    }
+    sh.strata = shell_strata(setup.poses, 2);
+    notes
+}
+
+fn hashes_into(v: &mut serde_json::Value, s: &SessionFile) {
+    if let Some(o) = v.as_object_mut() {
+        o.insert("datasets".into(), s.dataset_hashes());
+    }
+}
+
+fn camera_block(path: &Path) -> anyhow::Result<CameraCalBlock> {
+    let cal = CalibrationFile::load(path).with_context(|| format!("{}", path.display()))?;
+    cal.camera()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+        .with_context(|| format!("{}: no camera block", path.display()))
+}
+
+/// Largest 95 % half-interval of a block's hand-eye translation (mm) and rotation (deg).
+fn hand_eye_ci95(b: &CameraCalBlock) -> (Option<f64>, Option<f64>) {
+    let max = |v: Option<[f64; 3]>| {
+        v.map(|a| 1.96 * a.iter().cloned().fold(0.0, f64::max))
+            .filter(|x| x.is_finite())
+    };
+    (max(b.hand_eye.std_mm), max(b.hand_eye.std_deg))
+}
+
+/// The calibration stage: detect the board in the training and validation images, calibrate
+/// (intrinsics, five closed-form hand-eyes, the maximum-likelihood refinement, covariance),
+/// write `calibrate/calibration.json` and `calibrate/camera_report.json`.
+pub fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: super::Log) -> anyhow::Result<()> {
+    let (tp, _) = load_ds(dir, s, "train")?;
+    let (vp, _) = load_ds(dir, s, "validation")?;
+    let ov = data::Overrides::default();
+    let t0 = std::time::Instant::now();
+    let train = data::load(&tp, &ov, false).with_context(|| format!("{}", tp.display()))?;
+    let held = data::load(&vp, &ov, false).with_context(|| format!("{}", vp.display()))?;
+    let t_detect = t0.elapsed().as_secs_f64();
+    let res = cam::calibrate(&train.data, Some(&held.data), &cam::Options::default())
+        .with_context(|| format!("calibrating the camera of {}", tp.display()))?;
+    let t_total = t0.elapsed().as_secs_f64();
+    let cdir = dir.join("calibrate");
+    let mut cal = crate::cli::calibrate::camera::calibration_file(&train, &res);
+    cal.extra.insert("datasets".into(), s.dataset_hashes());
+    std::fs::create_dir_all(&cdir)?;
+    cal.save(cdir.join("calibration.json"))
+        .context("writing calibrate/calibration.json")?;
+    let mut rep =
+        crate::cli::calibrate::camera::report_json(&train, Some(&held), &res, t_detect, t_total);
+    hashes_into(&mut rep, s);
+    write_atomic(
+        &cdir.join("camera_report.json"),
+        (serde_json::to_string_pretty(&rep)? + "\n").as_bytes(),
+    )?;
+    for l in crate::cli::calibrate::camera::table(&train, Some(&held), &res).lines() {
+        log(&format!("  {l}"));
+    }
+    let block = camera_block(&cdir.join("calibration.json"))?;
+    let mut methods: Vec<&cam::Estimate> = res.closed_form.iter().collect();
+    methods.push(&res.ml);
+    let (mm, deg) = hand_eye_ci95(&block);
+    s.measured.hand_eye_ci95_mm = mm;
+    s.measured.hand_eye_ci95_deg = deg;
+    s.camera = Some(CameraSummary {
+        views_train: res.used_views.len(),
+        views_heldout: held.data.views.len(),
+        views_without_board: train.no_board.len() + held.no_board.len(),
+        rejected_views: res
+            .rejected_views
+            .iter()
+            .map(|(id, why)| format!("{id}: {why}"))
+            .collect(),
+        rejected_corners: res.rejected_corners,
+        distortion: block.intrinsics.model.clone().unwrap_or_default(),
+        methods: methods
+            .iter()
+            .map(|e| {
+                let t = e.x.translation.vector;
+                MethodRow {
+                    method: e.method.clone(),
+                    train_rms_px: e.train_rms_px,
+                    heldout_rms_px: e.heldout_rms_px,
+                    hand_eye_xyz_mm: [t.x, t.y, t.z],
+                }
+            })
+            .collect(),
+        calibrated: block,
+        train_rms_px: res.ml.train_rms_px,
+        heldout_rms_px_calibrated: res.ml.heldout_rms_px,
+        heldout_rms_px_diagnosed: None,
+        diagnosed: None,
+        calibration_s: t_total,
+    });
+    for (id, why) in train.no_board.iter().chain(&held.no_board) {
+        s.warnings
+            .push(format!("view {id}: no usable board ({why})"));
+    }
+    Ok(())
+}
+
+/// After the camera diagnosis: the diagnosed camera block (deployed), held-out pixels, the
+/// deployed hand-eye's intervals.
+pub fn after_diagnosis(
+    dir: &Path,
+    s: &mut SessionFile,
+    diag: &crate::schema::DiagnosisFile,
+) -> anyhow::Result<()> {
+    let block = camera_block(&dir.join("diagnose").join("calibration.json"))?;
+    let (mm, deg) = hand_eye_ci95(&block);
+    s.measured.hand_eye_ci95_mm = mm;
+    s.measured.hand_eye_ci95_deg = deg;
+    let c = s
+        .camera
+        .as_mut()
+        .context("the calibrate stage left no camera summary in session.json")?;
+    c.heldout_rms_px_diagnosed = diag.heldout_rms.final_px;
+    if c.heldout_rms_px_calibrated.is_none() {
+        c.heldout_rms_px_calibrated = diag.heldout_rms.base_model_px;
+    }
+    c.diagnosed = Some(block);
+    Ok(())
+}
+
+/// The validation stage: the held-out images' reprojection RMS with the calibration and
+/// with the diagnosed model (the diagnosis scored them; this stage checks the file and
+/// records the numbers the verdict uses) and the calibration to deploy.
+pub fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
+    let dpath = dir.join("diagnose").join("diagnosis.json");
+    let diag: crate::schema::DiagnosisFile = crate::schema::read(&dpath)?;
+    anyhow::ensure!(
+        diag.sensor == crate::schema::DiagnosisSensor::Camera,
+        "{}: not a camera diagnosis",
+        dpath.display()
+    );
+    let c = s
+        .camera
+        .as_ref()
+        .context("the calibrate stage left no camera summary in session.json")?;
+    let m = &mut s.measured;
+    m.heldout_poses = diag.n_heldout;
+    m.heldout_reprojection_px_before = c
+        .heldout_rms_px_calibrated
+        .or(diag.heldout_rms.base_model_px);
+    m.heldout_reprojection_px_after = diag.heldout_rms.final_px;
+    if m.heldout_reprojection_px_after.is_none() {
+        anyhow::bail!(
+            "{}: no held-out reprojection error (the validation images had no usable board)",
+            dpath.display()
+        );
+    }
+    // What to deploy: the diagnosed camera calibration (read back before it is offered).
+    let ddir = dir.join("deploy");
+    std::fs::create_dir_all(&ddir)?;
+    let src = dir.join("diagnose").join("calibration.json");
+    let bytes = std::fs::read(&src).with_context(|| format!("{}", src.display()))?;
+    write_atomic(&ddir.join("calibration.json"), &bytes)?;
+    let cal = CalibrationFile::load(ddir.join("calibration.json"))
+        .context("reading deploy/calibration.json back")?;
+    crate::cli::calibrate::camera::from_calibration(&cal)
+        .context("deploy/calibration.json: the camera block")?;
+    s.deploy = vec!["deploy/calibration.json".into()];
+    Ok(())
+}
+
+/// Shell spec check for a camera session (a clear error rather than an empty plan).
+pub fn check_spec(spec: &PlanSpec, path: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        spec.shell.is_some(),
+        "{path}: a camera session needs a camera-viewpoint plan spec with a [shell] table \
+         (e.g. plans/seed004-ur5e-camera.toml)"
+    );
+    Ok(())
+}
