@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # A full dry run of a calibration session against the simulated cell: a thin wrapper over
 # `robocal session` (plan -> training + held-out runs -> calibrate -> diagnose -> validate ->
-# verdict -> report.html), plus a camera session on the UR5e eye-in-hand cell.
+# verdict -> report.html), plus a camera session on the UR5e eye-in-hand cell (out/dry-run/camera/).
 #
 # Everything lands in out/dry-run/ (replaced on each run). Needs only cargo; no hardware.
 # Environment: POSES (training poses, default 120), HELDOUT_POINTS (validation points,
@@ -48,25 +48,32 @@ fi
 test -s "$OUT/session/report.html"
 test -s "$OUT/session/session.json"
 
-# A camera session on the UR5e eye-in-hand cell (seed 004 viewpoints on a shell about the
-# chessboard): one image per pose, served by the camera simulator; chessboard corners too when
-# robocal is built with `--features opencv` (FEATURES="--features opencv").
+# A camera session on the UR5e eye-in-hand cell, through the same `robocal session`: seed 004
+# viewpoints on a shell about the chessboard (24 training + 12 held-out views, one image each)
+# -> pure-Rust board detection -> intrinsics + every closed-form hand-eye + the maximum-
+# likelihood refinement with uncertainties -> camera diagnosis (the world's arm carries joint
+# offsets the nominal UR5e model lacks: `arm_kinematics`) -> held-out reprojection before /
+# after -> verdict against accept/camera.toml -> report.html with the camera calibration.
 step "camera session: seed 004 shell on the UR5e camera cell ($CAMERA_SCENARIO)"
-mkdir -p "$OUT/camera"
-"$BIN" plan --spec plans/seed004-ur5e-camera.toml --robot ur5e --out "$OUT/camera/plan.json" \
-    --summary "$OUT/camera/plan.txt" > /dev/null
-"$BIN" run --plan "$OUT/camera/plan.json" --sim "$CAMERA_SCENARIO" --virtual-clock \
-    --out "$OUT/camera/run" | tail -n 3
-"$BIN" inspect "$OUT/camera/run/dataset.jsonl" | grep -E "^(records|poses|camera)"
-# Camera intrinsics + hand-eye from those images (pure-Rust detection, every method side by side).
-"$BIN" calibrate camera --data "$OUT/camera/run/dataset.jsonl" --out "$OUT/camera/calibrate" \
-    --quiet | tail -n 12
-# Close the loop on the camera data: what the camera model lacks (the world's arm carries joint
-# offsets the nominal UR5e model does not know: `arm_kinematics`).
-"$BIN" diagnose --data "$OUT/camera/run/dataset.jsonl" --out "$OUT/camera/diagnose" | head -n 6
+set +e
+"$BIN" session --sim "$CAMERA_SCENARIO" --out "$OUT/camera" --note "scripts/dry-run.sh (camera)" \
+    | tee "$OUT/camera-headline.txt"
+CAMERA_CODE=${PIPESTATUS[0]}
+set -e
+if [ "$CAMERA_CODE" -eq 1 ]; then
+    fail $LINENO "robocal session, camera cell (exit 1)"
+    exit 1
+fi
+test -s "$OUT/camera/report.html"
+grep -q 'id="camera-hand-eye"' "$OUT/camera/report.html"
+# The camera diagnosis through the typed report (robocal-diagnosis/2, pixels).
+"$BIN" report --dir "$OUT/camera/diagnose" --out "$OUT/camera/diagnose/report.md" | head -n 1
 
 printf '\ndry run done in %d s: %s\n' "$((SECONDS - START))" "$OUT"
 printf 'VERDICT: %s\n' "$(head -n 1 "$OUT/headline.txt")"
+printf 'CAMERA VERDICT: %s\n' "$(head -n 1 "$OUT/camera-headline.txt")"
 printf 'report: %s\n' "$OUT/session/report.html"
-# The session's verdict is the script's: 0 PASS, 2 FAIL / INCOMPLETE.
-exit "$CODE"
+printf 'camera report: %s\n' "$OUT/camera/report.html"
+# The sessions' verdicts are the script's: 0 both PASS, 2 a FAIL / INCOMPLETE.
+if [ "$CODE" -ne 0 ]; then exit "$CODE"; fi
+exit "$CAMERA_CODE"

@@ -230,9 +230,10 @@ fn diagnose_names_an_undeclared_board_scale() {
     assert_eq!(eff[0]["kind"], "target_scale", "{d}");
     let scale = eff[0]["parameters"][0]["value"].as_f64().unwrap();
     assert!((scale - 1.004).abs() < 3e-4, "scale {scale}");
+    assert_eq!(d["format"], "robocal-diagnosis/2", "{d}");
     let (b, a) = (
-        d["heldout_rms_px_before"].as_f64().unwrap(),
-        d["heldout_rms_px_after"].as_f64().unwrap(),
+        d["heldout_rms"]["base_model_px"].as_f64().unwrap(),
+        d["heldout_rms"]["final_px"].as_f64().unwrap(),
     );
     // Most of a board scale is absorbed by the focal length and the camera's depth (a scaled
     // board at a scaled distance looks the same; only the robot's metric translations tell

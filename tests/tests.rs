@@ -4,6 +4,7 @@ mod acquire;
 mod bad_input;
 mod camera_calib;
 mod camera_run;
+mod camera_session;
 mod cli;
 mod dataset;
 mod diagnose;

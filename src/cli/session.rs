@@ -24,10 +24,7 @@ const DEFAULT_SPEC: &str = include_str!("../../plans/seed001-annulus.toml");
 /// The default camera plan specs (seed 004 shell) per robot preset; the session centres the
 /// shell on the cell's board.
 const CAMERA_SPECS: [(&str, &str); 2] = [
-    (
-        "ur5e",
-        include_str!("../../plans/seed004-ur5e-camera.toml"),
-    ),
+    ("ur5e", include_str!("../../plans/seed004-ur5e-camera.toml")),
     (
         "denso-vs060",
         include_str!("../../plans/seed004-vs060-camera.toml"),
@@ -660,7 +657,10 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         let f = |v: Option<f64>| v.map_or("—".into(), |x| format!("{x:.4}"));
         if let Some(c) = &s.camera {
             let b = c.diagnosed.as_ref().unwrap_or(&c.calibrated);
-            let (x, sd) = (b.hand_eye.xyz_mm, b.hand_eye.std_mm.unwrap_or([f64::NAN; 3]));
+            let (x, sd) = (
+                b.hand_eye.xyz_mm,
+                b.hand_eye.std_mm.unwrap_or([f64::NAN; 3]),
+            );
             println!(
                 "camera: {} training + {} held-out views; held-out reprojection RMS {} px (calibration) → {} px (diagnosed); hand-eye xyz [{:.3}, {:.3}, {:.3}] ± [{:.3}, {:.3}, {:.3}] mm (1σ); fx {:.2} fy {:.2} px",
                 c.views_train,
@@ -677,15 +677,15 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
                 b.intrinsics.fy
             );
         } else {
-        println!(
-            "held-out RMS {} → {} mm, max {} → {} mm, relative distance {} → {} %",
-            f(s.measured.heldout_rms_mm_before),
-            f(s.measured.heldout_rms_mm_after),
-            f(s.measured.heldout_max_mm_before),
-            f(s.measured.heldout_max_mm_after),
-            f(s.measured.relative_distance_pct_before),
-            f(s.measured.relative_distance_pct_after)
-        );
+            println!(
+                "held-out RMS {} → {} mm, max {} → {} mm, relative distance {} → {} %",
+                f(s.measured.heldout_rms_mm_before),
+                f(s.measured.heldout_rms_mm_after),
+                f(s.measured.heldout_max_mm_before),
+                f(s.measured.heldout_max_mm_after),
+                f(s.measured.relative_distance_pct_before),
+                f(s.measured.relative_distance_pct_after)
+            );
         }
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {
             println!("WORSE: {w}");

@@ -19,8 +19,8 @@
 use nalgebra::{DVector, Isometry3};
 
 use crate::dataset::Dataset;
-use crate::schema;
 use crate::model::KinematicModel;
+use crate::schema;
 use crate::solve::camera::geom::{Intrinsics, N_INTR};
 use crate::solve::camera::problem::{ArmOffsets, BoardModel, Layout, Obs, Reproj};
 use crate::solve::camera::{

@@ -429,8 +429,12 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
     let ic = &c.calibrated.intrinsics;
     let sd = |k: usize| i.std.map(|s| s[k]);
     h.push_str("<h3>Intrinsics</h3><table id=\"camera-intrinsics\"><tr><th>parameter</th><th>deployed (diagnosed)</th><th>95 %</th><th>calibration stage</th></tr>");
-    let names = ["fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2", "p1", "p2", "k3"];
-    let vals = [i.fx, i.fy, i.cx, i.cy, i.dist[0], i.dist[1], i.dist[2], i.dist[3], i.dist[4]];
+    let names = [
+        "fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2", "p1", "p2", "k3",
+    ];
+    let vals = [
+        i.fx, i.fy, i.cx, i.cy, i.dist[0], i.dist[1], i.dist[2], i.dist[3], i.dist[4],
+    ];
     let cal = [
         ic.fx, ic.fy, ic.cx, ic.cy, ic.dist[0], ic.dist[1], ic.dist[2], ic.dist[3], ic.dist[4],
     ];
@@ -451,7 +455,10 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
         i.width, i.height
     );
     // Hand-eye and board pose.
-    let pose_rows = |h: &mut String, label: &str, p: ([f64; 3], [f64; 4], Option<[f64; 3]>, Option<[f64; 3]>), before: Option<([f64; 3], [f64; 4])>| {
+    let pose_rows = |h: &mut String,
+                     label: &str,
+                     p: ([f64; 3], [f64; 4], Option<[f64; 3]>, Option<[f64; 3]>),
+                     before: Option<([f64; 3], [f64; 4])>| {
         let (xyz, q, smm, sdeg) = p;
         let axes = ["x", "y", "z"];
         for k in 0..3 {
@@ -497,16 +504,8 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
         Some((c.calibrated.hand_eye.xyz_mm, c.calibrated.hand_eye.quat)),
     );
     let (tlabel, t, tc) = match (&d.target_in_base, &d.target_in_flange) {
-        (Some(t), _) => (
-            "board in base",
-            t,
-            c.calibrated.target_in_base.as_ref(),
-        ),
-        (None, Some(t)) => (
-            "board in flange",
-            t,
-            c.calibrated.target_in_flange.as_ref(),
-        ),
+        (Some(t), _) => ("board in base", t, c.calibrated.target_in_base.as_ref()),
+        (None, Some(t)) => ("board in flange", t, c.calibrated.target_in_flange.as_ref()),
         _ => {
             h.push_str("</table>");
             return;
@@ -536,10 +535,11 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
     let _ = write!(
         h,
         "<h3>Reprojection</h3><table id=\"camera-reprojection\"><tr><th></th><th>calibration (maximum likelihood)</th><th>diagnosed (deployed)</th></tr>\
-         <tr><th>held-out RMS (px)</th><td>{}</td><td>{}</td></tr><tr><th>training RMS (px)</th><td>{:.4}</td><td>—</td></tr></table>",
+         <tr><th>held-out RMS (px)</th><td>{}</td><td>{}</td></tr><tr><th>training RMS (px)</th><td>{:.4}</td><td>{}</td></tr></table>",
         f4(c.heldout_rms_px_calibrated),
         f4(c.heldout_rms_px_diagnosed),
-        c.train_rms_px
+        c.train_rms_px,
+        f4(c.train_rms_px_diagnosed)
     );
     // Methods side by side.
     h.push_str("<h3>Hand-eye methods side by side</h3><table id=\"camera-methods\"><tr><th>method</th><th>train RMS (px)</th><th>held-out RMS (px)</th><th>hand-eye x, y, z (mm)</th></tr>");

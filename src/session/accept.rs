@@ -339,7 +339,11 @@ pub fn judge_kind(
             m.heldout_rms_mm_before.is_some() && m.heldout_rms_mm_after.is_some()
         };
         c.push(Criterion {
-            name: "no held-out metric worse than nominal".into(),
+            name: if camera {
+                "no held-out metric worse after the diagnosis".into()
+            } else {
+                "no held-out metric worse than nominal".into()
+            },
             limit: "none worse".into(),
             value: if !have {
                 "missing".into()

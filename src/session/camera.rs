@@ -78,6 +78,9 @@ pub struct CameraSummary {
     /// Held-out reprojection RMS with the calibration and after the diagnosis (px).
     pub heldout_rms_px_calibrated: Option<f64>,
     pub heldout_rms_px_diagnosed: Option<f64>,
+    /// Training reprojection RMS after the diagnosis (px).
+    #[serde(default)]
+    pub train_rms_px_diagnosed: Option<f64>,
     /// The diagnosed (deployed) camera block: the calibration with the effects found.
     #[serde(default)]
     pub diagnosed: Option<CameraCalBlock>,
@@ -106,7 +109,9 @@ pub fn fit_shell(spec: &mut PlanSpec, cell: &CellDescription, setup: &SessionSet
             b.center_mm[0], b.center_mm[1], b.center_mm[2]
         ));
     } else {
-        notes.push("the cell file does not say where the board is: shell centre from the plan spec".into());
+        notes.push(
+            "the cell file does not say where the board is: shell centre from the plan spec".into(),
+        );
     }
     sh.strata = shell_strata(setup.poses, 2);
     notes
@@ -197,6 +202,7 @@ pub fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: super::Log) -> anyh
         train_rms_px: res.ml.train_rms_px,
         heldout_rms_px_calibrated: res.ml.heldout_rms_px,
         heldout_rms_px_diagnosed: None,
+        train_rms_px_diagnosed: None,
         diagnosed: None,
         calibration_s: t_total,
     });
@@ -223,6 +229,7 @@ pub fn after_diagnosis(
         .as_mut()
         .context("the calibrate stage left no camera summary in session.json")?;
     c.heldout_rms_px_diagnosed = diag.heldout_rms.final_px;
+    c.train_rms_px_diagnosed = diag.train_rms.final_px;
     if c.heldout_rms_px_calibrated.is_none() {
         c.heldout_rms_px_calibrated = diag.heldout_rms.base_model_px;
     }

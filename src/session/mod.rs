@@ -647,10 +647,14 @@ fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
             *rejects.entry(k.clone()).or_insert(0) += v;
         }
         predicted += f.summary.timing.optimised_s;
+        // A camera plan is not a kinematic identification: its identifiability warnings
+        // (null directions of the kinematic Jacobian) do not apply.
+        let camera = s.setup.kind == SessionKind::Camera;
         s.warnings.extend(
             f.summary
                 .warnings
                 .iter()
+                .filter(|w| !(camera && w.contains("identification Jacobian")))
                 .map(|w| format!("{name} plan: {w}")),
         );
         log(&format!(
@@ -665,7 +669,11 @@ fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub(crate) fn load_ds(dir: &Path, s: &SessionFile, role: &str) -> anyhow::Result<(PathBuf, Dataset)> {
+pub(crate) fn load_ds(
+    dir: &Path,
+    s: &SessionFile,
+    role: &str,
+) -> anyhow::Result<(PathBuf, Dataset)> {
     let d = s
         .datasets
         .iter()
@@ -824,15 +832,25 @@ pub fn effects_in_words(
             let coefs: Vec<String> = st
                 .parameters
                 .iter()
-                .map(|p| match p.std {
-                    Some(sd) => format!(
-                        "{} = {:.4e} ± {:.1e} {}",
-                        p.name,
-                        p.value,
-                        1.96 * sd,
-                        p.unit
-                    ),
-                    None => format!("{} = {:.4e} {}", p.name, p.value, p.unit),
+                .map(|p| {
+                    // Plain decimals for ordinary magnitudes, exponents for tiny / huge ones.
+                    let num = |x: f64, d: usize| {
+                        if x == 0.0 || (1e-3..1e5).contains(&x.abs()) {
+                            format!("{x:.d$}")
+                        } else {
+                            format!("{x:.d$e}")
+                        }
+                    };
+                    let unit = if p.unit == "1" { String::new() } else { format!(" {}", p.unit) };
+                    match p.std {
+                        Some(sd) => format!(
+                            "{} = {} ± {}{unit}",
+                            p.name,
+                            num(p.value, 4),
+                            num(1.96 * sd, 4)
+                        ),
+                        None => format!("{} = {}{unit}", p.name, num(p.value, 4)),
+                    }
                 })
                 .collect();
             let (unit, _, _, hb, ha) = st.rms_with_unit();

@@ -1,0 +1,214 @@
+//! `robocal session` on the UR5e eye-in-hand camera cell (in-process simulated devices,
+//! virtual clock, 12 training + 8 held-out views of 640×480): seed 004 shell → images →
+//! camera calibration → camera diagnosis → held-out reprojection → verdict → report, and
+//! `--resume` after a stop between stages. The diagnosis file loads through the typed schema
+//! (`robocal-diagnosis/2`, `_px` fields) and `robocal report` shows its effects.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use robocal::schema::{self, DiagnosisFile, DiagnosisSensor};
+use robocal::session::{SessionFile, SessionKind, VerdictKind};
+use robocal_mocks::Scenario;
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn robocal(args: &[&str]) -> (i32, String, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(args)
+        .env("ROBOCAL_LOG", "warn")
+        .output()
+        .expect("run robocal");
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+const SCENARIO: &str = "mocks/scenarios/ur5e-camera.toml";
+
+/// One small camera session shared by the tests of this module.
+fn camera_session() -> &'static (PathBuf, i32, String) {
+    static S: OnceLock<(PathBuf, i32, String)> = OnceLock::new();
+    S.get_or_init(|| {
+        let dir =
+            std::env::temp_dir().join(format!("robocal-session-camera-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let t0 = std::time::Instant::now();
+        let (code, out, err) = robocal(&[
+            "session",
+            "--sim",
+            root().join(SCENARIO).to_str().unwrap(),
+            "--out",
+            dir.to_str().unwrap(),
+            "--in-process",
+            "--poses",
+            "12",
+            "--heldout-points",
+            "8",
+            "--no-history",
+        ]);
+        println!(
+            "camera session: exit {code} in {:.1} s\n{out}\n{err}",
+            t0.elapsed().as_secs_f64()
+        );
+        assert!(code == 0 || code == 2, "exit {code}: {out}\n{err}");
+        (dir, code, out)
+    })
+}
+
+#[test]
+fn camera_session_passes_and_the_report_shows_the_camera() {
+    let (dir, code, out) = camera_session();
+    let s = SessionFile::load(&dir.join("session.json")).unwrap();
+    assert_eq!(s.setup.kind, SessionKind::Camera);
+    assert_eq!(s.verdict, VerdictKind::Pass, "{}", s.verdict_line);
+    assert_eq!(*code, 0, "{out}");
+    assert!(out.contains("held-out reprojection RMS"), "{out}");
+    assert_eq!(s.poses_skipped, 0);
+    let c = s.camera.as_ref().expect("camera summary");
+    assert_eq!(c.views_train, 12);
+    assert_eq!(c.views_heldout, 8);
+    assert_eq!(c.methods.len(), 6, "5 closed forms + ML");
+    let (b, a) = (
+        s.measured.heldout_reprojection_px_before.unwrap(),
+        s.measured.heldout_reprojection_px_after.unwrap(),
+    );
+    // The world's arm carries joint errors the nominal UR5e model lacks: the diagnosis names
+    // `arm_kinematics` and the held-out pixels fall (measured 0.50 → 0.07 px).
+    assert!(a < 0.5 * b && a < 0.2, "held-out {b} → {a} px");
+    assert!(
+        s.effects.iter().any(|e| e.kind == "arm_kinematics"),
+        "{:?}",
+        s.effects
+    );
+    // The deployed hand-eye against the scenario's camera placement (the test knows the
+    // truth; the session never read it).
+    let truth = Scenario::load(&root().join(SCENARIO)).unwrap().cameras[0]
+        .placement
+        .isometry();
+    let d = c.diagnosed.as_ref().expect("diagnosed camera block");
+    let t = truth.translation.vector;
+    let x = d.hand_eye.xyz_mm;
+    let err_mm = ((x[0] - t.x).powi(2) + (x[1] - t.y).powi(2) + (x[2] - t.z).powi(2)).sqrt();
+    let q = d.hand_eye.quat;
+    let err_deg = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        q[0], q[1], q[2], q[3],
+    ))
+    .angle_to(&truth.rotation)
+    .to_degrees();
+    let xc = c.calibrated.hand_eye.xyz_mm;
+    let err_cal = ((xc[0] - t.x).powi(2) + (xc[1] - t.y).powi(2) + (xc[2] - t.z).powi(2)).sqrt();
+    println!(
+        "camera session: held-out {b:.4} → {a:.4} px; hand-eye vs truth: calibration {err_cal:.3} mm, diagnosed {err_mm:.3} mm {err_deg:.4} deg"
+    );
+    assert!(err_mm < 2.0 && err_deg < 0.5, "{err_mm} mm {err_deg} deg");
+    // diagnosis.json on the one typed schema, RMS in pixels.
+    let diag: DiagnosisFile = schema::read(&dir.join("diagnose/diagnosis.json")).unwrap();
+    assert_eq!(diag.sensor, DiagnosisSensor::Camera);
+    assert_eq!(diag.heldout_rms.with_unit().0, "px");
+    assert!(diag.heldout_rms.final_mm.is_none());
+    let e = &diag.effects[0];
+    assert_eq!(e.kind, "arm_kinematics");
+    assert_eq!(e.rms_with_unit().0, "px");
+    assert!(e
+        .parameters
+        .iter()
+        .all(|p| p.unit == "deg" && p.ci95.is_some()));
+    assert!(diag.hand_eye_before.is_some() && diag.hand_eye_after.is_some());
+    // Every file the session wrote loads back.
+    for f in [
+        "calibrate/calibration.json",
+        "diagnose/calibration.json",
+        "deploy/calibration.json",
+    ] {
+        let cal = robocal::dataset::CalibrationFile::load(dir.join(f)).unwrap();
+        assert!(cal.camera().unwrap().is_some(), "{f}");
+    }
+    // The report shows the camera calibration.
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    for id in [
+        "id=\"camera\"",
+        "id=\"camera-intrinsics\"",
+        "id=\"camera-hand-eye\"",
+        "id=\"camera-methods\"",
+        "id=\"camera-reprojection\"",
+    ] {
+        assert!(html.contains(id), "report lacks {id}");
+    }
+    assert!(html.contains("arm&#39;s joint zeros") || html.contains("arm's joint zeros"));
+    // `robocal report` reads the camera diagnosis (no warning) and shows its effect in px.
+    // (Written outside the session directory: the resume test copies it meanwhile.)
+    let md_dir = tempfile::tempdir().unwrap();
+    let md_path = md_dir.path().join("report-camera.md");
+    let (code, headline, err) = robocal(&[
+        "report",
+        "--dir",
+        dir.join("diagnose").to_str().unwrap(),
+        "--out",
+        md_path.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("warning"), "{err}");
+    assert!(
+        headline.contains("held-out reprojection error") && headline.contains("arm_kinematics"),
+        "{headline}"
+    );
+    let md = std::fs::read_to_string(&md_path).unwrap();
+    assert!(
+        md.contains("arm_kinematics") && md.contains("| RMS (px)") && md.contains("offset_j3"),
+        "{md}"
+    );
+}
+
+#[test]
+fn camera_session_resumes_at_the_stage_that_stopped() {
+    let (dir, _, _) = camera_session();
+    let copy = std::env::temp_dir().join(format!(
+        "robocal-session-camera-resume-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&copy);
+    copy_dir(dir, &copy);
+    let p = copy.join("session.json");
+    let mut s = SessionFile::load(&p).unwrap();
+    let before = s.clone();
+    // Stopped after the acquisition: the later stages and their outputs are gone.
+    s.stages_done.truncate(3);
+    s.camera = None;
+    s.save(&p).unwrap();
+    for d in ["calibrate", "diagnose", "deploy"] {
+        std::fs::remove_dir_all(copy.join(d)).unwrap();
+    }
+    std::fs::remove_file(copy.join("report.html")).unwrap();
+    let (code, out, err) = robocal(&[
+        "session",
+        "--resume",
+        copy.to_str().unwrap(),
+        "--no-history",
+    ]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(!err.contains("acquire:"), "no pose re-acquired: {err}");
+    let after = SessionFile::load(&p).unwrap();
+    assert_eq!(after.datasets, before.datasets);
+    assert_eq!(after.measured, before.measured);
+    assert_eq!(after.verdict, before.verdict);
+    assert!(copy.join("report.html").is_file());
+    let _ = std::fs::remove_dir_all(&copy);
+}
+
+fn copy_dir(a: &Path, b: &Path) {
+    std::fs::create_dir_all(b).unwrap();
+    for e in std::fs::read_dir(a).unwrap() {
+        let e = e.unwrap();
+        let to = b.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to);
+        } else {
+            std::fs::copy(e.path(), to).unwrap();
+        }
+    }
+}
