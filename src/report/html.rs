@@ -404,6 +404,10 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
 /// The camera calibration of a camera session: intrinsics, hand-eye and board pose with
 /// their 95 % intervals (the deployed, diagnosed values and the calibration stage's), every
 /// method side by side, held-out pixels before / after the diagnosis.
+/// A pose with its 1σ: xyz (mm), quaternion `[w, x, y, z]`, σ translation (mm), σ rotation
+/// (deg about x, y, z).
+type PoseSd = ([f64; 3], [f64; 4], Option<[f64; 3]>, Option<[f64; 3]>);
+
 fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
     let d = c.diagnosed.as_ref().unwrap_or(&c.calibrated);
     let ci = |sd: Option<f64>, p: usize| {
@@ -457,7 +461,7 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
     // Hand-eye and board pose.
     let pose_rows = |h: &mut String,
                      label: &str,
-                     p: ([f64; 3], [f64; 4], Option<[f64; 3]>, Option<[f64; 3]>),
+                     p: PoseSd,
                      before: Option<([f64; 3], [f64; 4])>| {
         let (xyz, q, smm, sdeg) = p;
         let axes = ["x", "y", "z"];
