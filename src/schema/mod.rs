@@ -593,6 +593,36 @@ mod tests {
             back.effects[0].parameters[0].ci95,
             Some([120.0 - 9.8, 120.0 + 9.8])
         );
+        // Units: a kinematic / laser file has no `_px` fields (older files load unchanged).
+        assert_eq!(back.train_rms.with_unit().0, "mm");
+        assert_eq!(back.effects[0].rms_with_unit().0, "mm");
+        assert!(
+            !text.contains("_px") && !text.contains("hand_eye"),
+            "{text}"
+        );
+        let mut cam = d.clone();
+        cam.sensor = DiagnosisSensor::Camera;
+        cam.train_rms = StageRms {
+            base_model_px: Some(0.5),
+            final_px: Some(0.05),
+            ..Default::default()
+        };
+        cam.effects[0].train_rms_mm_before = None;
+        cam.effects[0].train_rms_mm_after = None;
+        cam.effects[0].train_rms_px_before = Some(0.5);
+        cam.effects[0].train_rms_px_after = Some(0.05);
+        cam.hand_eye_before = Some(PoseMmQuat {
+            xyz_mm: [0.0, 50.0, 40.0],
+            quat: [1.0, 0.0, 0.0, 0.0],
+        });
+        let text = serde_json::to_string(&cam).unwrap();
+        let back: DiagnosisFile = parse(&text, "mem").unwrap();
+        assert_eq!(back, cam);
+        assert_eq!(
+            back.train_rms.with_unit(),
+            ("px", None, Some(0.5), Some(0.05))
+        );
+        assert_eq!(back.effects[0].rms_with_unit().0, "px");
         let old = r#"{"format":"robocal-diagnosis/1","chain":[]}"#;
         let e = parse::<DiagnosisFile>(old, "d.json")
             .unwrap_err()

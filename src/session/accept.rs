@@ -508,7 +508,7 @@ mod tests {
         let v = judge(&s, &good(), vec![]);
         assert_eq!(v.verdict, VerdictKind::Pass, "{}", v.line());
         assert_eq!(v.exit_code(), 0);
-        for f in ["surgical.toml", "research.toml"] {
+        for f in ["surgical.toml", "research.toml", "camera.toml"] {
             let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("accept").join(f);
             AcceptSpec::from_file(&p).unwrap();
         }
@@ -551,5 +551,52 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("heldout_rms_mm_max"), "{e}");
+    }
+
+    #[test]
+    fn camera_sessions_are_judged_by_the_camera_criteria() {
+        use crate::session::SessionKind;
+        let cam = AcceptSpec::from_file(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("accept/camera.toml"),
+        )
+        .unwrap();
+        let m = Measured {
+            poses_planned: 36,
+            heldout_poses: 12,
+            heldout_reprojection_px_before: Some(0.5),
+            heldout_reprojection_px_after: Some(0.18),
+            hand_eye_ci95_mm: Some(0.29),
+            hand_eye_ci95_deg: Some(0.04),
+            ..Default::default()
+        };
+        let v = judge_kind(&cam, &m, vec![], SessionKind::Camera);
+        assert_eq!(v.verdict, VerdictKind::Pass, "{}", v.line());
+        // The kinematic criteria do not apply to a camera session...
+        assert!(v
+            .criteria
+            .iter()
+            .all(|c| !c.limit.contains("mm") || c.name.contains("hand-eye")));
+        // ...and a spec without any camera criterion cannot pass one.
+        let v = judge_kind(
+            &AcceptSpec::default_surgical(),
+            &m,
+            vec![],
+            SessionKind::Camera,
+        );
+        assert_eq!(v.verdict, VerdictKind::Incomplete, "{}", v.line());
+        assert!(v.line().contains("no camera criterion"), "{}", v.line());
+        // Worse after the diagnosis, or above the limit: FAIL.
+        let mut w = m.clone();
+        w.heldout_reprojection_px_after = Some(0.6);
+        let v = judge_kind(&cam, &w, vec![], SessionKind::Camera);
+        assert_eq!(v.verdict, VerdictKind::Fail);
+        assert_eq!(v.worse.len(), 1, "{:?}", v.worse);
+        let e = AcceptSpec::from_toml_str(
+            "name = \"x\"\nheldout_reprojection_px_max = 0.0\n",
+            "a.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("heldout_reprojection_px_max"), "{e}");
     }
 }
