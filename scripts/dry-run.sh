@@ -67,7 +67,7 @@ fi
 test -s "$OUT/camera/report.html"
 grep -q 'id="camera-hand-eye"' "$OUT/camera/report.html"
 # The camera diagnosis through the typed report (robocal-diagnosis/2, pixels).
-"$BIN" report --dir "$OUT/camera/diagnose" --out "$OUT/camera/diagnose/report.md" | head -n 1
+"$BIN" report --dir "$OUT/camera/diagnose" --out "$OUT/camera/diagnose/report.md" | tail -n 1
 
 printf '\ndry run done in %d s: %s\n' "$((SECONDS - START))" "$OUT"
 printf 'VERDICT: %s\n' "$(head -n 1 "$OUT/headline.txt")"

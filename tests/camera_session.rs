@@ -159,7 +159,10 @@ fn camera_session_passes_and_the_report_shows_the_camera() {
     );
     let md = std::fs::read_to_string(&md_path).unwrap();
     assert!(
-        md.contains("arm_kinematics") && md.contains("| RMS (px)") && md.contains("offset_j3"),
+        md.contains("arm_kinematics")
+            && md.contains("| RMS (px)")
+            && md.contains("offset_j3")
+            && md.contains("Hand-eye (camera in flange)"),
         "{md}"
     );
 }

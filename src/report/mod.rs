@@ -468,6 +468,58 @@ fn md_calibration(m: &mut String, c: &Found<CalibrationFile>) {
             let _ = writeln!(m, "| {} | {} |", cell(k), cell(&s));
         }
     }
+    if let Ok(Some(b)) = v.camera() {
+        let i = &b.intrinsics;
+        let sd = |k: usize| {
+            i.std
+                .map_or("—".into(), |s| format!("± {:.3}", 1.96 * s[k]))
+        };
+        let _ = writeln!(
+            m,
+            "\nCamera {}×{} px: fx {:.3} {} fy {:.3} {} cx {:.3} {} cy {:.3} {} px; dist [{:.5}, {:.5}, {:.6}, {:.6}, {:.5}] ({}).",
+            i.width,
+            i.height,
+            i.fx,
+            sd(0),
+            i.fy,
+            sd(1),
+            i.cx,
+            sd(2),
+            i.cy,
+            sd(3),
+            i.dist[0],
+            i.dist[1],
+            i.dist[2],
+            i.dist[3],
+            i.dist[4],
+            i.model.as_deref().unwrap_or("—")
+        );
+        let h = &b.hand_eye;
+        let ci = |v: Option<[f64; 3]>| {
+            v.map_or("—".into(), |s| {
+                format!(
+                    "± [{:.3}, {:.3}, {:.3}]",
+                    1.96 * s[0],
+                    1.96 * s[1],
+                    1.96 * s[2]
+                )
+            })
+        };
+        let _ = writeln!(
+            m,
+            "Hand-eye (camera in {}): xyz [{:.3}, {:.3}, {:.3}] mm {} (95 %), quat [{:.6}, {:.6}, {:.6}, {:.6}], rotation {} deg (95 %).",
+            h.mount,
+            h.xyz_mm[0],
+            h.xyz_mm[1],
+            h.xyz_mm[2],
+            ci(h.std_mm),
+            h.quat[0],
+            h.quat[1],
+            h.quat[2],
+            h.quat[3],
+            ci(h.std_deg)
+        );
+    }
     let free: Vec<_> = v.params.iter().filter(|p| p.free).collect();
     let fixed = v.params.len() - free.len();
     let _ = writeln!(
