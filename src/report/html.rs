@@ -211,11 +211,16 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         h,
         "<tr><th>poses planned</th><td>{}</td></tr><tr><th>poses skipped</th><td>{}</td></tr>\
          <tr><th>predicted / measured acquisition time</th><td>{:.0} s / {}</td></tr>\
-         <tr><th>held-out poses</th><td>{}</td></tr>",
+         <tr><th>held-out {}</th><td>{}</td></tr>",
         s.poses_planned,
         s.poses_skipped,
         s.predicted_duration_s,
         s.duration_s.map_or("—".into(), |d| format!("{d:.0} s")),
+        if s.camera.is_some() {
+            "views (with a board)"
+        } else {
+            "poses"
+        },
         m.heldout_poses,
     );
     if s.camera.is_some() {
