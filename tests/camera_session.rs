@@ -103,8 +103,10 @@ fn camera_session_passes_and_the_report_shows_the_camera() {
     let xc = c.calibrated.hand_eye.xyz_mm;
     let err_cal = ((xc[0] - t.x).powi(2) + (xc[1] - t.y).powi(2) + (xc[2] - t.z).powi(2)).sqrt();
     println!(
-        "camera session: held-out {b:.4} → {a:.4} px; hand-eye vs truth: calibration {err_cal:.3} mm, diagnosed {err_mm:.3} mm {err_deg:.4} deg"
+        "camera session: held-out {b:.4} → {a:.4} px; hand-eye vs truth: calibration {err_cal:.3} mm, diagnosed {err_mm:.3} mm {err_deg:.4} deg; held-out views calibrated alone: {:?} mm {:?} deg from the deployed hand-eye",
+        c.hand_eye_heldout_diff_mm, c.hand_eye_heldout_diff_deg
     );
+    assert!(c.hand_eye_heldout_diff_mm.is_some_and(|d| d.is_finite()));
     assert!(err_mm < 2.0 && err_deg < 0.5, "{err_mm} mm {err_deg} deg");
     // diagnosis.json on the one typed schema, RMS in pixels.
     let diag: DiagnosisFile = schema::read(&dir.join("diagnose/diagnosis.json")).unwrap();

@@ -550,6 +550,13 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
         c.train_rms_px,
         f4(c.train_rms_px_diagnosed)
     );
+    if let (Some(mm), Some(deg)) = (c.hand_eye_heldout_diff_mm, c.hand_eye_heldout_diff_deg) {
+        let _ = write!(
+            h,
+            "<p id=\"camera-hand-eye-check\">Hand-eye check on independent data: the {} held-out views calibrated on their own (no effects) put the camera {mm:.3} mm and {deg:.4}° from the deployed hand-eye.</p>",
+            c.views_heldout
+        );
+    }
     // Methods side by side.
     h.push_str("<h3>Hand-eye methods side by side</h3><table id=\"camera-methods\"><tr><th>method</th><th>train RMS (px)</th><th>held-out RMS (px)</th><th>hand-eye x, y, z (mm)</th></tr>");
     for r in &c.methods {

@@ -86,6 +86,13 @@ pub struct CameraSummary {
     pub diagnosed: Option<CameraCalBlock>,
     /// Detection + calibration time of the calibrate stage (s).
     pub calibration_s: f64,
+    /// Hand-eye check on independent data: the held-out views calibrated on their own
+    /// (intrinsics + hand-eye, no effects), its difference from the deployed hand-eye (mm,
+    /// deg). `None` when the held-out views alone cannot be calibrated.
+    #[serde(default)]
+    pub hand_eye_heldout_diff_mm: Option<f64>,
+    #[serde(default)]
+    pub hand_eye_heldout_diff_deg: Option<f64>,
 }
 
 /// Shell strata `[n_r, n_θ, n_α]` for about `n` viewpoints with `n_r` radii and 2 polar
@@ -205,6 +212,8 @@ pub fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: super::Log) -> anyh
         train_rms_px_diagnosed: None,
         diagnosed: None,
         calibration_s: t_total,
+        hand_eye_heldout_diff_mm: None,
+        hand_eye_heldout_diff_deg: None,
     });
     for (id, why) in train.no_board.iter().chain(&held.no_board) {
         s.warnings
@@ -263,6 +272,33 @@ pub fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
             "{}: no held-out reprojection error (the validation images had no usable board)",
             dpath.display()
         );
+    }
+    // The hand-eye on independent data: the held-out views calibrated on their own.
+    let (vp, _) = load_ds(dir, s, "validation")?;
+    let held = data::load(&vp, &data::Overrides::default(), false)
+        .with_context(|| format!("{}", vp.display()))?;
+    let deployed = c
+        .diagnosed
+        .as_ref()
+        .unwrap_or(&c.calibrated)
+        .hand_eye
+        .clone();
+    let diff = cam::calibrate(&held.data, None, &cam::Options::default())
+        .map_err(|e| e.to_string())
+        .and_then(|r| {
+            let x = crate::solve::laser::file_pose(&deployed.xyz_mm, &deployed.quat)
+                .ok_or_else(|| "the deployed hand-eye is not a pose".to_string())?;
+            Ok(cam::geom::pose_error(&x, &r.ml.x))
+        });
+    let c = s.camera.as_mut().expect("checked above");
+    match diff {
+        Ok((mm, deg)) => {
+            c.hand_eye_heldout_diff_mm = Some(mm);
+            c.hand_eye_heldout_diff_deg = Some(deg);
+        }
+        Err(e) => s.warnings.push(format!(
+            "the held-out views alone could not be calibrated ({e}): no independent hand-eye check"
+        )),
     }
     // What to deploy: the diagnosed camera calibration (read back before it is offered).
     let ddir = dir.join("deploy");
