@@ -317,6 +317,9 @@ fn cell_camera(mode: &str, config: &Path) -> anyhow::Result<CellCamera> {
                 .chessboard
                 .as_ref()
                 .filter(|b| b.cols >= 3 && b.rows >= 3)
+                // OpenCV's chessboard detector cannot label a ChArUco board's corners:
+                // ChArUco images are detected by `calibrate camera` (with their ids).
+                .filter(|b| b.charuco.is_none())
                 .map(|b| (b.cols - 1, b.rows - 1));
             CellCamera {
                 name: s.cameras.first().map(|c| c.name.clone()),
