@@ -48,7 +48,14 @@ fn cell() -> (CameraConfig, ChessboardConfig, CharucoSpec) {
 
 /// A camera `dist` mm above the board point `(x, y)` (board frame), looking down at it with
 /// a tilt (rad, about the camera x and y axes) and a roll about its axis.
-fn camera_at(b: &ChessboardConfig, x: f64, y: f64, dist: f64, tilt: [f64; 2], roll: f64) -> Isometry3<f64> {
+fn camera_at(
+    b: &ChessboardConfig,
+    x: f64,
+    y: f64,
+    dist: f64,
+    tilt: [f64; 2],
+    roll: f64,
+) -> Isometry3<f64> {
     let target = b.placement.isometry() * Point3::new(x, y, 0.0);
     let down = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
     let rot = down
@@ -60,7 +67,12 @@ fn camera_at(b: &ChessboardConfig, x: f64, y: f64, dist: f64, tilt: [f64; 2], ro
 
 /// Detected minus true corners: (corners found, inside-image true corners, mean px, max px,
 /// wrong ids = corners more than 2 px from their id's true position).
-fn score(det: &[Option<[f64; 2]>], truth: &[Option<[f64; 2]>], w: u32, h: u32) -> (usize, usize, f64, f64, usize) {
+fn score(
+    det: &[Option<[f64; 2]>],
+    truth: &[Option<[f64; 2]>],
+    w: u32,
+    h: u32,
+) -> (usize, usize, f64, f64, usize) {
     let inside = truth
         .iter()
         .flatten()
@@ -90,13 +102,33 @@ fn charuco_corners_with_ids_on_whole_partial_and_occluded_views() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
     // (name, camera pose, occluder rectangle in pixels)
     let views: Vec<(&str, Isometry3<f64>, Option<[usize; 4]>)> = vec![
-        ("whole", camera_at(&b, bw / 2.0, bh / 2.0, 560.0, [0.15, -0.1], 0.3), None),
-        ("whole, tilted 25 deg", camera_at(&b, bw / 2.0, bh / 2.0, 600.0, [0.3, 0.3], -2.0), None),
+        (
+            "whole",
+            camera_at(&b, bw / 2.0, bh / 2.0, 560.0, [0.15, -0.1], 0.3),
+            None,
+        ),
+        (
+            "whole, tilted 25 deg",
+            camera_at(&b, bw / 2.0, bh / 2.0, 600.0, [0.3, 0.3], -2.0),
+            None,
+        ),
         // The image centre on the board's right-hand edge: half the board outside the image.
-        ("half outside", camera_at(&b, bw, bh / 2.0, 400.0, [0.1, 0.05], 0.2), None),
+        (
+            "half outside",
+            camera_at(&b, bw, bh / 2.0, 400.0, [0.1, 0.05], 0.2),
+            None,
+        ),
         // Close up on a corner of the board: a quarter of the board in view.
-        ("corner close-up", camera_at(&b, 45.0, 40.0, 300.0, [-0.1, 0.15], 1.0), None),
-        ("occluded", camera_at(&b, bw / 2.0, bh / 2.0, 560.0, [0.0, 0.1], 0.0), Some([250, 0, 400, 480])),
+        (
+            "corner close-up",
+            camera_at(&b, 45.0, 40.0, 300.0, [-0.1, 0.15], 1.0),
+            None,
+        ),
+        (
+            "occluded",
+            camera_at(&b, bw / 2.0, bh / 2.0, 560.0, [0.0, 0.1], 0.0),
+            Some([250, 0, 400, 480]),
+        ),
     ];
     for (name, pose, occ) in views {
         let mut img = sensors::render(&cam, &pose, Some(&b), &mut rng);
@@ -119,12 +151,21 @@ fn charuco_corners_with_ids_on_whole_partial_and_occluded_views() {
         eprintln!(
             "{name:<22} {found:>2} of {inside:>2} corners in the image found, error mean {mean:.4} px max {max:.4} px, wrong ids {wrong}"
         );
-        assert_eq!(wrong, 0, "{name}: corners labelled with another corner's id");
+        assert_eq!(
+            wrong, 0,
+            "{name}: corners labelled with another corner's id"
+        );
         assert!(mean < 0.05 && max < 0.2, "{name}: mean {mean} max {max} px");
-        assert!(found as f64 >= 0.8 * inside as f64, "{name}: {found} of {inside}");
+        assert!(
+            found as f64 >= 0.8 * inside as f64,
+            "{name}: {found} of {inside}"
+        );
         assert!(found >= 8, "{name}: {found}");
         if name != "whole" && name != "whole, tilted 25 deg" {
-            assert!(inside < spec.cols * spec.rows, "{name} must be a partial view");
+            assert!(
+                inside < spec.cols * spec.rows,
+                "{name} must be a partial view"
+            );
         }
     }
 }
@@ -139,17 +180,55 @@ fn header(kind: &str, extra: &str) -> Result<Target, String> {
 
 #[test]
 fn charuco_header_is_parsed_strictly() {
-    let ok = header("charuco", r#", "marker_mm": 22.0, "dictionary": "DICT_5X5_100""#).unwrap();
-    assert!(matches!(ok, Target::Charuco(ref c) if c.marker_mm == 22.0 && c.dictionary == "DICT_5X5_100"));
+    let ok = header(
+        "charuco",
+        r#", "marker_mm": 22.0, "dictionary": "DICT_5X5_100""#,
+    )
+    .unwrap();
+    assert!(
+        matches!(ok, Target::Charuco(ref c) if c.marker_mm == 22.0 && c.dictionary == "DICT_5X5_100")
+    );
     for (kind, extra, want) in [
-        ("charuco", r#", "marker_mm": 22.0, "dictionary": "DICT_4X4_5""#, "field \"target.dictionary\": unknown ArUco dictionary \"DICT_4X4_5\""),
-        ("charuco", r#", "marker_mm": 30.0, "dictionary": "DICT_4X4_50""#, "marker_mm = 30 must be positive and smaller than square_mm = 30"),
-        ("charuco", r#", "marker_mm": -1.0, "dictionary": "DICT_4X4_50""#, "marker_mm = -1 must be positive"),
-        ("charuco", r#", "dictionary": "DICT_4X4_50""#, "field \"target.marker_mm\": missing"),
-        ("charuco", r#", "marker_mm": 22.0"#, "field \"target.dictionary\": missing"),
-        ("chessboard", r#", "marker_mm": 22.0"#, "field \"target.marker_mm\": only a \"charuco\" target has markers"),
-        ("aruco", "", "field \"target.kind\": \"aruco\" (expected \"chessboard\" or \"charuco\")"),
-        ("charuco", r#", "marker_mm": 22.0, "dictionary": "DICT_4X4_50", "legacy": true"#, "unknown field `legacy`"),
+        (
+            "charuco",
+            r#", "marker_mm": 22.0, "dictionary": "DICT_4X4_5""#,
+            "field \"target.dictionary\": unknown ArUco dictionary \"DICT_4X4_5\"",
+        ),
+        (
+            "charuco",
+            r#", "marker_mm": 30.0, "dictionary": "DICT_4X4_50""#,
+            "marker_mm = 30 must be positive and smaller than square_mm = 30",
+        ),
+        (
+            "charuco",
+            r#", "marker_mm": -1.0, "dictionary": "DICT_4X4_50""#,
+            "marker_mm = -1 must be positive",
+        ),
+        (
+            "charuco",
+            r#", "dictionary": "DICT_4X4_50""#,
+            "field \"target.marker_mm\": missing",
+        ),
+        (
+            "charuco",
+            r#", "marker_mm": 22.0"#,
+            "field \"target.dictionary\": missing",
+        ),
+        (
+            "chessboard",
+            r#", "marker_mm": 22.0"#,
+            "field \"target.marker_mm\": only a \"charuco\" target has markers",
+        ),
+        (
+            "aruco",
+            "",
+            "field \"target.kind\": \"aruco\" (expected \"chessboard\" or \"charuco\")",
+        ),
+        (
+            "charuco",
+            r#", "marker_mm": 22.0, "dictionary": "DICT_4X4_50", "legacy": true"#,
+            "unknown field `legacy`",
+        ),
     ] {
         let e = header(kind, extra).unwrap_err();
         assert!(e.contains(want), "{kind} {extra}: {e}");
@@ -192,7 +271,15 @@ fn plan(dir: &Path, name: &str, strata: &str, seed: u64, jitter: bool) -> PathBu
     std::fs::write(&spec, t).unwrap();
     let out = dir.join(format!("{name}.json"));
     assert_eq!(
-        cli(&["plan", "--spec", s(&spec), "--robot", "ur5e", "--out", s(&out)]),
+        cli(&[
+            "plan",
+            "--spec",
+            s(&spec),
+            "--robot",
+            "ur5e",
+            "--out",
+            s(&out)
+        ]),
         0
     );
     out
@@ -286,6 +373,10 @@ fn calibrate_camera_on_a_charuco_dataset_of_mostly_partial_views() {
     assert!(partial * 2 >= views, "{partial} of {views} partial");
     // Measured: 0.0019 mm, 0.0020 deg, fx 900.009, held-out 0.0226 px (20 of 20 views partial).
     assert!(d <= 0.02 && ang <= 0.01, "hand-eye {d} mm {ang} deg");
-    assert!((b.intrinsics.fx - 900.0).abs() < 0.1, "fx {}", b.intrinsics.fx);
+    assert!(
+        (b.intrinsics.fx - 900.0).abs() < 0.1,
+        "fx {}",
+        b.intrinsics.fx
+    );
     assert!(heldout <= 0.03, "held-out {heldout} px");
 }

@@ -660,8 +660,9 @@ impl Scenario {
         }
         if let Some(ch) = self.scene.chessboard.as_ref() {
             if let Some(m) = &ch.charuco {
-                crate::world::charuco::Pattern::new(ch.cols, ch.rows, ch.square_mm, m)
-                    .map_err(|e| ScenarioError::Invalid(format!("scene.chessboard.charuco: {e}")))?;
+                crate::world::charuco::Pattern::new(ch.cols, ch.rows, ch.square_mm, m).map_err(
+                    |e| ScenarioError::Invalid(format!("scene.chessboard.charuco: {e}")),
+                )?;
             }
         }
         for c in &self.cameras {

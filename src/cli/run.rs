@@ -269,7 +269,12 @@ fn camera_header(
     let target = s.scene.chessboard.as_ref().map(|b| {
         let (cols, rows) = board.unwrap_or((b.cols.saturating_sub(1), b.rows.saturating_sub(1)));
         crate::dataset::TargetHeader {
-            kind: if b.charuco.is_some() { "charuco" } else { "chessboard" }.into(),
+            kind: if b.charuco.is_some() {
+                "charuco"
+            } else {
+                "chessboard"
+            }
+            .into(),
             cols,
             rows,
             square_mm: b.square_mm,

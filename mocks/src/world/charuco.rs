@@ -47,7 +47,9 @@ impl Pattern {
             ));
         }
         if cols < 2 || rows < 2 {
-            return Err(format!("a ChArUco board needs ≥ 2×2 squares, got {cols}×{rows}"));
+            return Err(format!(
+                "a ChArUco board needs ≥ 2×2 squares, got {cols}×{rows}"
+            ));
         }
         let bits = dict.marker_size();
         let n = bits + 2;
@@ -194,10 +196,7 @@ mod tests {
         let (x0, y0) = (30.0 + 4.0, 4.0);
         for (by, row) in want.iter().enumerate() {
             for (bx, &w) in row.iter().enumerate() {
-                let (x, y) = (
-                    x0 + (bx as f64 + 1.5) * c,
-                    y0 + (by as f64 + 1.5) * c,
-                );
+                let (x, y) = (x0 + (bx as f64 + 1.5) * c, y0 + (by as f64 + 1.5) * c);
                 assert_eq!(p.is_black(x, y), w == 1, "bit ({bx}, {by})");
             }
         }
@@ -225,7 +224,10 @@ mod tests {
     #[test]
     fn bad_boards_are_refused_with_the_reason() {
         let e = Pattern::new(9, 6, 30.0, &cfg("DICT_4X4_9", 22.0)).unwrap_err();
-        assert!(e.contains("unknown dictionary") && e.contains("DICT_4X4_50"), "{e}");
+        assert!(
+            e.contains("unknown dictionary") && e.contains("DICT_4X4_50"),
+            "{e}"
+        );
         let e = Pattern::new(9, 6, 30.0, &cfg("DICT_4X4_50", 30.0)).unwrap_err();
         assert!(e.contains("less than square_mm"), "{e}");
         let e = Pattern::new(12, 10, 30.0, &cfg("DICT_4X4_50", 22.0)).unwrap_err();

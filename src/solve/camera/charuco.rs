@@ -131,8 +131,8 @@ pub fn detect_raw(
             h: height,
         });
     }
-    let det = CharucoDetector::new(spec.params()?)
-        .map_err(|e| CharucoError::Board(e.to_string()))?;
+    let det =
+        CharucoDetector::new(spec.params()?).map_err(|e| CharucoError::Board(e.to_string()))?;
     let view = GrayImageView {
         width: width as usize,
         height: height as usize,
@@ -192,7 +192,8 @@ pub fn window_radius(corners: &[Option<[f64; 2]>], spec: &CharucoSpec) -> Vec<f6
     let mut seen: Vec<f64> = near.iter().flatten().copied().collect();
     seen.sort_by(f64::total_cmp);
     let median = seen.get(seen.len() / 2).copied().unwrap_or(20.0);
-    let margin = std::f64::consts::SQRT_2 * 0.5 * (spec.square_mm - spec.marker_mm) / spec.square_mm;
+    let margin =
+        std::f64::consts::SQRT_2 * 0.5 * (spec.square_mm - spec.marker_mm) / spec.square_mm;
     near.iter()
         .map(|d| {
             let d = d.unwrap_or(median);
@@ -238,10 +239,22 @@ mod tests {
     #[test]
     fn bad_boards_are_refused_with_the_reason() {
         assert!(spec("DICT_4X4_50", 22.0).validate().is_ok());
-        let e = spec("DICT_4X4_51", 22.0).validate().unwrap_err().to_string();
-        assert!(e.contains("unknown ArUco dictionary \"DICT_4X4_51\"") && e.contains("DICT_5X5_100"), "{e}");
-        let e = spec("DICT_4X4_50", 31.0).validate().unwrap_err().to_string();
-        assert!(e.contains("marker_mm = 31 must be positive and smaller than square_mm = 30"), "{e}");
+        let e = spec("DICT_4X4_51", 22.0)
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("unknown ArUco dictionary \"DICT_4X4_51\"") && e.contains("DICT_5X5_100"),
+            "{e}"
+        );
+        let e = spec("DICT_4X4_50", 31.0)
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("marker_mm = 31 must be positive and smaller than square_mm = 30"),
+            "{e}"
+        );
         let big = CharucoSpec {
             cols: 11,
             rows: 9,
