@@ -379,4 +379,16 @@ fn calibrate_camera_on_a_charuco_dataset_of_mostly_partial_views() {
         b.intrinsics.fx
     );
     assert!(heldout <= 0.03, "held-out {heldout} px");
+    // The same dataset with a dictionary that does not exist: refused naming file and field.
+    let text = std::fs::read_to_string(&train).unwrap();
+    let bad = tmp.path().join("train/bad.jsonl");
+    std::fs::write(&bad, text.replacen("DICT_4X4_50", "DICT_4X4_42", 1)).unwrap();
+    let e = robocal::solve::camera::data::load(&bad, &Default::default(), false)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("bad.jsonl")
+            && e.contains("field \"target.dictionary\": unknown ArUco dictionary \"DICT_4X4_42\""),
+        "{e}"
+    );
 }

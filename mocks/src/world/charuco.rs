@@ -222,6 +222,36 @@ mod tests {
     }
 
     #[test]
+    fn a_scenario_with_a_bad_charuco_block_is_refused() {
+        let text = include_str!("../../scenarios/ur5e-camera-charuco.toml");
+        let sc = crate::Scenario::from_toml(text).unwrap();
+        assert_eq!(
+            sc.scene.chessboard.unwrap().charuco.unwrap().dictionary,
+            "DICT_4X4_50"
+        );
+        for (from, to, want) in [
+            (
+                "\"DICT_4X4_50\"",
+                "\"DICT_4X4_49\"",
+                "unknown dictionary \"DICT_4X4_49\"",
+            ),
+            (
+                "marker_mm = 22.0",
+                "marker_mm = 31.0",
+                "less than square_mm",
+            ),
+        ] {
+            let e = crate::Scenario::from_toml(&text.replace(from, to))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("scene.chessboard.charuco") && e.contains(want),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
     fn bad_boards_are_refused_with_the_reason() {
         let e = Pattern::new(9, 6, 30.0, &cfg("DICT_4X4_9", 22.0)).unwrap_err();
         assert!(
