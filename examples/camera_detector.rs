@@ -461,7 +461,13 @@ fn charuco_study() {
             camera_board::true_corners(&cam, &pose, &b),
         ));
     }
-    for _ in 0..8 {
+    for k in 0..16 {
+        // Half the views: a card over a fifth of the columns; the others: the middle third.
+        let (u0, u1) = if k % 2 == 0 {
+            (2 * w as usize / 5, 3 * w as usize / 5)
+        } else {
+            (w as usize / 3, 2 * w as usize / 3)
+        };
         let pose = camera_at(
             &b,
             bw / 2.0,
@@ -472,8 +478,7 @@ fn charuco_study() {
         );
         let mut img = robocal_mocks::world::sensors::render(&cam, &pose, Some(&b), &mut rng);
         let mut truth = camera_board::true_corners(&cam, &pose, &b);
-        // A grey card over the middle third of the columns: its corners are gone.
-        let (u0, u1) = (w as usize / 3, 2 * w as usize / 3);
+        // A grey card over columns u0..u1: its corners are gone.
         for v in 0..h as usize {
             for u in u0..u1 {
                 img[v * w as usize + u] = 140;
@@ -484,7 +489,15 @@ fn charuco_study() {
                 *t = None;
             }
         }
-        views.push(("occluded (middle third)", img, truth));
+        views.push((
+            if k % 2 == 0 {
+                "occluded (middle fifth)"
+            } else {
+                "occluded (middle third)"
+            },
+            img,
+            truth,
+        ));
     }
     let inside: Vec<Vec<bool>> = views
         .iter()
@@ -516,6 +529,7 @@ fn charuco_study() {
     );
     let sets: Vec<&str> = {
         let mut s: Vec<&str> = views.iter().map(|v| v.0).collect();
+        s.sort_by_key(|n| views.iter().position(|v| v.0 == *n));
         s.dedup();
         s
     };
