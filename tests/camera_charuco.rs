@@ -101,7 +101,8 @@ fn charuco_corners_with_ids_on_whole_partial_and_occluded_views() {
     let (bw, bh) = (b.cols as f64 * b.square_mm, b.rows as f64 * b.square_mm);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
     // (name, camera pose, occluder rectangle in pixels)
-    let views: Vec<(&str, Isometry3<f64>, Option<[usize; 4]>)> = vec![
+    type Case = (&'static str, Isometry3<f64>, Option<[usize; 4]>);
+    let views: Vec<Case> = vec![
         (
             "whole",
             camera_at(&b, bw / 2.0, bh / 2.0, 560.0, [0.15, -0.1], 0.3),
