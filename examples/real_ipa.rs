@@ -253,11 +253,7 @@ fn run_with(
 /// all on training data) without the rule that a physical effect must explain half of what
 /// the kernel benchmark explains; up to 6 effects, then the correction.
 fn physics_first() -> Options {
-    Options {
-        min_np_ratio: 0.0,
-        max_effects: 6,
-        ..Options::default()
-    }
+    Options::physics_first()
 }
 
 fn main() -> anyhow::Result<()> {

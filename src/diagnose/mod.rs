@@ -67,6 +67,23 @@ pub struct Options {
     /// default 101 is an assumption (a common harmonic-drive ratio, e.g. in UR arms), not
     /// read from the data: set the arm's ratio when it is known.
     pub wave_gear_ratio: f64,
+    /// Effect kinds left out of the candidate library (e.g. to test the fallback on an
+    /// effect the library does not contain).
+    pub exclude_kinds: Vec<String>,
+}
+
+impl Options {
+    /// Physics first (`robocal diagnose --physics-first`): the same tests (F, ΔBIC,
+    /// time-blocked CV gain, independence) without the rule that a physical effect must
+    /// explain half of what the kernel benchmark explains; up to 6 effects, then the
+    /// correction for what remains.
+    pub fn physics_first() -> Options {
+        Options {
+            min_np_ratio: 0.0,
+            max_effects: 6,
+            ..Options::default()
+        }
+    }
 }
 
 impl Default for Options {
@@ -83,6 +100,7 @@ impl Default for Options {
             min_np_ratio: 0.5,
             np_benchmark_gain: 0.2,
             wave_gear_ratio: DEFAULT_WAVE_GEAR_RATIO,
+            exclude_kinds: Vec::new(),
         }
     }
 }
@@ -302,6 +320,10 @@ pub fn candidates_with(
         groups.push(grid);
     }
     groups.push(vec![Block::Latency]);
+    groups.retain(|g| {
+        g.first()
+            .is_none_or(|b| !opt.exclude_kinds.iter().any(|k| k == b.kind()))
+    });
     let mut out = Vec::new();
     let mut untestable: Vec<(String, String)> = Vec::new();
     for g in groups {
