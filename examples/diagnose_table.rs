@@ -403,7 +403,11 @@ pub fn run(world: &World, seed: u64, size: Size) -> Outcome {
         Options::default()
     };
     let opt = Options {
-        exclude_kinds: world.library_without.iter().map(|k| k.to_string()).collect(),
+        exclude_kinds: world
+            .library_without
+            .iter()
+            .map(|k| k.to_string())
+            .collect(),
         ..base
     };
     let d = diagnose::diagnose(&model, &train, &held, &opt).expect("diagnose");

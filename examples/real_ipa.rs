@@ -182,7 +182,11 @@ fn diagnosis_plots(d: &diagnose::Diagnosis, train: &[PoseObs], plots: &Path, pre
             continue;
         }
         let (pts, xl, yl) = plot::driver_residual(&d.state, train, i);
-        let file = plots.join(format!("{prefix}_{}_{}.svg", i + 1, file_name(&e.block.label())));
+        let file = plots.join(format!(
+            "{prefix}_{}_{}.svg",
+            i + 1,
+            file_name(&e.block.label())
+        ));
         match plot::write_driver_svg(&file, &e.block.label(), &pts, &xl, &yl) {
             Ok(()) => println!("  plot: {}", file.display()),
             Err(err) => println!("  plot {} failed: {err}", file.display()),

@@ -250,9 +250,7 @@ impl EffectModel for Block {
     /// Number of linear coefficients.
     fn n_params(&self) -> usize {
         match self {
-            Block::Compliance { points, .. } | Block::LinkDeflection { points, .. } => {
-                points.len()
-            }
+            Block::Compliance { points, .. } | Block::LinkDeflection { points, .. } => points.len(),
             Block::Eccentricity { .. } => 4,
             Block::Ripple { .. } | Block::Coupling { .. } | Block::WaveGenerator { .. } => 2,
             // One growth rate and an offset rate per joint (the dof is not known here: the
@@ -333,7 +331,10 @@ impl EffectModel for Block {
                 .map(|p| format!("c_bend·m@{} [rad·kg/Nm]", p.label()))
                 .collect(),
             Block::Coupling { driver, .. } => {
-                vec![format!("sin q{driver} [rad]"), format!("cos q{driver} [rad]")]
+                vec![
+                    format!("sin q{driver} [rad]"),
+                    format!("cos q{driver} [rad]"),
+                ]
             }
             Block::WaveGenerator { harmonic, .. } => vec![
                 format!("sin {harmonic}Nq [rad]"),
@@ -408,7 +409,9 @@ impl EffectModel for Block {
             },
             Block::TempDrift { t0_c } => {
                 let x = ctx.temp_c.map(|t| t - t0_c).unwrap_or(0.0);
-                (0..n.min(TEMP_DRIFT_JOINTS)).map(|j| (j, 1 + j, x)).collect()
+                (0..n.min(TEMP_DRIFT_JOINTS))
+                    .map(|j| (j, 1 + j, x))
+                    .collect()
             }
             Block::Latency => match &ctx.qd {
                 Some(qd) => qd
@@ -551,7 +554,7 @@ impl EffectModel for Block {
                 // wave-generator period across the poses.
                 let sd = spread(train.iter().filter_map(|o| o.q.get(joint - 1).copied()));
                 let period = std::f64::consts::TAU / (f64::from(*harmonic) * ratio);
-                if !(*ratio > 0.0) || sd < 2.0 * period {
+                if ratio.is_nan() || *ratio <= 0.0 || sd < 2.0 * period {
                     return Err(format!(
                         "joint {joint} moves less than two wave-generator periods (sd {:.3}°, period {:.3}°)",
                         sd.to_degrees(),
@@ -689,16 +692,16 @@ pub fn deflection_terms(
             m - z * z.dot(&m)
         })
         .collect();
-    (
-        model.base().rotation.to_rotation_matrix(),
-        marker - o,
-        dirs,
-    )
+    (model.base().rotation.to_rotation_matrix(), marker - o, dirs)
 }
 
 /// Marker displacement (tracker frame, mm) of the point-displacement effects (link
 /// deflection) of `effects` at one pose, predicted with `model`.
-pub fn point_displacement(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Vector3<f64> {
+pub fn point_displacement(
+    model: &KinematicModel,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+) -> Vector3<f64> {
     let mut d = Vector3::zeros();
     for e in effects {
         if let Block::LinkDeflection { joint, points } = &e.block {
@@ -1086,8 +1089,13 @@ impl Effect {
                     P::new("t0", "degC", *t0_c, f64::NAN),
                     P::new("growth", "ppm/K", c[0] * 1e6, s(0) * 1e6),
                 ];
-                for k in 1..c.len() {
-                    v.push(P::new(&format!("offset_j{k}"), "deg/K", deg(c[k]), deg(s(k))));
+                for (k, ck) in c.iter().enumerate().skip(1) {
+                    v.push(P::new(
+                        &format!("offset_j{k}"),
+                        "deg/K",
+                        deg(*ck),
+                        deg(s(k)),
+                    ));
                 }
                 v
             }
@@ -1439,7 +1447,9 @@ impl Effect {
                     .and_then(|v| v.as_u64())
                     .filter(|d| (1..=64).contains(d))
                     .ok_or_else(|| {
-                        anyhow::anyhow!("joint_coupling: \"driver_joint\" must be a joint number ≥ 1")
+                        anyhow::anyhow!(
+                            "joint_coupling: \"driver_joint\" must be a joint number ≥ 1"
+                        )
                     })? as usize;
                 (
                     Block::Coupling {
@@ -1620,7 +1630,11 @@ mod new_effect_tests {
         // same point.
         for e in &effects {
             let d = (apply_effects(&model, std::slice::from_ref(e), &ctx) - p0).norm();
-            assert!(d > 1e-4, "{} moves the point by only {d:.2e} mm", e.block.label());
+            assert!(
+                d > 1e-4,
+                "{} moves the point by only {d:.2e} mm",
+                e.block.label()
+            );
         }
         let cal: Vec<CalEffect> = effects.iter().map(Effect::to_cal).collect();
         let back = apply_cal_effects(&model, &cal, &ctx).unwrap();

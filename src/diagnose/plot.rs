@@ -172,9 +172,7 @@ pub fn driver_value(state: &State, e: &Effect, o: &PoseObs) -> (f64, String) {
             wrap(f64::from(*harmonic) * ratio * q(*joint)),
             format!("wave-generator phase {harmonic}·{ratio}·q{joint} (deg, mod 360)"),
         ),
-        Block::Coupling { driver, .. } => {
-            (q(*driver).to_degrees(), format!("q{driver} (deg)"))
-        }
+        Block::Coupling { driver, .. } => (q(*driver).to_degrees(), format!("q{driver} (deg)")),
         Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => (
             driver.value(&o.ctx),
             format!("{} ({})", driver.label(), driver.unit()),
@@ -227,9 +225,11 @@ pub fn write_driver_svg(
 ) -> anyhow::Result<()> {
     let fin = |v: &f64| v.is_finite();
     let range = |it: &mut dyn Iterator<Item = f64>| {
-        let (lo, hi) = it.filter(fin).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v), b.max(v))
-        });
+        let (lo, hi) = it
+            .filter(fin)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
         if lo.is_finite() && hi > lo {
             let m = 0.05 * (hi - lo);
             (lo - m, hi + m)
