@@ -29,6 +29,9 @@ seed spec ../plans/*.toml
 seed scenario ../mocks/scenarios/*.toml
 seed devices seeds/devices/*
 seed import seeds/import/*
+# Build every target in one cargo invocation (links run in parallel), then run each.
+echo "== fuzz build (all targets)"
+cargo fuzz build --sanitizer none > ../target/fuzz-build.log 2>&1 || { tail -40 ../target/fuzz-build.log; echo "fuzz build FAILED"; exit 1; }
 for t in $targets; do
   echo "== fuzz $t (${secs}s)"
   mkdir -p "corpus/$t"

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use robocal::schema::same_json;
 use serde_json::{json, Value};
 
 /// Deadline of one invocation: every refusal here happens before any fit or motion.
@@ -561,25 +562,6 @@ fn bad_input_mismatched_files() {
     }
 }
 
-/// Equal JSON values, floats within a relative 1e-12 (or both below 1e-300 in magnitude).
-fn same_json(a: &Value, b: &Value) -> bool {
-    match (a, b) {
-        (Value::Number(x), Value::Number(y)) => {
-            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
-            x == y || (x - y).abs() <= 1e-12 * x.abs().max(y.abs()) || x.abs().max(y.abs()) < 1e-300
-        }
-        (Value::Array(x), Value::Array(y)) => {
-            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_json(p, q))
-        }
-        (Value::Object(x), Value::Object(y)) => {
-            x.len() == y.len()
-                && x.iter()
-                    .all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w)))
-        }
-        _ => a == b,
-    }
-}
-
 /// Deterministic mutation of a seed: byte flips, insertions, deletions, truncation and
 /// numbers replaced with extreme values (what a corrupted or mistyped file holds).
 fn mutate(seed: &[u8], rng: &mut u64) -> Vec<u8> {
@@ -663,8 +645,7 @@ fn bad_input_file_readers_survive_mutated_files() {
             let _ = robocal::plausible::check_dataset(&l.dataset, fp);
             let again = parse_dataset(l.dataset.to_jsonl().as_bytes(), fp).expect("re-read");
             assert_eq!(again.dataset.records.len(), l.dataset.records.len());
-            // Equal up to the last bits of a float: serde_json is built without its
-            // `float_roundtrip` feature, so its fast float parser may land one ulp off.
+            // Bit-exact: serde_json is built with `float_roundtrip`.
             for (a, b) in again.dataset.records.iter().zip(&l.dataset.records) {
                 let (va, vb) = (
                     serde_json::to_value(a).unwrap(),

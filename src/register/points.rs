@@ -8,6 +8,7 @@ use nalgebra::Point3;
 
 use super::{io_err, RegisterError};
 use crate::dataset::Dataset;
+use crate::schema::points_csv::{self, NamedRow, PointsCsvError};
 
 /// One named point (mm).
 #[derive(Debug, Clone, PartialEq)]
@@ -18,83 +19,27 @@ pub struct NamedPoint {
     pub line: usize,
 }
 
-/// Parses CSV text `name,x_mm,y_mm,z_mm` (header required; `#` comments and blank lines
-/// skipped). Refuses other units in the header (`x_m`, `x_in`, ...), non-finite numbers,
-/// empty and duplicate names.
+/// Parses CSV text `name,x_mm,y_mm,z_mm` through the one point-table reader
+/// ([`crate::schema::points_csv::parse_named`]: header required, `#` comments and blank lines
+/// skipped, other units in the header refused with a hint, non-finite numbers, empty and
+/// duplicate names refused; errors name file, line and field).
 pub fn parse_points_csv(text: &str, file: &str) -> Result<Vec<NamedPoint>, RegisterError> {
-    let err = |line: usize, msg: String| RegisterError::Input {
-        file: file.to_string(),
-        line,
-        msg,
-    };
-    let mut out: Vec<NamedPoint> = Vec::new();
-    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
-    let mut header_done = false;
-    for (i, raw) in text.lines().enumerate() {
-        let line = i + 1;
-        let s = raw.trim().trim_start_matches('\u{feff}');
-        if s.is_empty() || s.starts_with('#') {
-            continue;
-        }
-        let cols: Vec<&str> = s.split(',').map(|c| c.trim()).collect();
-        if !header_done {
-            let want = ["name", "x_mm", "y_mm", "z_mm"];
-            if cols.len() >= 4 && cols[..4] == want {
-                header_done = true;
-                continue;
-            }
-            let hint = if cols
-                .iter()
-                .any(|c| c.starts_with("x_") || c.starts_with("y_") || c.starts_with("z_"))
-            {
-                " (a unit other than mm: convert the file to mm)"
-            } else {
-                ""
-            };
-            return Err(err(
-                line,
-                format!("header must be `name,x_mm,y_mm,z_mm`, got `{s}`{hint}"),
-            ));
-        }
-        if cols.len() < 4 {
-            return Err(err(
-                line,
-                format!("expected 4 fields name,x_mm,y_mm,z_mm, got {}", cols.len()),
-            ));
-        }
-        let name = cols[0].to_string();
-        if name.is_empty() {
-            return Err(err(line, "field `name` is empty".into()));
-        }
-        let mut v = [0.0; 3];
-        for (k, field) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
-            let x: f64 = cols[k + 1].parse().map_err(|_| {
-                err(
-                    line,
-                    format!("field `{field}`: `{}` is not a number", cols[k + 1]),
-                )
-            })?;
-            if !x.is_finite() {
-                return Err(err(line, format!("field `{field}` is not finite ({x})")));
-            }
-            v[k] = x;
-        }
-        if let Some(prev) = seen.insert(name.clone(), line) {
-            return Err(err(
-                line,
-                format!("duplicate name `{name}` (first on line {prev}): names pair the points"),
-            ));
-        }
-        out.push(NamedPoint {
-            name,
-            p: Point3::new(v[0], v[1], v[2]),
-            line,
-        });
-    }
-    if !header_done {
-        return Err(err(0, "empty file: no `name,x_mm,y_mm,z_mm` header".into()));
-    }
-    Ok(out)
+    let rows = points_csv::parse_named(text, file).map_err(|e| match e {
+        PointsCsvError::Bad { file, line, msg } => RegisterError::Input {
+            file,
+            line: line as usize,
+            msg,
+        },
+        PointsCsvError::Io { file, source } => RegisterError::Io { path: file, source },
+    })?;
+    Ok(rows
+        .into_iter()
+        .map(|(r, line)| NamedPoint {
+            name: r.name,
+            p: Point3::new(r.x_mm, r.y_mm, r.z_mm),
+            line: line as usize,
+        })
+        .collect())
 }
 
 /// Reads a points CSV file.
@@ -103,12 +48,18 @@ pub fn read_points_csv(path: &Path) -> Result<Vec<NamedPoint>, RegisterError> {
     parse_points_csv(&text, &path.display().to_string())
 }
 
-/// Writes named points as CSV `name,x_mm,y_mm,z_mm` (µm resolution… to 1e-6 mm).
+/// Writes named points as CSV `name,x_mm,y_mm,z_mm` (to 1e-6 mm), through the same schema.
 pub fn write_points_csv<W: Write>(mut w: W, pts: &[NamedPoint]) -> std::io::Result<()> {
-    writeln!(w, "name,x_mm,y_mm,z_mm")?;
-    for p in pts {
-        writeln!(w, "{},{:.6},{:.6},{:.6}", p.name, p.p.x, p.p.y, p.p.z)?;
-    }
+    let rows: Vec<NamedRow> = pts
+        .iter()
+        .map(|p| NamedRow {
+            name: p.name.clone(),
+            x_mm: p.p.x,
+            y_mm: p.p.y,
+            z_mm: p.p.z,
+        })
+        .collect();
+    w.write_all(points_csv::named_to_string(&rows).as_bytes())?;
     w.flush()
 }
 
@@ -174,7 +125,7 @@ mod tests {
         let e = parse_points_csv("name,x_mm,y_mm,z_mm\nF1,1,2,3\nF1,1,2,3\n", "a.csv")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("a.csv:3") && e.contains("duplicate"), "{e}");
+        assert!(e.contains("a.csv:3") && e.contains("twice"), "{e}");
         let e = parse_points_csv("name,x_m,y_m,z_m\nF1,1,2,3\n", "b.csv")
             .unwrap_err()
             .to_string();

@@ -134,6 +134,29 @@ impl SchemaFile for PlanFile {
     const FORMAT: &'static str = PLAN_FORMAT;
 }
 
+/// Equal JSON values, numbers compared as `f64` (an integer and a float of the same value are
+/// equal, so are `0` and `-0`). The round-trip check of every file robocal writes: serde_json
+/// is built with `float_roundtrip`, so a value written and read back must be bit-exact; no
+/// tolerance.
+pub fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => match (x.as_f64(), y.as_f64()) {
+            (Some(x), Some(y)) => x == y,
+            _ => x == y,
+        },
+        (Value::Array(x), Value::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same_json(p, q))
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w)))
+        }
+        _ => a == b,
+    }
+}
+
 // ------------------------------------------------------------------ diagnosis.json
 
 /// Which sensor / problem a diagnosis is about.

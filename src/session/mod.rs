@@ -831,22 +831,14 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
         .map(|o| res.nominal.measured_point(&o.q))
         .collect();
     let csv = dir.join("diagnose").join("heldout_predictions.csv");
-    let after: std::collections::HashMap<u64, nalgebra::Point3<f64>> =
-        match std::fs::read_to_string(&csv) {
-            Ok(text) => text
-                .lines()
-                .skip(1)
-                .filter_map(|l| {
-                    let v: Vec<&str> = l.split(',').collect();
-                    let n = |i: usize| v.get(i).and_then(|x| x.parse::<f64>().ok());
-                    Some((
-                        v.first()?.parse().ok()?,
-                        nalgebra::Point3::new(n(1)?, n(2)?, n(3)?),
-                    ))
-                })
-                .collect(),
-            Err(_) => Default::default(),
-        };
+    // Written by this session's diagnose stage: read through the one point-table schema; a
+    // missing file (no diagnosis) falls back to the geometric calibration, a damaged one is an
+    // error, never a silently shorter table.
+    let after: std::collections::HashMap<u64, nalgebra::Point3<f64>> = if csv.exists() {
+        crate::schema::points_csv::read(&csv)?
+    } else {
+        Default::default()
+    };
     let pred_after: Vec<_> = obs
         .iter()
         .map(|o| {

@@ -114,24 +114,11 @@ pub fn solve_ax_xb(
             "AX = XB: fewer than two motions with distinct rotation axes".into(),
         ));
     }
-    let rx = project_rotation(&m);
-    // Translation: stack (R_A − I) t = R_X t_B − t_A.
-    let mut ata = Matrix3::zeros();
-    let mut atb = Vector3::zeros();
-    for (ak, bk) in a.iter().zip(b) {
-        let c = ak.rotation.to_rotation_matrix().into_inner() - Matrix3::identity();
-        let d = rx * bk.translation.vector - ak.translation.vector;
-        ata += c.transpose() * c;
-        atb += c.transpose() * d;
-    }
-    let t = ata
-        .try_inverse()
-        .map(|inv| inv * atb)
-        .ok_or_else(|| SolveError::Degenerate("AX = XB: translation unobservable".into()))?;
-    Ok(Isometry3::from_parts(
-        Translation3::from(t),
-        UnitQuaternion::from_rotation_matrix(&rx),
-    ))
+    // The project's one Park–Martin implementation (the camera hand-eye's).
+    let pairs: Vec<(Isometry3<f64>, Isometry3<f64>)> =
+        a.iter().copied().zip(b.iter().copied()).collect();
+    crate::solve::camera::handeye::solve(crate::solve::camera::handeye::Method::ParkMartin, &pairs)
+        .ok_or_else(|| SolveError::Degenerate("AX = XB: translation unobservable".into()))
 }
 
 #[cfg(test)]

@@ -1,14 +1,14 @@
 //! Classical `AX = XB` hand-eye solvers (Tsai–Lenz 1989, Park–Martin 1994, Daniilidis 1999)
 //! and a planar-marker pose (homography + LM) for the instrument pose seen in the images: the
-//! baselines the RCM method is compared with. Self-contained so it can later be merged with
-//! the eye-in-hand camera's hand-eye code.
+//! baselines the RCM method is compared with. The solvers are the camera hand-eye's
+//! ([`crate::solve::camera::handeye`]): one implementation of each method in the project.
 //!
 //! Convention: `a[k] X = X b[k]`. For a camera fixed in the robot base (eye-to-hand) with the
 //! instrument pose `Fᵢ` in the base (robot) and `Cᵢ` in the camera (images), `Fᵢ = X Cᵢ`, so
 //! `A = Fᵢ Fⱼ⁻¹`, `B = Cᵢ Cⱼ⁻¹` and `X` is the camera in the base.
 use nalgebra::{
-    DMatrix, DVector, Isometry3, Matrix3, Point3, Quaternion, Rotation3, Translation3,
-    UnitQuaternion, Vector2, Vector3, Vector4,
+    DMatrix, DVector, Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2,
+    Vector3,
 };
 
 use super::dual::{mulm, rotvec, Dual, Real, V3};
@@ -40,10 +40,6 @@ impl Method {
     }
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
 /// All motion pairs `(A, B)` of `X Cᵢ = Fᵢ` (every `i < j`).
 pub fn motions(
     f: &[Isometry3<f64>],
@@ -59,169 +55,30 @@ pub fn motions(
     (a, b)
 }
 
-fn translation_ls(
-    a: &[Isometry3<f64>],
-    b: &[Isometry3<f64>],
-    r: &Rotation3<f64>,
-) -> Result<Vector3<f64>, RcmError> {
-    let mut ata = Matrix3::zeros();
-    let mut atb = Vector3::zeros();
-    for (ak, bk) in a.iter().zip(b) {
-        let c = ak.rotation.to_rotation_matrix().into_inner() - Matrix3::identity();
-        let d = r * bk.translation.vector - ak.translation.vector;
-        ata += c.transpose() * c;
-        atb += c.transpose() * d;
-    }
-    ata.try_inverse().map(|i| i * atb).ok_or_else(|| {
-        RcmError::Degenerate(
-            "AX = XB: the translation is unobservable (rotations about one axis)".into(),
-        )
-    })
-}
-
-/// Tsai–Lenz.
-pub fn tsai(a: &[Isometry3<f64>], b: &[Isometry3<f64>]) -> Result<Isometry3<f64>, RcmError> {
-    let mut m = Matrix3::zeros();
-    let mut v = Vector3::zeros();
-    for (ak, bk) in a.iter().zip(b) {
-        let pa = mrp(&ak.rotation);
-        let pb = mrp(&bk.rotation);
-        let s = skew(&(pa + pb));
-        m += s.transpose() * s;
-        v += s.transpose() * (pb - pa);
-    }
-    let pc1 = m
-        .try_inverse()
-        .ok_or_else(|| RcmError::Degenerate("Tsai: rotation axes do not span".into()))?
-        * v;
-    let pc = pc1 * (2.0 / (1.0 + pc1.norm_squared()).sqrt());
-    let n2 = pc.norm_squared();
-    let r = Matrix3::identity() * (1.0 - n2 / 2.0)
-        + (pc * pc.transpose() + skew(&pc) * (4.0 - n2).max(0.0).sqrt()) * 0.5;
-    let r = Rotation3::from_matrix_unchecked(r);
-    let r = crate::solve::rigid::project_rotation(r.matrix());
-    let t = translation_ls(a, b, &r)?;
-    Ok(Isometry3::from_parts(
-        Translation3::from(t),
-        UnitQuaternion::from_rotation_matrix(&r),
-    ))
-}
-
-/// `2 sin(θ/2) · axis`.
-fn mrp(q: &UnitQuaternion<f64>) -> Vector3<f64> {
-    let q = if q.w < 0.0 {
-        -q.into_inner()
-    } else {
-        q.into_inner()
-    };
-    q.imag() * 2.0
-}
-
-/// Park–Martin (the project's shared implementation).
-pub fn park(a: &[Isometry3<f64>], b: &[Isometry3<f64>]) -> Result<Isometry3<f64>, RcmError> {
-    crate::solve::rigid::solve_ax_xb(a, b).map_err(|e| RcmError::Degenerate(format!("Park: {e}")))
-}
-
-/// Daniilidis (dual quaternions).
-pub fn daniilidis(a: &[Isometry3<f64>], b: &[Isometry3<f64>]) -> Result<Isometry3<f64>, RcmError> {
-    let n = a.len();
-    let mut t = DMatrix::zeros(6 * n, 8);
-    for (k, (ak, bk)) in a.iter().zip(b).enumerate() {
-        let (qa, qa2) = dual_quat(ak);
-        let (qb, qb2) = dual_quat(bk);
-        let (av, bv) = (qa.vec3(), qb.vec3());
-        let (av2, bv2) = (qa2.vec3(), qb2.vec3());
-        let r0 = 6 * k;
-        t.view_mut((r0, 0), (3, 1)).copy_from(&(av - bv));
-        t.view_mut((r0, 1), (3, 3)).copy_from(&skew(&(av + bv)));
-        t.view_mut((r0 + 3, 0), (3, 1)).copy_from(&(av2 - bv2));
-        t.view_mut((r0 + 3, 1), (3, 3))
-            .copy_from(&skew(&(av2 + bv2)));
-        t.view_mut((r0 + 3, 4), (3, 1)).copy_from(&(av - bv));
-        t.view_mut((r0 + 3, 5), (3, 3)).copy_from(&skew(&(av + bv)));
-    }
-    let svd = (t.transpose() * &t).symmetric_eigen();
-    let mut idx: Vec<usize> = (0..8).collect();
-    idx.sort_by(|&i, &j| svd.eigenvalues[i].total_cmp(&svd.eigenvalues[j]));
-    let v7 = svd.eigenvectors.column(idx[0]).into_owned();
-    let v8 = svd.eigenvectors.column(idx[1]).into_owned();
-    let (u1, w1) = (v7.rows(0, 4).into_owned(), v7.rows(4, 4).into_owned());
-    let (u2, w2) = (v8.rows(0, 4).into_owned(), v8.rows(4, 4).into_owned());
-    let qa = u1.dot(&w1);
-    let qb = u1.dot(&w2) + u2.dot(&w1);
-    let qc = u2.dot(&w2);
-    let disc = qb * qb - 4.0 * qa * qc;
-    if disc < 0.0 || !disc.is_finite() {
-        return Err(RcmError::Degenerate(
-            "Daniilidis: no real solution (motions too small or inconsistent)".into(),
-        ));
-    }
-    let roots: Vec<f64> = if qa.abs() < 1e-14 {
-        vec![-qc / qb]
-    } else {
-        vec![
-            (-qb + disc.sqrt()) / (2.0 * qa),
-            (-qb - disc.sqrt()) / (2.0 * qa),
-        ]
-    };
-    let mut best: Option<(f64, f64)> = None;
-    for s in roots {
-        let val = s * s * u1.dot(&u1) + 2.0 * s * u1.dot(&u2) + u2.dot(&u2);
-        if best.is_none_or(|(_, v)| val > v) {
-            best = Some((s, val));
-        }
-    }
-    let (s, val) = best.ok_or_else(|| RcmError::Degenerate("Daniilidis: no root".into()))?;
-    let l2 = 1.0 / val.sqrt();
-    let l1 = s * l2;
-    let q = u1 * l1 + u2 * l2;
-    let q2 = w1 * l1 + w2 * l2;
-    let rq = Quaternion::new(q[0], q[1], q[2], q[3]);
-    let dq = Quaternion::new(q2[0], q2[1], q2[2], q2[3]);
-    let tq = dq * rq.conjugate() * 2.0;
-    Ok(Isometry3::from_parts(
-        Translation3::new(tq.i, tq.j, tq.k),
-        UnitQuaternion::from_quaternion(rq),
-    ))
-}
-
-/// Dual quaternion `(q, ½ t q)` of a pose with `q.w ≥ 0`, as `[w, x, y, z]` vectors.
-fn dual_quat(p: &Isometry3<f64>) -> (Vector4<f64>, Vector4<f64>) {
-    let mut q = p.rotation.into_inner();
-    if q.w < 0.0 {
-        q = -q;
-    }
-    let t = Quaternion::new(0.0, p.translation.x, p.translation.y, p.translation.z);
-    let d = t * q * 0.5;
-    (
-        Vector4::new(q.w, q.i, q.j, q.k),
-        Vector4::new(d.w, d.i, d.j, d.k),
-    )
-}
-
-trait Xyz {
-    fn vec3(&self) -> Vector3<f64>;
-}
-impl Xyz for Vector4<f64> {
-    fn vec3(&self) -> Vector3<f64> {
-        Vector3::new(self[1], self[2], self[3])
-    }
-}
-
-/// Solve with `method`.
+/// Solve with `method` through the project's one set of `A X = X B` solvers
+/// ([`crate::solve::camera::handeye`], same convention `a[k] X = X b[k]`).
 pub fn solve(
     method: Method,
     a: &[Isometry3<f64>],
     b: &[Isometry3<f64>],
 ) -> Result<Isometry3<f64>, RcmError> {
+    use crate::solve::camera::handeye::{self, Method as H};
     if a.len() < 2 {
         return Err(RcmError::TooFew { got: a.len() + 1 });
     }
-    match method {
-        Method::Tsai => tsai(a, b),
-        Method::Park => park(a, b),
-        Method::Daniilidis => daniilidis(a, b),
-    }
+    let shared = match method {
+        Method::Tsai => H::TsaiLenz,
+        Method::Park => H::ParkMartin,
+        Method::Daniilidis => H::Daniilidis,
+    };
+    let pairs: Vec<(Isometry3<f64>, Isometry3<f64>)> =
+        a.iter().copied().zip(b.iter().copied()).collect();
+    handeye::solve(shared, &pairs).ok_or_else(|| {
+        RcmError::Degenerate(format!(
+            "{}: AX = XB is not determined by these motions (rotations about one axis, or too small)",
+            method.name()
+        ))
+    })
 }
 
 /// Pose of a planar marker (points `(x, y, 0)` in the marker frame) from its pixels:
