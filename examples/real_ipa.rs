@@ -6,7 +6,14 @@
 //!
 //! ```text
 //! cargo run --release --example real_ipa -- [--max-train N] [--series B.jsonl ...]
+//!     [--plots DIR] [--no-ablation]
 //! ```
+//!
+//! `--plots DIR` (default `out/real_ipa`) receives one SVG per library effect: the residual
+//! of the training poses against the effect's driver (joint angle, harmonic phase, gravity
+//! torque, bending moment, temperature, ...), with the effect fitted alone on top of the
+//! geometric model (blue: partial residual, red: the fitted effect), and one per effect of
+//! the diagnoses (`A_default_*`, `A_physics_first_*`).
 //!
 //! Prints, for Series A:
 //! 1. the diagnosis on the given split (every 4th pose held out): one row per stage
@@ -26,7 +33,7 @@ use robocal::dataset::PoseRecord;
 use robocal::diagnose::effects::{Block, Effect, EffectModel};
 use robocal::diagnose::fit::{fit, residuals, State};
 use robocal::diagnose::transfer::refit_setup;
-use robocal::diagnose::{self, Options};
+use robocal::diagnose::{self, plot, Options};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::{session_observations, PoseObs};
 
@@ -92,8 +99,15 @@ fn table(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
 
 /// Every candidate of the effect library added alone to the geometric model (refitted
 /// jointly with the geometry): what each physical effect buys on held-out poses.
-fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
+fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], plots: &Path) {
     let (groups, untestable) = diagnose::candidates(&d.geometric.model, train);
+    // Of a group of many variants (joint coupling: every driver joint), the one the first
+    // round scored best.
+    let round0: Vec<String> = d
+        .rounds
+        .first()
+        .map(|r| r.iter().map(|s| s.label.clone()).collect())
+        .unwrap_or_default();
     let (g_tr, _, _) = stats(&d.geometric, train);
     let (g_h, g_p95, g_mx) = stats(&d.geometric, held);
     println!(
@@ -112,6 +126,13 @@ fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
             Some(Block::JointDrift { .. }) | Some(Block::LengthDrift { .. }) => {
                 vec![g[0].clone()]
             }
+            Some(Block::Coupling { .. }) => g
+                .iter()
+                .find(|b| round0.contains(&b.label()))
+                .or(g.first())
+                .cloned()
+                .into_iter()
+                .collect(),
             _ => g,
         };
         for b in picks {
@@ -120,6 +141,13 @@ fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
             fit(&mut st, train, 30);
             let (tr, _, _) = stats(&st, train);
             let (h, p95, mx) = stats(&st, held);
+            let k = st.effects.len() - 1;
+            let (pts, xl, yl) = plot::driver_residual(&st, train, k);
+            let file = plots.join(format!("A_alone_{}.svg", file_name(&b.label())));
+            match plot::write_driver_svg(&file, &b.label(), &pts, &xl, &yl) {
+                Ok(()) => println!("  plot: {}", file.display()),
+                Err(e) => println!("  plot {} failed: {e}", file.display()),
+            }
             rows.push((b.label(), tr, h, p95, mx));
         }
     }
@@ -132,6 +160,37 @@ fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
     }
     for (what, why) in untestable {
         println!("  not testable: {what}: {why}");
+    }
+}
+
+/// A label as a file name.
+fn file_name(label: &str) -> String {
+    label
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect::<String>()
+        .split('_')
+        .filter(|s| !s.is_empty())
+        .collect::<Vec<_>>()
+        .join("_")
+}
+
+/// The residual-vs-driver plot of every effect of a diagnosis (training poses).
+fn diagnosis_plots(d: &diagnose::Diagnosis, train: &[PoseObs], plots: &Path, prefix: &str) {
+    for (i, e) in d.state.effects.iter().enumerate() {
+        if matches!(e.block, Block::Nonparametric(_)) {
+            continue;
+        }
+        let (pts, xl, yl) = plot::driver_residual(&d.state, train, i);
+        let file = plots.join(format!(
+            "{prefix}_{}_{}.svg",
+            i + 1,
+            file_name(&e.block.label())
+        ));
+        match plot::write_driver_svg(&file, &e.block.label(), &pts, &xl, &yl) {
+            Ok(()) => println!("  plot: {}", file.display()),
+            Err(err) => println!("  plot {} failed: {err}", file.display()),
+        }
     }
 }
 
@@ -194,10 +253,19 @@ fn run_with(
     Ok(d)
 }
 
+/// Physics first: the same selection (F test, ΔBIC, time-blocked CV gain, independence,
+/// all on training data) without the rule that a physical effect must explain half of what
+/// the kernel benchmark explains; up to 6 effects, then the correction.
+fn physics_first() -> Options {
+    Options::physics_first()
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut max_train = usize::MAX;
     let mut series = Vec::new();
+    let mut plots = PathBuf::from("out/real_ipa");
+    let mut do_ablation = true;
     let mut i = 0;
     while i < args.len() {
         match args[i].as_str() {
@@ -215,6 +283,14 @@ fn main() -> anyhow::Result<()> {
                 ));
                 i += 1;
             }
+            "--plots" => {
+                plots = PathBuf::from(
+                    args.get(i + 1)
+                        .ok_or_else(|| anyhow::anyhow!("--plots needs a directory"))?,
+                );
+                i += 1;
+            }
+            "--no-ablation" => do_ablation = false,
             a => anyhow::bail!("unknown argument {a:?} (see the file's header)"),
         }
         i += 1;
@@ -243,21 +319,19 @@ fn main() -> anyhow::Result<()> {
         &a.train,
         &a.held,
     )?;
-    ablation(&d, &a.train, &a.held);
-    // Physics first: the same selection (F test, ΔBIC, time-blocked CV gain, independence,
-    // all on training data) without the rule that a physical effect must explain half of
-    // what the kernel benchmark explains; up to 6 effects, then the correction.
+    std::fs::create_dir_all(&plots)?;
+    diagnosis_plots(&d, &a.train, &plots, "A_default");
+    if do_ablation {
+        ablation(&d, &a.train, &a.held, &plots);
+    }
     let dp = run_with(
         "Series A, physics first (kernel-benchmark rule off, up to 6 effects)",
         &model,
         &a.train,
         &a.held,
-        &Options {
-            min_np_ratio: 0.0,
-            max_effects: 6,
-            ..Options::default()
-        },
+        &physics_first(),
     )?;
+    diagnosis_plots(&dp, &a.train, &plots, "A_physics_first");
 
     // Time-blocked: the first 75 % of the session trains, held-out poses of the rest score.
     let mut ts: Vec<f64> = a.train.iter().map(|o| o.ctx.t).collect();
@@ -280,6 +354,13 @@ fn main() -> anyhow::Result<()> {
         &model,
         &early,
         &late,
+    )?;
+    run_with(
+        "Series A, time-blocked, physics first",
+        &model,
+        &early,
+        &late,
+        &physics_first(),
     )?;
 
     for p in &series {

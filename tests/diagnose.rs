@@ -290,7 +290,14 @@ fn world_compliance_and_backlash_pair_found() {
 
 #[test]
 fn world_effect_outside_library_is_flagged_nonparametric() {
-    check_world("link deflection");
+    check_world("link deflection, outside the library");
+}
+
+/// Link deflection under the gravity moment (the world's bending of joint 3's bearing) is
+/// in the library now: named `link_deflection(j3)`.
+#[test]
+fn world_link_deflection_found() {
+    check_world("link deflection j3");
 }
 
 #[test]

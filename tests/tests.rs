@@ -3,6 +3,7 @@
 mod acquire;
 mod bad_input;
 mod camera_calib;
+mod camera_charuco;
 mod camera_run;
 mod camera_session;
 mod cli;

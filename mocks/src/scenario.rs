@@ -528,6 +528,24 @@ pub struct ChessboardConfig {
     /// `z = bend_mm·(1 − (2x/W − 1)²)` over its width `W = cols·square_mm` (0 = flat).
     #[serde(default)]
     pub bend_mm: f64,
+    /// ChArUco markers in the white squares (absent = a plain chessboard). See
+    /// [`CharucoConfig`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub charuco: Option<CharucoConfig>,
+}
+
+/// ArUco markers printed in the white squares of a [`ChessboardConfig`] (OpenCV's ChArUco
+/// layout: square `(0, 0)` dark, markers on the squares with `a + b` odd, ids counted row by
+/// row from 0, each marker centred in its square, one-cell black border). The board frame is
+/// then OpenCV's ChArUco frame: the markers read correctly seen from the board's −z side (x
+/// right, y down as printed), so a camera looks at the printed face along +z.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CharucoConfig {
+    /// Marker edge (mm), less than the square edge.
+    pub marker_mm: f64,
+    /// OpenCV dictionary name (`DICT_4X4_50`, `DICT_5X5_100`, ...).
+    pub dictionary: String,
 }
 
 /// Passive objects of the cell.
@@ -639,6 +657,13 @@ impl Scenario {
             within(n("rate_hz"), l.rate_hz, 0.0, 100_000.0, true)?;
             within(n("min_mm"), l.min_mm, 0.0, 100_000.0, false)?;
             within(n("max_mm"), l.max_mm, l.min_mm, 100_000.0, true)?;
+        }
+        if let Some(ch) = self.scene.chessboard.as_ref() {
+            if let Some(m) = &ch.charuco {
+                crate::world::charuco::Pattern::new(ch.cols, ch.rows, ch.square_mm, m).map_err(
+                    |e| ScenarioError::Invalid(format!("scene.chessboard.charuco: {e}")),
+                )?;
+            }
         }
         for c in &self.cameras {
             if c.width == 0 || c.height == 0 || c.width > 20_000 || c.height > 20_000 {

@@ -123,9 +123,7 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
     let opt = if args.physics_first {
         Options {
             allow_nonparametric: !args.no_nonparametric,
-            min_np_ratio: 0.0,
-            max_effects: 6,
-            ..Options::default()
+            ..Options::physics_first()
         }
     } else {
         Options {

@@ -269,12 +269,17 @@ fn camera_header(
     let target = s.scene.chessboard.as_ref().map(|b| {
         let (cols, rows) = board.unwrap_or((b.cols.saturating_sub(1), b.rows.saturating_sub(1)));
         crate::dataset::TargetHeader {
-            kind: "chessboard".into(),
+            kind: if b.charuco.is_some() {
+                "charuco"
+            } else {
+                "chessboard"
+            }
+            .into(),
             cols,
             rows,
             square_mm: b.square_mm,
-            marker_mm: None,
-            dictionary: None,
+            marker_mm: b.charuco.as_ref().map(|m| m.marker_mm),
+            dictionary: b.charuco.as_ref().map(|m| m.dictionary.clone()),
         }
     });
     header.set_camera(&cam, target.as_ref());
@@ -317,6 +322,9 @@ fn cell_camera(mode: &str, config: &Path) -> anyhow::Result<CellCamera> {
                 .chessboard
                 .as_ref()
                 .filter(|b| b.cols >= 3 && b.rows >= 3)
+                // OpenCV's chessboard detector cannot label a ChArUco board's corners:
+                // ChArUco images are detected by `calibrate camera` (with their ids).
+                .filter(|b| b.charuco.is_none())
                 .map(|b| (b.cols - 1, b.rows - 1));
             CellCamera {
                 name: s.cameras.first().map(|c| c.name.clone()),

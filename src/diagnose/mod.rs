@@ -62,6 +62,28 @@ pub struct Options {
     pub min_np_ratio: f64,
     /// See `min_np_ratio`.
     pub np_benchmark_gain: f64,
+    /// Harmonic-drive gear ratio assumed for the `wave_generator` candidates (the wave
+    /// generator turns this many times per output turn; 0 = no such candidates). The
+    /// default 101 is an assumption (a common harmonic-drive ratio, e.g. in UR arms), not
+    /// read from the data: set the arm's ratio when it is known.
+    pub wave_gear_ratio: f64,
+    /// Effect kinds left out of the candidate library (e.g. to test the fallback on an
+    /// effect the library does not contain).
+    pub exclude_kinds: Vec<String>,
+}
+
+impl Options {
+    /// Physics first (`robocal diagnose --physics-first`): the same tests (F, ΔBIC,
+    /// time-blocked CV gain, independence) without the rule that a physical effect must
+    /// explain half of what the kernel benchmark explains; up to 6 effects, then the
+    /// correction for what remains.
+    pub fn physics_first() -> Options {
+        Options {
+            min_np_ratio: 0.0,
+            max_effects: 6,
+            ..Options::default()
+        }
+    }
 }
 
 impl Default for Options {
@@ -77,6 +99,8 @@ impl Default for Options {
             allow_nonparametric: true,
             min_np_ratio: 0.5,
             np_benchmark_gain: 0.2,
+            wave_gear_ratio: DEFAULT_WAVE_GEAR_RATIO,
+            exclude_kinds: Vec::new(),
         }
     }
 }
@@ -169,6 +193,14 @@ fn row_folds(obs_fold: &[usize]) -> Vec<usize> {
     obs_fold.iter().flat_map(|f| [*f, *f, *f]).collect()
 }
 
+/// Default harmonic-drive gear ratio of the `wave_generator` candidates (see
+/// [`Options::wave_gear_ratio`]).
+pub const DEFAULT_WAVE_GEAR_RATIO: f64 = 101.0;
+
+/// Harmonics of the wave-generator rotation tried (1: eccentricity of the wave generator,
+/// 2: the two lobes of the elliptical flexspline).
+pub const WAVE_HARMONICS: [u32; 2] = [1, 2];
+
 /// Harmonics of a joint's rotation tried as transmission ripple.
 pub const RIPPLE_HARMONICS: [u32; 2] = [3, 4];
 
@@ -179,6 +211,15 @@ pub const RIPPLE_HARMONICS: [u32; 2] = [3, 4];
 pub fn candidates(
     model: &KinematicModel,
     train: &[PoseObs],
+) -> (Vec<Vec<Block>>, Vec<(String, String)>) {
+    candidates_with(model, train, &Options::default())
+}
+
+/// [`candidates`] with the options' library settings (the wave-generator gear ratio).
+pub fn candidates_with(
+    model: &KinematicModel,
+    train: &[PoseObs],
+    opt: &Options,
 ) -> (Vec<Vec<Block>>, Vec<(String, String)>) {
     let n = model.dof();
     let mut groups: Vec<Vec<Block>> = Vec::new();
@@ -198,6 +239,31 @@ pub fn candidates(
                 .map(|&harmonic| Block::Ripple { joint: j, harmonic })
                 .collect(),
         );
+        // Link / bearing bending under the gravity moment at the joint.
+        groups.push(vec![Block::LinkDeflection {
+            joint: j,
+            points: mass_points(model, j),
+        }]);
+        // Joint-coupled errors: joint j's error driven by another joint's angle (one group
+        // per affected joint; every driver counts as a test).
+        groups.push(
+            (1..=n)
+                .filter(|&d| d != j)
+                .map(|driver| Block::Coupling { joint: j, driver })
+                .collect(),
+        );
+        if opt.wave_gear_ratio > 0.0 {
+            groups.push(
+                WAVE_HARMONICS
+                    .iter()
+                    .map(|&harmonic| Block::WaveGenerator {
+                        joint: j,
+                        ratio: opt.wave_gear_ratio,
+                        harmonic,
+                    })
+                    .collect(),
+            );
+        }
     }
     let t0 = train.iter().map(|o| o.t).fold(f64::INFINITY, f64::min);
     let t1 = train.iter().map(|o| o.t).fold(f64::NEG_INFINITY, f64::max);
@@ -208,6 +274,7 @@ pub fn candidates(
             .filter_map(|o| o.temp_c)
             .fold(f64::INFINITY, f64::min);
         drivers.push(Driver::Temp { t0_c: lo });
+        groups.push(vec![Block::TempDrift { t0_c: lo }]);
     }
     // A time-driven drift is either linear or an exponential warm-up with an unknown time
     // constant: one group per (kind, joint) holding the linear drift and a log grid of τ
@@ -253,6 +320,10 @@ pub fn candidates(
         groups.push(grid);
     }
     groups.push(vec![Block::Latency]);
+    groups.retain(|g| {
+        g.first()
+            .is_none_or(|b| !opt.exclude_kinds.iter().any(|k| k == b.kind()))
+    });
     let mut out = Vec::new();
     let mut untestable: Vec<(String, String)> = Vec::new();
     for g in groups {
@@ -630,7 +701,7 @@ pub fn diagnose(
     );
     let geometric = state.clone();
     let train_rms_geometric = rms3(&residuals(&geometric, train));
-    let (cands, untestable) = candidates(&state.model, train);
+    let (cands, untestable) = candidates_with(&state.model, train, opt);
     let mut remaining = cands;
     let mut steps = Vec::new();
     let mut rounds = Vec::new();

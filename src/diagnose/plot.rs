@@ -9,7 +9,9 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use std::path::Path;
 
-use super::effects::{apply_effects, Effect, EffectModel};
+use super::effects::{
+    apply_effects, deflection_terms, gravity_torques, Block, Effect, EffectModel,
+};
 use super::fit::State;
 use crate::solve::obs::PoseObs;
 
@@ -27,7 +29,12 @@ pub fn partial_residual(
         .filter(|(i, _)| *i != idx)
         .map(|(_, e)| e.clone())
         .collect();
-    let joint = e.block.joint();
+    // Effects that act on a joint angle project on that joint; link deflection moves the
+    // point directly (its joint is where it bends, not an angle).
+    let joint = e
+        .block
+        .joint()
+        .filter(|_| !matches!(e.block, Block::LinkDeflection { .. }));
     let mut pts = Vec::with_capacity(obs.len());
     for o in obs {
         let full = apply_effects(&state.model, &state.effects, &o.ctx);
@@ -122,6 +129,145 @@ pub fn write_svg(
         .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
     chart
         .draw_series(LineSeries::new(vec![(lo, lo), (hi, hi)], RED))
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    Ok(())
+}
+
+/// The driver of an effect at one pose (the quantity its regressor is a function of) and
+/// its axis label: joint angle, harmonic phase, temperature, gravity torque, bending moment.
+pub fn driver_value(state: &State, e: &Effect, o: &PoseObs) -> (f64, String) {
+    let q = |j: usize| o.ctx.q.get(j.wrapping_sub(1)).copied().unwrap_or(f64::NAN);
+    let wrap = |a: f64| a.to_degrees().rem_euclid(360.0);
+    match &e.block {
+        Block::Compliance { joint, points } => (
+            gravity_torques(&state.model, &o.ctx.q, *joint, points)
+                .iter()
+                .sum(),
+            format!("gravity torque about joint {joint} (N·m per kg, summed over mass points)"),
+        ),
+        Block::LinkDeflection { joint, points } => {
+            let (_, _, m) = deflection_terms(&state.model, &o.ctx.q, *joint, points);
+            (
+                m.iter().sum::<nalgebra::Vector3<f64>>().norm(),
+                format!("bending moment at joint {joint} (N·m per kg, summed)"),
+            )
+        }
+        Block::Backlash { joint } => (
+            o.ctx.approach.get(joint - 1).copied().unwrap_or(f64::NAN),
+            format!("approach direction of joint {joint}"),
+        ),
+        Block::Eccentricity { joint } | Block::Transmission { joint } => {
+            (q(*joint).to_degrees(), format!("q{joint} (deg)"))
+        }
+        Block::Ripple { joint, harmonic } => (
+            wrap(f64::from(*harmonic) * q(*joint)),
+            format!("phase {harmonic}·q{joint} (deg, mod 360)"),
+        ),
+        Block::WaveGenerator {
+            joint,
+            ratio,
+            harmonic,
+        } => (
+            wrap(f64::from(*harmonic) * ratio * q(*joint)),
+            format!("wave-generator phase {harmonic}·{ratio}·q{joint} (deg, mod 360)"),
+        ),
+        Block::Coupling { driver, .. } => (q(*driver).to_degrees(), format!("q{driver} (deg)")),
+        Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => (
+            driver.value(&o.ctx),
+            format!("{} ({})", driver.label(), driver.unit()),
+        ),
+        Block::TempDrift { .. } => (
+            o.ctx.temp_c.unwrap_or(f64::NAN),
+            "temperature temp_c (°C)".into(),
+        ),
+        Block::TrackerScale => (o.p.coords.norm(), "distance from the tracker (mm)".into()),
+        Block::BaseShift { .. } | Block::Latency | Block::Nonparametric(_) => {
+            (o.ctx.t, "time (s)".into())
+        }
+    }
+}
+
+/// Residual against the driver of `state.effects[idx]`: per pose (driver, partial residual,
+/// the effect's own fitted contribution), the y values in the units of
+/// [`partial_residual`] (joint-angle mdeg for joint-angle effects, mm along the effect's
+/// displacement otherwise), and the axis labels.
+pub fn driver_residual(
+    state: &State,
+    obs: &[PoseObs],
+    idx: usize,
+) -> (Vec<(f64, f64, f64)>, String, String) {
+    let (_, _, yl) = partial_residual(state, &obs[..obs.len().min(1)], idx);
+    let e = &state.effects[idx];
+    let mut xl = String::new();
+    // `partial_residual` skips poses where the projection is degenerate: recompute the
+    // per-pose pairs so that drivers and residuals stay aligned.
+    let mut out = Vec::with_capacity(obs.len());
+    for o in obs {
+        let (x, l) = driver_value(state, e, o);
+        xl = l;
+        let one = std::slice::from_ref(o);
+        let (p, _, _) = partial_residual(state, one, idx);
+        if let Some((fit, y)) = p.first() {
+            out.push((x, *y, *fit));
+        }
+    }
+    (out, xl, yl)
+}
+
+/// Write one SVG: partial residual (blue) and the fitted effect (red) against the driver.
+pub fn write_driver_svg(
+    path: &Path,
+    title: &str,
+    pts: &[(f64, f64, f64)],
+    xl: &str,
+    yl: &str,
+) -> anyhow::Result<()> {
+    let fin = |v: &f64| v.is_finite();
+    let range = |it: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = it
+            .filter(fin)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
+        if lo.is_finite() && hi > lo {
+            let m = 0.05 * (hi - lo);
+            (lo - m, hi + m)
+        } else {
+            (-1.0, 1.0)
+        }
+    };
+    let (x0, x1) = range(&mut pts.iter().map(|p| p.0));
+    let (y0, y1) = range(&mut pts.iter().flat_map(|p| [p.1, p.2]));
+    let root = SVGBackend::new(path, (720, 540)).into_drawing_area();
+    root.fill(&WHITE)
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc(xl)
+        .y_desc(yl)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    chart
+        .draw_series(
+            pts.iter()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .map(|p| Circle::new((p.0, p.1), 2, BLUE.mix(0.5).filled())),
+        )
+        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    chart
+        .draw_series(
+            pts.iter()
+                .filter(|p| p.0.is_finite() && p.2.is_finite())
+                .map(|p| Circle::new((p.0, p.2), 1, RED.filled())),
+        )
         .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
     root.present().map_err(|e| anyhow::anyhow!("plot: {e}"))?;
     Ok(())

@@ -11,6 +11,7 @@
 
 pub mod camera_board;
 pub mod chain;
+pub mod charuco;
 pub mod clock;
 pub mod control;
 pub mod effects;

@@ -1,4 +1,4 @@
-//! Sensor physics: tracker volume, laser ray casting, chessboard rendering.
+//! Sensor physics: tracker volume, laser ray casting, chessboard (and ChArUco) rendering.
 
 use crate::scenario::{CameraConfig, ChessboardConfig, SceneConfig, VolumeKind};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -195,6 +195,11 @@ pub fn render<R: Rng>(
     let (w, h) = (cam.width as usize, cam.height as usize);
     let mut img = vec![BACKGROUND; w * h];
     if let Some(b) = board {
+        // ChArUco markers (validated with the scenario; an invalid block renders none).
+        let markers = b
+            .charuco
+            .as_ref()
+            .and_then(|m| super::charuco::Pattern::new(b.cols, b.rows, b.square_mm, m).ok());
         let board_from_cam = b.placement.isometry().inverse() * cam_in_base;
         let o = board_from_cam * Point3::origin();
         // Board-plane point hit by the ray through image point (u, v).
@@ -225,7 +230,10 @@ pub fn render<R: Rng>(
                 let hy = 0.25
                     * ((c10.1 - c00.1 + c11.1 - c01.1).abs()
                         + (c01.1 - c00.1 + c11.1 - c10.1).abs());
-                img[v * w + u] = board_grey_box(b, x, y, hx, hy);
+                img[v * w + u] = board_grey_box(b, x, y, hx, hy)
+                    + markers
+                        .as_ref()
+                        .map_or(0.0, |m| (DARK - BRIGHT) * m.black_fraction(x, y, hx, hy));
             }
         }
     }

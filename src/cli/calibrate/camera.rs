@@ -295,6 +295,10 @@ pub fn report_json(
         "format": "robocal-camera-report/1",
         "views": train.data.views.len(),
         "views_without_board": train.no_board,
+        "target_kind": train.target.kind,
+        // Views where only part of the board was seen (ChArUco: cut by the image border or
+        // occluded; every corner still carries its board id).
+        "partial_views": train.data.views.iter().filter(|v| v.corners.iter().any(|c| c.is_none())).count(),
         "heldout_views": held.map(|h| h.data.views.len()),
         "distortion": dist_name(res.distortion),
         "distortion_scores_px": res.model_scores.iter().map(|(m, s)| json!({"model": dist_name(*m), "validation_rms_px": s})).collect::<Vec<_>>(),

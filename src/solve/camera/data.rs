@@ -1,12 +1,14 @@
 //! Camera datasets → [`CameraData`]: the header's `camera` / `target` blocks (or overrides),
 //! each pose record's flange pose (its `flange`, else FK of `q` through the header's robot),
 //! and the board's corners: detected from the record's `image` with the pure-Rust detector
-//! ([`super::detect`]), else the record's `corners` taken in board order.
+//! ([`super::detect`] for a chessboard, [`super::charuco`] for a ChArUco board: partial views
+//! included), else the record's `corners` taken in board order.
 #![allow(clippy::type_complexity)]
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
+use super::charuco::{detect_charuco, CharucoError, CharucoSpec};
 use super::detect::{detect_chessboard, BoardSpec};
 use super::{CameraData, Mount, View};
 use crate::dataset::{CameraHeader, Dataset, TargetHeader};
@@ -75,26 +77,8 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
     if let Some(s) = ov.square_mm {
         target.square_mm = s;
     }
-    if target.kind != "chessboard" {
-        return Err(herr(format!(
-            "target kind {:?}: only \"chessboard\" is detected so far",
-            target.kind
-        )));
-    }
-    if !(target.square_mm.is_finite() && target.square_mm > 0.0)
-        || target.cols < 2
-        || target.rows < 2
-    {
-        return Err(herr(format!(
-            "field \"target\": a board needs ≥ 2×2 inner corners and a positive square_mm, got {}×{} and {}",
-            target.cols, target.rows, target.square_mm
-        )));
-    }
-    let board = BoardSpec {
-        cols: target.cols as usize,
-        rows: target.rows as usize,
-        square_mm: target.square_mm,
-    };
+    let detector = target_of(&target).map_err(&herr)?;
+    let board = detector.board();
     let model = KinematicModel::from_robot_block(&ds.header.robot).ok();
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let recs: Vec<_> = ds.poses().cloned().collect();
@@ -123,7 +107,7 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
     let detected: Vec<Result<(Vec<Option<[f64; 2]>>, Option<(u32, u32)>), String>> = recs
         .par_iter()
         .map(|r| {
-            let out = corners_of(r, &base, &board);
+            let out = corners_of(r, &base, &detector);
             if let Some(b) = &bar {
                 b.inc(1);
             }
@@ -199,22 +183,109 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
 
 type Corners = (Vec<Option<[f64; 2]>>, Option<(u32, u32)>);
 
+/// What is detected in each image: the header's `target` block, checked.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Target {
+    Chessboard(BoardSpec),
+    Charuco(CharucoSpec),
+}
+
+impl Target {
+    /// The corner layout the solver uses.
+    pub fn board(&self) -> BoardSpec {
+        match self {
+            Target::Chessboard(b) => *b,
+            Target::Charuco(c) => c.board(),
+        }
+    }
+
+    /// Corners in board order (`None` = not seen) in an 8-bit image.
+    pub fn detect(
+        &self,
+        data: &[u8],
+        width: u32,
+        height: u32,
+    ) -> Result<Vec<Option<[f64; 2]>>, String> {
+        match self {
+            Target::Chessboard(b) => detect_chessboard(data, width, height, b)
+                .map(|c| c.into_iter().map(Some).collect())
+                .map_err(|e| e.to_string()),
+            Target::Charuco(c) => detect_charuco(data, width, height, c).map_err(|e| e.to_string()),
+        }
+    }
+}
+
+/// Check a header `target` block strictly (the error names the field and the cause).
+pub fn target_of(t: &TargetHeader) -> Result<Target, String> {
+    if !(t.square_mm.is_finite() && t.square_mm > 0.0) || t.cols < 2 || t.rows < 2 {
+        return Err(format!(
+            "field \"target\": a board needs ≥ 2×2 inner corners and a positive square_mm, got {}×{} and {}",
+            t.cols, t.rows, t.square_mm
+        ));
+    }
+    let board = BoardSpec {
+        cols: t.cols as usize,
+        rows: t.rows as usize,
+        square_mm: t.square_mm,
+    };
+    match t.kind.as_str() {
+        "chessboard" => {
+            for (field, set) in [
+                ("marker_mm", t.marker_mm.is_some()),
+                ("dictionary", t.dictionary.is_some()),
+            ] {
+                if set {
+                    return Err(format!(
+                        "field \"target.{field}\": only a \"charuco\" target has markers (kind is \"chessboard\")"
+                    ));
+                }
+            }
+            Ok(Target::Chessboard(board))
+        }
+        "charuco" => {
+            let marker_mm = t.marker_mm.ok_or_else(|| {
+                "field \"target.marker_mm\": missing (a \"charuco\" target needs its marker edge in mm)"
+                    .to_string()
+            })?;
+            let dictionary = t.dictionary.clone().ok_or_else(|| {
+                "field \"target.dictionary\": missing (a \"charuco\" target needs its ArUco dictionary, e.g. \"DICT_4X4_50\")"
+                    .to_string()
+            })?;
+            let spec = CharucoSpec {
+                cols: board.cols,
+                rows: board.rows,
+                square_mm: board.square_mm,
+                marker_mm,
+                dictionary,
+            };
+            spec.validate().map_err(|e| {
+                let field = match e {
+                    CharucoError::Dictionary(_) => "target.dictionary",
+                    _ => "target",
+                };
+                format!("field \"{field}\": {e}")
+            })?;
+            Ok(Target::Charuco(spec))
+        }
+        other => Err(format!(
+            "field \"target.kind\": {other:?} (expected \"chessboard\" or \"charuco\")"
+        )),
+    }
+}
+
 fn corners_of(
     r: &crate::dataset::PoseRecord,
     base: &Path,
-    board: &BoardSpec,
+    target: &Target,
 ) -> Result<Corners, String> {
+    let board = target.board();
     let n = board.cols * board.rows;
     if let Some(img) = &r.image {
         let p: PathBuf = base.join(img);
         let im = robocal_drivers::camera::read_image_file(&p)
             .map_err(|e| format!("image {}: {e}", p.display()))?;
-        let c =
-            detect_chessboard(&im.data, im.width, im.height, board).map_err(|e| e.to_string())?;
-        return Ok((
-            c.into_iter().map(Some).collect(),
-            Some((im.width, im.height)),
-        ));
+        let c = target.detect(&im.data, im.width, im.height)?;
+        return Ok((c, Some((im.width, im.height))));
     }
     match &r.corners {
         Some(c) if c.len() == n => Ok((
