@@ -668,8 +668,8 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     }
     if camera && board.is_some() && !cfg!(feature = "opencv") {
         eprintln!(
-            "note: chessboard corners are not detected by this build (rebuild with \
-             `--features opencv`); images are saved without `corners`"
+            "note: images are saved without `corners`; `robocal calibrate camera` detects the \
+             board in them (pure-Rust detector; OpenCV's with `--features opencv`)"
         );
     }
     let consent = if mode == "live" {

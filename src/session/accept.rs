@@ -171,6 +171,13 @@ pub struct Measured {
     pub hand_eye_ci95_mm: Option<f64>,
     #[serde(default)]
     pub hand_eye_ci95_deg: Option<f64>,
+    /// Camera: whether independent data confirm the hand-eye interval. The held-out views
+    /// calibrated on their own give a second hand-eye; its difference from the deployed one
+    /// divided by the combined 95 % bound of the two (translation and rotation, the larger).
+    /// ≤ 1: the stated interval holds; > 1: the hand-eye absorbs something the model lacks
+    /// and its interval is optimistic.
+    #[serde(default)]
+    pub hand_eye_heldout_ratio: Option<f64>,
 }
 
 impl Measured {
@@ -454,6 +461,17 @@ fn camera_criteria(
         spec.hand_eye_ci95_deg_max,
         c,
     );
+    // An interval is only worth judging when independent data confirm it: whenever the spec
+    // limits the hand-eye interval, the held-out views' own hand-eye must lie within it.
+    if spec.hand_eye_ci95_mm_max.is_some() || spec.hand_eye_ci95_deg_max.is_some() {
+        le(
+            "hand-eye confirmed by the held-out views (difference / combined 95 % bound)",
+            "×",
+            m.hand_eye_heldout_ratio,
+            Some(1.0),
+            c,
+        );
+    }
 }
 
 /// The kinematic (position) criteria.
@@ -567,10 +585,25 @@ mod tests {
             heldout_reprojection_px_after: Some(0.18),
             hand_eye_ci95_mm: Some(0.29),
             hand_eye_ci95_deg: Some(0.04),
+            hand_eye_heldout_ratio: Some(0.8),
             ..Default::default()
         };
         let v = judge_kind(&cam, &m, vec![], SessionKind::Camera);
         assert_eq!(v.verdict, VerdictKind::Pass, "{}", v.line());
+        // A hand-eye interval the held-out views contradict: FAIL, naming the check; no
+        // independent check at all: the interval cannot be judged (INCOMPLETE).
+        let mut u = m.clone();
+        u.hand_eye_heldout_ratio = Some(1.4);
+        let v = judge_kind(&cam, &u, vec![], SessionKind::Camera);
+        assert_eq!(v.verdict, VerdictKind::Fail, "{}", v.line());
+        assert!(
+            v.line().contains("confirmed by the held-out views"),
+            "{}",
+            v.line()
+        );
+        u.hand_eye_heldout_ratio = None;
+        let v = judge_kind(&cam, &u, vec![], SessionKind::Camera);
+        assert_eq!(v.verdict, VerdictKind::Incomplete, "{}", v.line());
         // The kinematic criteria do not apply to a camera session...
         assert!(v
             .criteria
