@@ -39,7 +39,27 @@ fn scenario(dir: &Path, square: f64) -> PathBuf {
 }
 
 fn plan(dir: &Path, name: &str, strata: &str, seed: u64, jitter: bool) -> PathBuf {
-    let text = std::fs::read_to_string(root().join("plans/seed004-ur5e-camera.toml")).unwrap();
+    plan_from(
+        "plans/seed004-ur5e-camera.toml",
+        dir,
+        name,
+        strata,
+        seed,
+        jitter,
+    )
+}
+
+/// `robocal plan` on the seed 004 spec `spec` (relative to the project) with its `strata`,
+/// `seed` and `jitter` replaced; returns the plan file (shared with the ChArUco tests).
+pub fn plan_from(
+    spec: &str,
+    dir: &Path,
+    name: &str,
+    strata: &str,
+    seed: u64,
+    jitter: bool,
+) -> PathBuf {
+    let text = std::fs::read_to_string(root().join(spec)).unwrap();
     let t: String = text
         .lines()
         .map(|l| match l.split('=').next().unwrap_or("").trim() {
@@ -68,7 +88,8 @@ fn plan(dir: &Path, name: &str, strata: &str, seed: u64, jitter: bool) -> PathBu
     out
 }
 
-fn run(dir: &Path, plan: &Path, scenario: &Path, name: &str) -> PathBuf {
+/// `robocal run` of `plan` on `scenario` in process on the virtual clock; returns the dataset.
+pub fn run(dir: &Path, plan: &Path, scenario: &Path, name: &str) -> PathBuf {
     let out = dir.join(name);
     assert_eq!(
         cli(&[

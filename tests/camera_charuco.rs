@@ -256,54 +256,17 @@ fn scenario(dir: &Path) -> PathBuf {
 }
 
 fn plan(dir: &Path, name: &str, strata: &str, seed: u64, jitter: bool) -> PathBuf {
-    let text =
-        std::fs::read_to_string(root().join("plans/seed004-ur5e-camera-charuco.toml")).unwrap();
-    let t: String = text
-        .lines()
-        .map(|l| match l.split('=').next().unwrap_or("").trim() {
-            "strata" => format!("strata = {strata}"),
-            "seed" => format!("seed = {seed}"),
-            "jitter" => format!("jitter = {jitter}"),
-            _ => l.to_string(),
-        })
-        .collect::<Vec<_>>()
-        .join("\n");
-    let spec = dir.join(format!("{name}.toml"));
-    std::fs::write(&spec, t).unwrap();
-    let out = dir.join(format!("{name}.json"));
-    assert_eq!(
-        cli(&[
-            "plan",
-            "--spec",
-            s(&spec),
-            "--robot",
-            "ur5e",
-            "--out",
-            s(&out)
-        ]),
-        0
-    );
-    out
+    crate::camera_calib::plan_from(
+        "plans/seed004-ur5e-camera-charuco.toml",
+        dir,
+        name,
+        strata,
+        seed,
+        jitter,
+    )
 }
 
-fn run(dir: &Path, plan: &Path, scenario: &Path, name: &str) -> PathBuf {
-    let out = dir.join(name);
-    assert_eq!(
-        cli(&[
-            "run",
-            "--plan",
-            s(plan),
-            "--sim",
-            s(scenario),
-            "--in-process",
-            "--virtual-clock",
-            "--out",
-            s(&out),
-        ]),
-        0
-    );
-    out.join("dataset.jsonl")
-}
+use crate::camera_calib::run;
 
 /// `robocal run` on the ChArUco cell with close viewpoints (most views see only part of the
 /// board), then `robocal calibrate camera`: the partial views are used and the hand-eye and
