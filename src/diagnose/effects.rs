@@ -1312,30 +1312,33 @@ impl Effect {
             }
         };
         let rad = |v: f64| v.to_radians();
+        // Mass points and their per-point coefficients (deg·kg/(N·m) in the file, rad inside).
+        let mass_points = |coef_key: &str| -> anyhow::Result<(Vec<MassPoint>, Vec<f64>)> {
+            let pts = p
+                .get("points")
+                .and_then(|v| v.as_array())
+                .ok_or_else(|| anyhow::anyhow!("{}: missing \"points\"", e.kind))?
+                .iter()
+                .map(|v| {
+                    v.as_str()
+                        .and_then(MassPoint::parse)
+                        .ok_or_else(|| anyhow::anyhow!("{}: bad point {v}", e.kind))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let c: Vec<f64> = arr(coef_key)?.into_iter().map(rad).collect();
+            if c.len() != pts.len() {
+                anyhow::bail!(
+                    "{}: {} points but {} coefficients",
+                    e.kind,
+                    pts.len(),
+                    c.len()
+                );
+            }
+            Ok((pts, c))
+        };
         let (block, coefs) = match e.kind.as_str() {
             "joint_compliance" => {
-                let pts = p
-                    .get("points")
-                    .and_then(|v| v.as_array())
-                    .ok_or_else(|| anyhow::anyhow!("joint_compliance: missing \"points\""))?
-                    .iter()
-                    .map(|v| {
-                        v.as_str()
-                            .and_then(MassPoint::parse)
-                            .ok_or_else(|| anyhow::anyhow!("joint_compliance: bad point {v}"))
-                    })
-                    .collect::<anyhow::Result<Vec<_>>>()?;
-                let c: Vec<f64> = arr("c_times_mass_deg_kg_per_nm")?
-                    .into_iter()
-                    .map(rad)
-                    .collect();
-                if c.len() != pts.len() {
-                    anyhow::bail!(
-                        "joint_compliance: {} points but {} coefficients",
-                        pts.len(),
-                        c.len()
-                    );
-                }
+                let (pts, c) = mass_points("c_times_mass_deg_kg_per_nm")?;
                 (
                     Block::Compliance {
                         joint: joint()?,
@@ -1411,28 +1414,7 @@ impl Effect {
                 )
             }
             "link_deflection" => {
-                let pts = p
-                    .get("points")
-                    .and_then(|v| v.as_array())
-                    .ok_or_else(|| anyhow::anyhow!("link_deflection: missing \"points\""))?
-                    .iter()
-                    .map(|v| {
-                        v.as_str()
-                            .and_then(MassPoint::parse)
-                            .ok_or_else(|| anyhow::anyhow!("link_deflection: bad point {v}"))
-                    })
-                    .collect::<anyhow::Result<Vec<_>>>()?;
-                let c: Vec<f64> = arr("c_bend_times_mass_deg_kg_per_nm")?
-                    .into_iter()
-                    .map(rad)
-                    .collect();
-                if c.len() != pts.len() {
-                    anyhow::bail!(
-                        "link_deflection: {} points but {} coefficients",
-                        pts.len(),
-                        c.len()
-                    );
-                }
+                let (pts, c) = mass_points("c_bend_times_mass_deg_kg_per_nm")?;
                 (
                     Block::LinkDeflection {
                         joint: joint()?,
