@@ -38,7 +38,7 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     res.board_scale = d.scale;
     res.board_bend_mm = d.bend_mm;
     res.uncertainty = d.uncertainty.clone();
-    let mut cal = super::calibrate::camera::calibration_file(&train, &res);
+    let mut cal = crate::solve::camera::calfile::calibration_file(&train, &res);
     if !d.joint_offsets_deg.is_empty() {
         cal.metrics.insert(
             "arm_joint_offsets_deg".into(),

@@ -76,7 +76,7 @@ fn camera_exec(args: &Args) -> anyhow::Result<()> {
             "a camera calibration predicts the corners of a dataset: give --data DATA.jsonl"
         );
     };
-    let rows = crate::cli::calibrate::camera::predict_rows(&args.calibration, data)?;
+    let rows = crate::solve::camera::calfile::predict_rows(&args.calibration, data)?;
     let mut text = String::from("id,corner,u_px,v_px\n");
     for (id, c, uv) in rows {
         text += &format!("{id},{c},{:.6},{:.6}\n", uv[0], uv[1]);

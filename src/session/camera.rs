@@ -161,19 +161,19 @@ pub fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: super::Log) -> anyh
         .with_context(|| format!("calibrating the camera of {}", tp.display()))?;
     let t_total = t0.elapsed().as_secs_f64();
     let cdir = dir.join("calibrate");
-    let mut cal = crate::cli::calibrate::camera::calibration_file(&train, &res);
+    let mut cal = crate::solve::camera::calfile::calibration_file(&train, &res);
     cal.extra.insert("datasets".into(), s.dataset_hashes());
     std::fs::create_dir_all(&cdir)?;
     cal.save(cdir.join("calibration.json"))
         .context("writing calibrate/calibration.json")?;
     let mut rep =
-        crate::cli::calibrate::camera::report_json(&train, Some(&held), &res, t_detect, t_total);
+        crate::solve::camera::calfile::report_json(&train, Some(&held), &res, t_detect, t_total);
     hashes_into(&mut rep, s);
     write_atomic(
         &cdir.join("camera_report.json"),
         (serde_json::to_string_pretty(&rep)? + "\n").as_bytes(),
     )?;
-    for l in crate::cli::calibrate::camera::table(&train, Some(&held), &res).lines() {
+    for l in crate::solve::camera::calfile::table(&train, Some(&held), &res).lines() {
         log(&format!("  {l}"));
     }
     let block = camera_block(&cdir.join("calibration.json"))?;
@@ -332,7 +332,7 @@ pub fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     write_atomic(&ddir.join("calibration.json"), &bytes)?;
     let cal = CalibrationFile::load(ddir.join("calibration.json"))
         .context("reading deploy/calibration.json back")?;
-    crate::cli::calibrate::camera::from_calibration(&cal)
+    crate::solve::camera::calfile::from_calibration(&cal)
         .context("deploy/calibration.json: the camera block")?;
     s.deploy = vec!["deploy/calibration.json".into()];
     Ok(())

@@ -17,6 +17,7 @@
 //!
 //! Eye-to-hand (camera fixed, board on the flange) runs the same code with the inverse flange
 //! poses: then `X` is the camera in the base and the "target" pose is the board in the flange.
+pub mod calfile;
 pub mod charuco;
 pub mod data;
 pub mod detect;

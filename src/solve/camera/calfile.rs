@@ -1,0 +1,280 @@
+//! A camera calibration as files and text: the calibration file's `camera` block from a
+//! result and back, `robocal predict` on it (the pixel of every board corner at every pose),
+//! `camera_report.json` and the console table. Shared by `robocal calibrate camera`,
+//! `robocal predict` and the session's camera stages.
+#![allow(clippy::type_complexity)]
+use std::path::Path;
+
+use anyhow::Context as _;
+use nalgebra::Isometry3;
+use serde_json::json;
+
+use super::data::Loaded;
+use super::geom::{Intrinsics, N_INTR};
+use super::{CameraResult, DistModel, Mount};
+use crate::dataset::{
+    CalibrationFile, CameraCalBlock, HandEyeBlock, IntrinsicsBlock, PoseWithStd, TargetHeader,
+};
+use crate::solve::camera;
+
+/// `[w, x, y, z]` with `w ≥ 0`.
+pub fn quat(p: &Isometry3<f64>) -> [f64; 4] {
+    let q = p.rotation;
+    let q = if q.w < 0.0 {
+        -q.into_inner()
+    } else {
+        q.into_inner()
+    };
+    [q.w, q.i, q.j, q.k]
+}
+
+/// Translation (mm).
+pub fn xyz(p: &Isometry3<f64>) -> [f64; 3] {
+    let t = p.translation.vector;
+    [t.x, t.y, t.z]
+}
+
+/// The distortion model's name in files.
+pub fn dist_name(m: DistModel) -> String {
+    serde_json::to_value(m)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default()
+}
+
+/// The calibration file of a result.
+pub fn calibration_file(train: &Loaded, res: &CameraResult) -> CalibrationFile {
+    let k = &res.ml.intrinsics;
+    let u = &res.uncertainty;
+    let mount = train.data.mount;
+    let target_pose = PoseWithStd {
+        xyz_mm: xyz(&res.ml.target),
+        quat: quat(&res.ml.target),
+        std_mm: Some(u.target_mm),
+        std_deg: Some(u.target_deg),
+    };
+    let block = CameraCalBlock {
+        intrinsics: IntrinsicsBlock {
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            dist: k.dist,
+            width: train.data.width,
+            height: train.data.height,
+            model: Some(dist_name(res.distortion)),
+            std: Some(u.intrinsics),
+        },
+        hand_eye: HandEyeBlock {
+            mount: match mount {
+                Mount::Flange => "flange".into(),
+                Mount::Base => "base".into(),
+            },
+            xyz_mm: xyz(&res.ml.x),
+            quat: quat(&res.ml.x),
+            std_mm: Some(u.x_mm),
+            std_deg: Some(u.x_deg),
+            bootstrap: u
+                .bootstrap
+                .map(|(n, mm, deg)| json!({"refits": n, "std_mm": mm, "std_deg": deg})),
+        },
+        target_in_base: (mount == Mount::Flange).then(|| target_pose.clone()),
+        target_in_flange: (mount == Mount::Base).then_some(target_pose),
+        target: train.target.clone(),
+        target_scale: (res.board_scale != 1.0).then_some(res.board_scale),
+        target_bend_mm: (res.board_bend_mm != [0.0; 2]).then_some(res.board_bend_mm),
+    };
+    let mut cal = CalibrationFile::new(train.dataset.header.robot.clone(), vec![]);
+    cal.set_camera(&block);
+    cal.metrics
+        .insert("train_rms_px".into(), json!(res.ml.train_rms_px));
+    if let Some(h) = res.ml.heldout_rms_px {
+        cal.metrics.insert("heldout_rms_px".into(), json!(h));
+    }
+    cal.metrics
+        .insert("views_used".into(), json!(res.used_views.len()));
+    cal
+}
+
+/// The intrinsics and hand-eye of a camera calibration file.
+pub fn from_calibration(
+    cal: &CalibrationFile,
+) -> anyhow::Result<(
+    Intrinsics,
+    Isometry3<f64>,
+    Isometry3<f64>,
+    Mount,
+    TargetHeader,
+)> {
+    let b = cal
+        .camera()
+        .map_err(|e| anyhow::anyhow!("calibration: {e}"))?
+        .ok_or_else(|| anyhow::anyhow!("calibration has no \"camera\" block"))?;
+    let i = &b.intrinsics;
+    let k = Intrinsics {
+        fx: i.fx,
+        fy: i.fy,
+        cx: i.cx,
+        cy: i.cy,
+        dist: i.dist,
+    };
+    let pose = |xyz: [f64; 3], q: [f64; 4], what: &str| {
+        crate::solve::laser::file_pose(&xyz, &q).ok_or_else(|| {
+            anyhow::anyhow!("calibration: camera.{what}: not a finite pose with a unit quaternion")
+        })
+    };
+    let x = pose(b.hand_eye.xyz_mm, b.hand_eye.quat, "hand_eye")?;
+    let (mount, t) = match b.hand_eye.mount.as_str() {
+        "flange" => (Mount::Flange, b.target_in_base.as_ref()),
+        "base" => (Mount::Base, b.target_in_flange.as_ref()),
+        m => anyhow::bail!("calibration: camera.hand_eye.mount {m:?} (expected flange or base)"),
+    };
+    let t = t.ok_or_else(|| anyhow::anyhow!("calibration: camera block has no target pose"))?;
+    let target = pose(t.xyz_mm, t.quat, "target")?;
+    let mut tgt = b.target.clone();
+    if let Some(s) = b.target_scale {
+        tgt.square_mm *= s;
+    }
+    Ok((k, x, target, mount, tgt))
+}
+
+/// `robocal predict` on a camera calibration: CSV `id,corner,u_px,v_px` for every board corner
+/// at every pose of `data` (flange from the record, else FK of `q`).
+pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, usize, [f64; 2])>> {
+    let cal = CalibrationFile::load(cal_path)?;
+    let (k, x, target, mount, tgt) = from_calibration(&cal)?;
+    let ds = crate::dataset::Dataset::load(data)?;
+    let model = crate::model::KinematicModel::from_robot_block(&ds.header.robot).ok();
+    let mut views = vec![];
+    for r in ds.poses() {
+        let f = crate::solve::laser::record_flange(r, model.as_ref())
+            .with_context(|| format!("{}", data.display()))?;
+        views.push(camera::View {
+            id: r.id,
+            flange: f,
+            corners: vec![],
+        });
+    }
+    let cd = camera::CameraData {
+        width: cal
+            .camera()
+            .ok()
+            .flatten()
+            .map_or(0, |c| c.intrinsics.width),
+        height: 0,
+        board: camera::detect::BoardSpec {
+            cols: tgt.cols as usize,
+            rows: tgt.rows as usize,
+            square_mm: tgt.square_mm,
+        },
+        mount,
+        views,
+    };
+    Ok(camera::predict(&cd, &k, &x, &target))
+}
+
+/// `camera_report.json`: every method side by side, distortion scores, rejections, timing.
+pub fn report_json(
+    train: &Loaded,
+    held: Option<&Loaded>,
+    res: &CameraResult,
+    t_detect: f64,
+    t_total: f64,
+) -> serde_json::Value {
+    let est = |e: &camera::Estimate| {
+        json!({"method": e.method, "hand_eye": {"xyz_mm": xyz(&e.x), "quat": quat(&e.x)},
+               "target": {"xyz_mm": xyz(&e.target), "quat": quat(&e.target)},
+               "intrinsics": {"fx": e.intrinsics.fx, "fy": e.intrinsics.fy, "cx": e.intrinsics.cx,
+                              "cy": e.intrinsics.cy, "dist": e.intrinsics.dist},
+               "train_rms_px": e.train_rms_px, "heldout_rms_px": e.heldout_rms_px})
+    };
+    let mut methods: Vec<serde_json::Value> = res.closed_form.iter().map(est).collect();
+    if let Some(i) = &res.incremental {
+        let mut v = est(&i.estimate);
+        v["curve"] = json!(i.curve);
+        v["rejected_views"] = json!(i.rejected);
+        v["subset"] = json!({"size": i.subset.0, "count": i.subset.1});
+        methods.push(v);
+    }
+    methods.push(est(&res.ml));
+    json!({
+        "format": "robocal-camera-report/1",
+        "views": train.data.views.len(),
+        "views_without_board": train.no_board,
+        "target_kind": train.target.kind,
+        // Views where only part of the board was seen (ChArUco: cut by the image border or
+        // occluded; every corner still carries its board id).
+        "partial_views": train.data.views.iter().filter(|v| v.corners.iter().any(|c| c.is_none())).count(),
+        "heldout_views": held.map(|h| h.data.views.len()),
+        "distortion": dist_name(res.distortion),
+        "distortion_scores_px": res.model_scores.iter().map(|(m, s)| json!({"model": dist_name(*m), "validation_rms_px": s})).collect::<Vec<_>>(),
+        "intrinsics_only_rms_px": res.intrinsics_rms_px,
+        "rejected_views": res.rejected_views,
+        "rejected_corners": res.rejected_corners,
+        "methods": methods,
+        "intrinsics_std": res.uncertainty.intrinsics,
+        "timing_s": {"detection": t_detect, "total": t_total},
+    })
+}
+
+/// The console table.
+pub fn table(train: &Loaded, held: Option<&Loaded>, res: &CameraResult) -> String {
+    let mut s = String::new();
+    let k = &res.ml.intrinsics;
+    s += &format!(
+        "camera: {} views with a board ({} without, {} rejected by residual, {} corners rejected); held-out views: {}\n",
+        res.used_views.len(),
+        train.no_board.len(),
+        res.rejected_views.len(),
+        res.rejected_corners,
+        held.map_or("none".to_string(), |h| h.data.views.len().to_string())
+    );
+    s += &format!(
+        "distortion model {} (validation px: {})\n",
+        dist_name(res.distortion),
+        res.model_scores
+            .iter()
+            .map(|(m, v)| format!("{} {v:.4}", dist_name(*m)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    s += &format!(
+        "intrinsics fx {:.3} fy {:.3} cx {:.3} cy {:.3} dist [{:.5}, {:.5}, {:.6}, {:.6}, {:.5}]\n",
+        k.fx, k.fy, k.cx, k.cy, k.dist[0], k.dist[1], k.dist[2], k.dist[3], k.dist[4]
+    );
+    let _ = N_INTR;
+    s += &format!(
+        "{:<24} {:>10} {:>12} {:>12}\n",
+        "method", "train px", "held-out px", "X xyz mm"
+    );
+    let mut rows: Vec<&camera::Estimate> = res.closed_form.iter().collect();
+    if let Some(i) = &res.incremental {
+        rows.push(&i.estimate);
+    }
+    rows.push(&res.ml);
+    for e in rows {
+        let t = e.x.translation.vector;
+        s += &format!(
+            "{:<24} {:>10.4} {:>12} {:>8.3} {:>8.3} {:>8.3}\n",
+            e.method,
+            e.train_rms_px,
+            e.heldout_rms_px.map_or("-".into(), |h| format!("{h:.4}")),
+            t.x,
+            t.y,
+            t.z
+        );
+    }
+    let u = &res.uncertainty;
+    s += &format!(
+        "ML hand-eye 1σ: {:.4} {:.4} {:.4} mm, {:.5} {:.5} {:.5} deg",
+        u.x_mm[0], u.x_mm[1], u.x_mm[2], u.x_deg[0], u.x_deg[1], u.x_deg[2]
+    );
+    if let Some((n, mm, deg)) = u.bootstrap {
+        s += &format!(
+            "; bootstrap ({n}): {:.4} {:.4} {:.4} mm, {:.5} {:.5} {:.5} deg",
+            mm[0], mm[1], mm[2], deg[0], deg[1], deg[2]
+        );
+    }
+    s += "\n";
+    s
+}
