@@ -551,25 +551,7 @@ fn uncertainty_of(
     mask: &[bool; N_INTR],
     bootstrap: Option<(usize, [f64; 3], [f64; 3])>,
 ) -> camera::Uncertainty {
-    let sd = |i: usize| std.get(i).copied().unwrap_or(f64::NAN);
-    let mut u = camera::Uncertainty {
-        bootstrap,
-        ..Default::default()
-    };
-    let mut k = 0;
-    for (i, f) in mask.iter().enumerate() {
-        if *f {
-            u.intrinsics[i] = sd(k);
-            k += 1;
-        }
-    }
-    for a in 0..3 {
-        u.x_deg[a] = sd(k + a).to_degrees();
-        u.x_mm[a] = sd(k + 3 + a);
-        u.target_deg[a] = sd(k + 6 + a).to_degrees();
-        u.target_mm[a] = sd(k + 9 + a);
-    }
-    u
+    camera::Uncertainty::from_std(|i| std.get(i).copied().unwrap_or(f64::NAN), mask, bootstrap)
 }
 
 fn stds(r: &LmReport) -> Vec<f64> {

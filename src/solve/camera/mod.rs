@@ -760,7 +760,7 @@ fn covariance(
 ) -> Uncertainty {
     let j: &DMatrix<f64> = &rep.jacobian;
     let (m, n) = (j.nrows(), j.ncols());
-    let mut u = Uncertainty::default();
+    let u = Uncertainty::default();
     if m <= n {
         return u;
     }
@@ -769,22 +769,38 @@ fn covariance(
     let Some(inv) = jtj.clone().try_inverse() else {
         return u;
     };
-    let sd = |i: usize| (s2 * inv[(i, i)]).max(0.0).sqrt();
-    let mut k = 0;
-    for (i, f) in mask.iter().enumerate() {
-        if *f {
-            u.intrinsics[i] = sd(k);
-            k += 1;
-        }
-    }
-    for a in 0..3 {
-        u.x_deg[a] = sd(k + a).to_degrees();
-        u.x_mm[a] = sd(k + 3 + a);
-        u.target_deg[a] = sd(k + 6 + a).to_degrees();
-        u.target_mm[a] = sd(k + 9 + a);
-    }
     let _ = b;
-    u
+    Uncertainty::from_std(|i| (s2 * inv[(i, i)]).max(0.0).sqrt(), mask, None)
+}
+
+impl Uncertainty {
+    /// The camera parameters' 1σ from per-parameter standard deviations `sd(i)` in the
+    /// reprojection problem's layout: the free intrinsics (`mask`), X rotation + translation,
+    /// then target rotation + translation (rad, mm).
+    pub fn from_std(
+        sd: impl Fn(usize) -> f64,
+        mask: &[bool; N_INTR],
+        bootstrap: Option<(usize, [f64; 3], [f64; 3])>,
+    ) -> Uncertainty {
+        let mut u = Uncertainty {
+            bootstrap,
+            ..Default::default()
+        };
+        let mut k = 0;
+        for (i, f) in mask.iter().enumerate() {
+            if *f {
+                u.intrinsics[i] = sd(k);
+                k += 1;
+            }
+        }
+        for a in 0..3 {
+            u.x_deg[a] = sd(k + a).to_degrees();
+            u.x_mm[a] = sd(k + 3 + a);
+            u.target_deg[a] = sd(k + 6 + a).to_degrees();
+            u.target_mm[a] = sd(k + 9 + a);
+        }
+        u
+    }
 }
 
 /// Seed 004's incremental Tsai–Lenz: update from 4 views on (error after each update), reject
