@@ -421,24 +421,17 @@ fn main() {
                 let (dt, dr) = he_err(&f.x, &x_true);
                 // Held-out flange poses through the identified joint offsets, if any.
                 let mut hd = held.data.clone();
-                if !d.joint_offsets_deg.is_empty() {
-                    let m = robocal::model::KinematicModel::from_robot_block(
-                        &held.dataset.header.robot,
-                    )
-                    .unwrap();
+                if let Some(arm) = &d.arm {
                     for v in hd.views.iter_mut() {
                         let rec = held.dataset.poses().find(|r| r.id == v.id).unwrap();
-                        let mut q: Vec<f64> = rec
+                        let q: Vec<f64> = rec
                             .q
                             .as_ref()
                             .unwrap()
                             .iter()
                             .map(|d| d.to_radians())
                             .collect();
-                        for (j, o) in &d.joint_offsets_deg {
-                            q[j - 1] += o.to_radians();
-                        }
-                        v.flange = m.flange_pose(&q);
+                        v.flange = arm.model.flange_pose(&q);
                     }
                 }
                 rows.push((
