@@ -424,8 +424,8 @@ fn check_joint_fit(
         )
     } else {
         "the square size is consistent with the robot's motion, so the robot poses do not belong \
-         to these images (check the records' `flange` / `q`, the `mount`, and that the camera \
-         did not move on its mount)"
+         to these images (check the records' `flange` / `q`, the `mount`, that the camera did \
+         not move on its mount, and that the robot model is this arm's)"
             .to_string()
     };
     Err(CameraError::Inconsistent(format!("{what}; {cause}")))
