@@ -70,8 +70,10 @@ grep -q 'id="camera-hand-eye"' "$OUT/camera/report.html"
 "$BIN" report --dir "$OUT/camera/diagnose" --out "$OUT/camera/diagnose/report.md" | tail -n 1
 
 printf '\ndry run done in %d s: %s\n' "$((SECONDS - START))" "$OUT"
-printf 'VERDICT: %s\n' "$(head -n 1 "$OUT/headline.txt")"
-printf 'CAMERA VERDICT: %s\n' "$(head -n 1 "$OUT/camera-headline.txt")"
+# The verdict line (the run's progress lines come before it on stdout).
+verdict() { grep -m 1 -E '^(PASS|FAIL|INCOMPLETE)' "$1" || echo "(no verdict line in $1)"; }
+printf 'VERDICT: %s\n' "$(verdict "$OUT/headline.txt")"
+printf 'CAMERA VERDICT: %s\n' "$(verdict "$OUT/camera-headline.txt")"
 printf 'report: %s\n' "$OUT/session/report.html"
 printf 'camera report: %s\n' "$OUT/camera/report.html"
 # The sessions' verdicts are the script's: 0 both PASS, 2 a FAIL / INCOMPLETE.
