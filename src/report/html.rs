@@ -553,7 +553,7 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
     if let (Some(mm), Some(deg)) = (c.hand_eye_heldout_diff_mm, c.hand_eye_heldout_diff_deg) {
         let _ = write!(
             h,
-            "<p id=\"camera-hand-eye-check\">Hand-eye check on independent data: the {} held-out views calibrated on their own (no effects) put the camera {mm:.3} mm and {deg:.4}° from the deployed hand-eye.</p>",
+            "<p id=\"camera-hand-eye-check\">Hand-eye check on independent data: the {} held-out views calibrated on their own (through the deployed arm and board scale) put the camera {mm:.3} mm and {deg:.4}° from the deployed hand-eye.</p>",
             c.views_heldout
         );
     }
