@@ -392,6 +392,34 @@ fn main() {
             ests.push(&i.estimate);
         }
         ests.push(&res.ml);
+        // The same calibration on the world's true corners (the detector's error removed): what
+        // the solver alone achieves, and so how much of the hand-eye error the detector makes.
+        let true_views: Vec<camera::View> = train
+            .data
+            .views
+            .iter()
+            .map(|v| {
+                let idx = train_plan.poses.iter().position(|p| p.id == v.id).unwrap();
+                camera::View {
+                    corners: tr.truth[idx].0.clone(),
+                    ..v.clone()
+                }
+            })
+            .collect();
+        let on_truth = camera::calibrate(
+            &CameraData {
+                views: true_views,
+                ..train.data.clone()
+            },
+            Some(&held.data),
+            &Options::default(),
+        )
+        .ok()
+        .map(|r| camera::Estimate {
+            method: "ml on the true corners".into(),
+            ..r.ml
+        });
+        ests.extend(on_truth.as_ref());
         for e in ests {
             let (dt, dr) = he_err(&e.x, &x_true);
             rows.push((
