@@ -239,11 +239,19 @@ pub fn candidates_with(
                 .map(|&harmonic| Block::Ripple { joint: j, harmonic })
                 .collect(),
         );
-        // Link / bearing bending under the gravity moment at the joint.
-        groups.push(vec![Block::LinkDeflection {
-            joint: j,
-            points: mass_points(model, j),
-        }]);
+        // Link / bearing bending under the gravity moment at the joint: isotropic, or with
+        // separate compliances about the two link-fixed bending axes (both count as tests;
+        // ΔBIC charges the anisotropic variant its extra coefficients).
+        groups.push(
+            [false, true]
+                .iter()
+                .map(|&anisotropic| Block::LinkDeflection {
+                    joint: j,
+                    points: mass_points(model, j),
+                    anisotropic,
+                })
+                .collect(),
+        );
         // Joint-coupled errors: joint j's error driven by another joint's angle (one group
         // per affected joint; every driver counts as a test).
         groups.push(
