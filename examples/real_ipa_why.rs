@@ -5,7 +5,8 @@
 //! `robocal import ipa` (scored against Series A).
 //!
 //! ```text
-//! cargo run --release --example real_ipa_why -- [--series B.jsonl ...]
+//! cargo run --release --example real_ipa_why -- [--series B.jsonl ...] [--periodogram-only]
+//!     [--dump poses.csv]
 //! ```
 //!
 //! Prints:
@@ -132,6 +133,7 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut series = Vec::new();
     let mut dump: Option<PathBuf> = None;
+    let mut periodogram_only = false;
     let mut i = 0;
     while i < args.len() {
         match args[i].as_str() {
@@ -142,6 +144,7 @@ fn main() -> anyhow::Result<()> {
                 ));
                 i += 1;
             }
+            "--periodogram-only" => periodogram_only = true,
             "--dump" => {
                 dump = Some(PathBuf::from(
                     args.get(i + 1)
@@ -264,6 +267,9 @@ fn main() -> anyhow::Result<()> {
         );
     }
 
+    if periodogram_only {
+        return periodogram(&model, &geo, &train);
+    }
     // 2. Time-blocked split decomposed.
     let mut ts: Vec<f64> = train.iter().map(|o| o.t).collect();
     ts.sort_by(f64::total_cmp);
@@ -453,7 +459,10 @@ fn main() -> anyhow::Result<()> {
             None => println!("  {label}: too few poses"),
         }
     }
+    periodogram(&model, &geo, &train)
+}
 
+fn periodogram(model: &KinematicModel, geo: &State, train: &[PoseObs]) -> anyhow::Result<()> {
     // 5. Periodogram of each joint's angle error: the geometric residual scored against
     // `δθ_j = a sin kq_j + b cos kq_j` for every integer k up to 260 cycles per output turn
     // (harmonic-drive wave-generator lines sit at k = N and 2N: N = 100 or 101 for the 100:1
@@ -470,7 +479,7 @@ fn main() -> anyhow::Result<()> {
         let groups: Vec<Vec<robocal::diagnose::effects::Block>> = (1..=kmax)
             .map(|harmonic| vec![robocal::diagnose::effects::Block::Ripple { joint: j, harmonic }])
             .collect();
-        let scores = diagnose::score_round(&geo, &train, &groups, &opt);
+        let scores = diagnose::score_round(geo, train, &groups, &opt);
         let k_of = |s: &diagnose::Score| match s.block {
             robocal::diagnose::effects::Block::Ripple { harmonic, .. } => harmonic,
             _ => 0,

@@ -595,6 +595,21 @@ impl EffectModel for Block {
                 }
                 Ok(())
             }
+            Block::Ripple { joint, harmonic } if *harmonic > 4 => {
+                // A high harmonic needs the joint to sweep at least one of its periods (else
+                // it is a smooth function of q over the data, confounded with the offset and
+                // eccentricity).
+                let sd = spread(train.iter().filter_map(|o| o.q.get(joint - 1).copied()));
+                let period = std::f64::consts::TAU / f64::from(*harmonic);
+                if sd < period {
+                    return Err(format!(
+                        "joint {joint} moves less than one period of harmonic {harmonic} (sd {:.2}°, period {:.2}°)",
+                        sd.to_degrees(),
+                        period.to_degrees()
+                    ));
+                }
+                Ok(())
+            }
             Block::TempDrift { .. } => {
                 let t: Vec<f64> = train.iter().filter_map(|o| o.temp_c).collect();
                 if t.len() < train.len() || t.is_empty() {

@@ -70,6 +70,10 @@ pub struct Options {
     /// Effect kinds left out of the candidate library (e.g. to test the fallback on an
     /// effect the library does not contain).
     pub exclude_kinds: Vec<String>,
+    /// Harmonics `k` of the `transmission_ripple` candidates `a sin kq + b cos kq` (one
+    /// group per joint; every harmonic counts as a test; after one is accepted the other
+    /// harmonics of that joint stay candidates, so a joint can carry several).
+    pub ripple_harmonics: Vec<u32>,
 }
 
 impl Options {
@@ -101,6 +105,7 @@ impl Default for Options {
             np_benchmark_gain: 0.2,
             wave_gear_ratio: DEFAULT_WAVE_GEAR_RATIO,
             exclude_kinds: Vec::new(),
+            ripple_harmonics: RIPPLE_HARMONICS.collect(),
         }
     }
 }
@@ -201,8 +206,12 @@ pub const DEFAULT_WAVE_GEAR_RATIO: f64 = 101.0;
 /// 2: the two lobes of the elliptical flexspline).
 pub const WAVE_HARMONICS: [u32; 2] = [1, 2];
 
-/// Harmonics of a joint's rotation tried as transmission ripple.
-pub const RIPPLE_HARMONICS: [u32; 2] = [3, 4];
+/// Harmonics of a joint's rotation tried as transmission ripple (the default of
+/// [`Options::ripple_harmonics`]): 3 to 40 cycles per output turn. The periodogram of the
+/// real UR10's residual (`examples/real_ipa_why.rs`) has its strongest lines at 14–20 cycles
+/// per turn on joints 1–3 and 5 and at 31–36 on joint 4 (output-side encoder or bearing
+/// ripple), none at the harmonic-drive wave-generator lines (100, 101, 200, 202).
+pub const RIPPLE_HARMONICS: std::ops::RangeInclusive<u32> = 3..=40;
 
 /// The candidate library for this data (and the effects it cannot test, with reasons):
 /// every effect of the library in groups (one group per kind and joint; a group's variants
@@ -231,10 +240,10 @@ pub fn candidates_with(
         groups.push(vec![Block::Backlash { joint: j }]);
         groups.push(vec![Block::Eccentricity { joint: j }]);
         groups.push(vec![Block::Transmission { joint: j }]);
-        // Transmission ripple: harmonics 3 and 4 of the joint's rotation (1 and 2 are
-        // eccentricity); a group, so both count as tests.
+        // Transmission ripple: harmonics ≥ 3 of the joint's rotation (1 and 2 are
+        // eccentricity); a group, so every harmonic counts as a test.
         groups.push(
-            RIPPLE_HARMONICS
+            opt.ripple_harmonics
                 .iter()
                 .map(|&harmonic| Block::Ripple { joint: j, harmonic })
                 .collect(),
@@ -793,7 +802,14 @@ pub fn diagnose(
             heldout_rms_after: heldout_rms(&state, heldout),
             state_after: state.clone(),
         });
-        // Drop the group the accepted block came from (one base shift, one per kind+joint).
+        // Drop the group the accepted block came from (one base shift, one per kind+joint);
+        // of a ripple group only the accepted harmonic (a joint may carry several).
+        if matches!(best.block, Block::Ripple { .. }) {
+            for g in remaining.iter_mut() {
+                g.retain(|b| b.label() != best.block.label());
+            }
+            remaining.retain(|g| !g.is_empty());
+        }
         remaining.retain(|g| {
             !g.iter().any(|b| {
                 b.label() == best.block.label()
