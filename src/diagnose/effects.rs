@@ -491,7 +491,7 @@ impl EffectModel for Block {
     ) -> Vec<Vector3<f64>> {
         let mut cols = vec![Vector3::zeros(); self.n_params()];
         for (j, c, f) in self.joint_features(model, ctx) {
-            if let Some(ip) = model.param_index(&format!("phi{}", j + 1)) {
+            if let Some(ip) = phi_index(model, j) {
                 cols[c] += jm.column(ip) * f;
             }
         }
@@ -676,6 +676,18 @@ impl EffectModel for Block {
             }
             _ => Ok(()),
         }
+    }
+}
+
+/// Index of the joint-offset parameter `phi<j+1>` of joint `j` (0-based) in `model`
+/// (without allocating a name for the first 8 joints: this runs per pose and block).
+fn phi_index(model: &KinematicModel, j: usize) -> Option<usize> {
+    const NAMES: [&str; 8] = [
+        "phi1", "phi2", "phi3", "phi4", "phi5", "phi6", "phi7", "phi8",
+    ];
+    match NAMES.get(j) {
+        Some(n) => model.param_index(n),
+        None => model.param_index(&format!("phi{}", j + 1)),
     }
 }
 

@@ -24,8 +24,14 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
     let p = free.len() + ne;
     let mut r = DVector::zeros(3 * obs.len());
     let mut j = DMatrix::zeros(3 * obs.len(), p);
-    for (k, o) in obs.iter().enumerate() {
-        let ev = eval_pose(&state.model, &state.effects, &o.ctx);
+    // Poses are evaluated in parallel (a round's candidate columns evaluate hundreds of
+    // blocks per pose), then written in order.
+    use rayon::prelude::*;
+    let evals: Vec<_> = obs
+        .par_iter()
+        .map(|o| eval_pose(&state.model, &state.effects, &o.ctx))
+        .collect();
+    for (k, (o, ev)) in obs.iter().zip(evals).enumerate() {
         let d = o.p - ev.pred;
         for a in 0..3 {
             r[3 * k + a] = d[a];
