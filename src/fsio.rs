@@ -73,7 +73,8 @@ pub enum LockError {
     /// Another process holds the lock.
     #[error(
         "{dir} is in use by another robocal process{holder}: wait for it to finish (or stop \
-         it), then continue with `robocal run --resume {dir}`",
+         it), then continue with `{}`",
+        resume_command(dir),
         dir = dir.display(),
         holder = pid.map_or_else(String::new, |p| format!(" (pid {p})"))
     )]
@@ -91,6 +92,15 @@ pub enum LockError {
         /// The cause.
         error: std::io::Error,
     },
+}
+
+/// The command that continues the run in `dir`: `robocal session --resume SESSION` when the run
+/// belongs to a session (its parent holds `session.json`), else `robocal run --resume DIR`.
+pub fn resume_command(dir: &Path) -> String {
+    match dir.parent().filter(|p| p.join("session.json").is_file()) {
+        Some(s) => format!("robocal session --resume {}", s.display()),
+        None => format!("robocal run --resume {}", dir.display()),
+    }
 }
 
 /// An exclusive OS lock on a run directory (`DIR/.lock`, holding the owner's PID), held for
@@ -189,7 +199,18 @@ mod tests {
         assert!(err
             .to_string()
             .contains(&format!("pid {}", std::process::id())));
+        assert!(err.to_string().contains("robocal run --resume"), "{err}");
         drop(first);
         DirLock::acquire(d.path()).unwrap();
+        // A run inside a session directory is continued through the session.
+        let run = d.path().join("run-train");
+        std::fs::create_dir(&run).unwrap();
+        std::fs::write(d.path().join("session.json"), "{}").unwrap();
+        let _held = DirLock::acquire(&run).unwrap();
+        let err = DirLock::acquire(&run).unwrap_err().to_string();
+        assert!(
+            err.contains(&format!("robocal session --resume {}", d.path().display())),
+            "{err}"
+        );
     }
 }

@@ -200,6 +200,49 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
     let mut lines = text.lines();
     assert_eq!(lines.next(), Some("id,corner,u_px,v_px"));
     assert_eq!(lines.count(), 6 * 40);
+    // A square size typed in cm for a 30 mm board (`--square 3`): the board alone calibrates at
+    // any scale, the robot's motion does not. Refused, naming the option, the field, the unit
+    // and the square size the robot's motion implies; nothing written.
+    let bad = tmp.path().join("cal-cm");
+    assert_ne!(
+        cli(&[
+            "calibrate",
+            "camera",
+            "--data",
+            s(&train),
+            "--square",
+            "3",
+            "--out",
+            s(&bad),
+            "--quiet"
+        ]),
+        0
+    );
+    assert!(!bad.join("calibration.json").exists());
+    let l = robocal::solve::camera::data::load(
+        &train,
+        &robocal::solve::camera::data::Overrides {
+            square_mm: Some(3.0),
+            ..Default::default()
+        },
+        false,
+    )
+    .unwrap();
+    let e = robocal::solve::camera::calibrate(&l.data, None, &Default::default())
+        .unwrap_err()
+        .to_string();
+    eprintln!("--square 3: {e}");
+    assert!(
+        e.contains("`--square`") && e.contains("target.square_mm") && e.contains("millimetres"),
+        "{e}"
+    );
+    let implied: f64 = e
+        .split("squares are ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|t| t.parse().ok())
+        .expect("implied square size");
+    assert!((implied - 30.0).abs() < 0.5, "{e}");
 }
 
 #[test]

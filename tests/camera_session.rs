@@ -65,28 +65,27 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
     let (dir, code, out) = camera_session();
     let s = SessionFile::load(&dir.join("session.json")).unwrap();
     assert_eq!(s.setup.kind, SessionKind::Camera);
-    // The world's arm has link errors the camera diagnosis does not model (it identifies joint
-    // zero offsets only), so the hand-eye absorbs them and its stated interval is too narrow.
-    // The held-out views calibrated on their own disagree beyond the combined bound: the
-    // session FAILs on exactly that criterion, and every other criterion passes.
-    assert_eq!(s.verdict, VerdictKind::Fail, "{}", s.verdict_line);
-    assert_eq!(*code, 2, "{out}");
+    // The world's arm has joint-zero and link errors the nominal UR5e model lacks. The camera
+    // diagnosis identifies every arm parameter the camera can separate, so the hand-eye stops
+    // absorbing them: the held-out views calibrated on their own (through the identified arm)
+    // agree with the deployed hand-eye within the combined bound, and the session PASSes on
+    // every criterion.
+    assert_eq!(s.verdict, VerdictKind::Pass, "{}", s.verdict_line);
+    assert_eq!(*code, 0, "{out}");
     let judgement = s.judgement.as_ref().expect("judgement");
-    let failed: Vec<&str> = judgement
+    assert!(
+        judgement.criteria.iter().all(|c| c.ok == Some(true)),
+        "{:?}",
+        judgement.criteria
+    );
+    assert!(judgement
         .criteria
         .iter()
-        .filter(|c| c.ok != Some(true))
-        .map(|c| c.name.as_str())
-        .collect();
-    assert_eq!(
-        failed,
-        ["hand-eye confirmed by the held-out views (difference / combined 95 % bound)"],
-        "{}",
-        s.verdict_line
-    );
-    assert!(s.measured.hand_eye_heldout_ratio.is_some_and(|r| r > 1.0));
+        .any(|c| c.name
+            == "hand-eye confirmed by the held-out views (difference / combined 95 % bound)"));
+    assert!(s.measured.hand_eye_heldout_ratio.is_some_and(|r| r <= 1.0));
     assert!(
-        s.warnings
+        !s.warnings
             .iter()
             .any(|w| w.contains("interval is optimistic")),
         "{:?}",
@@ -102,9 +101,9 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
         s.measured.heldout_reprojection_px_before.unwrap(),
         s.measured.heldout_reprojection_px_after.unwrap(),
     );
-    // The world's arm carries joint errors the nominal UR5e model lacks: the diagnosis names
-    // `arm_kinematics` and the held-out pixels fall (measured 0.50 → 0.07 px).
-    assert!(a < 0.5 * b && a < 0.2, "held-out {b} → {a} px");
+    // The diagnosis names `arm_kinematics` and the held-out pixels fall to the detection
+    // noise (measured 0.50 → 0.014 px).
+    assert!(a < 0.1 * b && a < 0.03, "held-out {b} → {a} px");
     assert!(
         s.effects.iter().any(|e| e.kind == "arm_kinematics"),
         "{:?}",
@@ -132,14 +131,64 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
         c.hand_eye_heldout_diff_mm, c.hand_eye_heldout_diff_deg
     );
     assert!(c.hand_eye_heldout_diff_mm.is_some_and(|d| d.is_finite()));
-    assert!(err_mm < 2.0 && err_deg < 0.5, "{err_mm} mm {err_deg} deg");
-    // The FAIL is the truth: the deployed hand-eye is further from the true mount than its
-    // stated 95 % half-interval.
-    let ci = s.measured.hand_eye_ci95_mm.unwrap();
-    assert!(
-        err_mm > ci,
-        "true error {err_mm} mm within the stated ±{ci} mm"
+    // The last joint's zero and offset are inseparable from the hand-eye through any camera
+    // (the file says so), so the hand-eye itself is compared with the truth loosely…
+    assert!(err_mm < 1.5 && err_deg < 0.05, "{err_mm} mm {err_deg} deg");
+    // …and what a user relies on exactly: the camera's motion between the held-out poses
+    // predicted from `q` through the deployed calibration (identified arm + hand-eye) against
+    // the world's true motion, which no gauge choice changes.
+    let cal = robocal::dataset::CalibrationFile::load(dir.join("deploy/calibration.json")).unwrap();
+    let arm = robocal::solve::camera::calfile::arm_model(&cal)
+        .unwrap()
+        .expect("the deployed calibration carries the identified arm");
+    let (_, x_dep, _, _, _) = robocal::solve::camera::calfile::from_calibration(&cal).unwrap();
+    let x_cal = robocal::solve::laser::file_pose(&xc, &c.calibrated.hand_eye.quat).unwrap();
+    let nominal = robocal::model::KinematicModel::preset("ur5e").unwrap();
+    let mut sc = Scenario::load(&root().join(SCENARIO)).unwrap();
+    sc.clock = robocal_mocks::scenario::ClockMode::Virtual;
+    let world = robocal_mocks::WorldHandle::from_scenario(&sc).unwrap();
+    let phys = world.truth().arms[0].physics.clone();
+    let ctx = robocal_mocks::world::effects::JointContext::at_rest(6);
+    let held = robocal::dataset::Dataset::load(dir.join("run-validation/dataset.jsonl")).unwrap();
+    let qs: Vec<Vec<f64>> = held
+        .poses()
+        .map(|r| {
+            r.q.as_ref()
+                .unwrap()
+                .iter()
+                .map(|d| d.to_radians())
+                .collect()
+        })
+        .collect();
+    let motion_err = |f: &dyn Fn(&[f64]) -> nalgebra::Isometry3<f64>,
+                      x: &nalgebra::Isometry3<f64>| {
+        let (mut sm, mut sd, mut n) = (0.0, 0.0, 0.0);
+        for i in 0..qs.len() {
+            for j in i + 1..qs.len() {
+                let est = (f(&qs[i]) * x).inverse() * f(&qs[j]) * x;
+                let tru = (phys.true_flange(&qs[i], &ctx) * truth).inverse()
+                    * phys.true_flange(&qs[j], &ctx)
+                    * truth;
+                let e = est.inverse() * tru;
+                sm += e.translation.vector.norm_squared();
+                sd += e.rotation.angle().to_degrees().powi(2);
+                n += 1.0;
+            }
+        }
+        ((sm / n).sqrt(), (sd / n).sqrt())
+    };
+    let (m0, d0) = motion_err(&|q| nominal.flange_pose(q), &x_cal);
+    let (m1, d1) = motion_err(&|q| arm.flange_pose(q), &x_dep);
+    println!(
+        "camera motion between held-out poses vs truth (RMS): nominal arm + calibrated hand-eye {m0:.4} mm {d0:.5} deg -> identified arm + deployed hand-eye {m1:.4} mm {d1:.5} deg"
     );
+    assert!(
+        m1 < 0.25 * m0 && d1 < 0.25 * d0,
+        "{m0} -> {m1} mm, {d0} -> {d1} deg"
+    );
+    // Measured 3.38 mm / 0.896° → 0.154 mm / 0.0167° with 12 training views: what is left
+    // is the weakly separable arm parameters' noise (their σ is in the file).
+    assert!(m1 < 0.2 && d1 < 0.03, "{m1} mm {d1} deg");
     // diagnosis.json on the one typed schema, RMS in pixels.
     let diag: DiagnosisFile = schema::read(&dir.join("diagnose/diagnosis.json")).unwrap();
     assert_eq!(diag.sensor, DiagnosisSensor::Camera);
@@ -151,7 +200,10 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
     assert!(e
         .parameters
         .iter()
-        .all(|p| p.unit == "deg" && p.ci95.is_some()));
+        .all(|p| (p.unit == "deg" || p.unit == "mm") && p.ci95.is_some()));
+    // Joint zeros and link lengths both.
+    assert!(e.parameters.iter().any(|p| p.name.starts_with("delta_phi")));
+    assert!(e.parameters.iter().any(|p| p.name.starts_with("delta_a")));
     assert!(diag.hand_eye_before.is_some() && diag.hand_eye_after.is_some());
     // Every file the session wrote loads back.
     for f in [
@@ -174,6 +226,7 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
         assert!(html.contains(id), "report lacks {id}");
     }
     assert!(html.contains("arm&#39;s joint zeros") || html.contains("arm's joint zeros"));
+    assert!(html.contains("link dimensions"));
     // `robocal report` reads the camera diagnosis (no warning) and shows its effect in px.
     // (Written outside the session directory: the resume test copies it meanwhile.)
     let md_dir = tempfile::tempdir().unwrap();
@@ -195,7 +248,7 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
     assert!(
         md.contains("arm_kinematics")
             && md.contains("| RMS (px)")
-            && md.contains("offset_j3")
+            && md.contains("delta_phi4")
             && md.contains("Hand-eye (camera in flange)"),
         "{md}"
     );

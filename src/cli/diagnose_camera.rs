@@ -2,11 +2,10 @@
 //! diagnosis of [`crate::diagnose::camera`]. Writes `DIR/diagnosis.json`
 //! (`robocal-diagnosis/2`, [`crate::schema::DiagnosisFile`], RMS in `_px` fields) and
 //! `DIR/calibration.json` (the final camera calibration with the effects found: board scale
-//! and bend in the camera block, the arm's joint offsets in `metrics`).
+//! and bend in the camera block, the arm's identified kinematics in `params`).
 use std::path::Path;
 
 use anyhow::Context as _;
-use serde_json::json;
 
 use crate::dataset::Dataset;
 use crate::solve::camera::data::{load, Overrides};
@@ -39,15 +38,8 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     res.board_bend_mm = d.bend_mm;
     res.uncertainty = d.uncertainty.clone();
     let mut cal = crate::solve::camera::calfile::calibration_file(&train, &res);
-    if !d.joint_offsets_deg.is_empty() {
-        cal.metrics.insert(
-            "arm_joint_offsets_deg".into(),
-            json!(d
-                .joint_offsets_deg
-                .iter()
-                .map(|(j, o)| (format!("j{j}"), json!(o)))
-                .collect::<serde_json::Map<_, _>>()),
-        );
+    if let Some(arm) = &d.arm {
+        arm.write_into(&mut cal);
     }
     crate::dataset::write_calibration(out.join("calibration.json"), &cal)
         .with_context(|| format!("writing {}", out.join("calibration.json").display()))?;

@@ -627,9 +627,9 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     };
     if dir.join(DATASET).exists() {
         bail!(
-            "{} already holds a dataset: continue it with `robocal run --resume {}`",
+            "{} already holds a dataset: continue it with `{}`",
             dir.display(),
-            dir.display()
+            crate::fsio::resume_command(dir)
         );
     }
     let CellCamera {
@@ -693,9 +693,9 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
     };
     if dir.join(DATASET).exists() {
         bail!(
-            "{} already holds a dataset: continue it with `robocal run --resume {}`",
+            "{} already holds a dataset: continue it with `{}`",
             dir.display(),
-            dir.display()
+            crate::fsio::resume_command(dir)
         );
     }
     let config_name = if mode == "sim" {
@@ -874,15 +874,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         );
         drop(started);
         return Err(Interrupted(format!(
-            "stopped {at}; continue with `robocal run --resume {}`",
-            dir.display()
+            "stopped {at}; continue with `{}`",
+            crate::fsio::resume_command(&dir)
         ))
         .into());
     }
     if let Some(reason) = &summary.aborted {
         bail!(
-            "run aborted: {reason} (continue with `robocal run --resume {}`)",
-            dir.display()
+            "run aborted: {reason} (continue with `{}`)",
+            crate::fsio::resume_command(&dir)
         );
     }
     Ok(())

@@ -821,8 +821,9 @@ pub fn effects_in_words(
                         .to_string()
                 }
                 "target_flatness" => "the board is not flat (it sags or bows)".to_string(),
-                "arm_kinematics" => "the arm's joint zeros are off (seen through the camera; \
-                                     the hand-eye no longer absorbs them)"
+                "arm_kinematics" => "the arm's joint zeros and link dimensions differ from \
+                                     nominal (identified through the camera, so the hand-eye \
+                                     no longer absorbs them)"
                     .to_string(),
                 "distortion" => {
                     "the lens distorts more than the chosen distortion model".to_string()

@@ -138,8 +138,50 @@ pub fn from_calibration(
     Ok((k, x, target, mount, tgt))
 }
 
+/// The arm model a camera calibration carries (`params`: the arm's kinematics identified
+/// through the camera by the camera diagnosis' `arm_kinematics`), on the calibration's robot;
+/// `None` when the file has no parameters.
+pub fn arm_model(cal: &CalibrationFile) -> anyhow::Result<Option<crate::model::KinematicModel>> {
+    if cal.params.is_empty() {
+        return Ok(None);
+    }
+    let mut m = crate::model::KinematicModel::from_robot_block(&cal.robot)
+        .map_err(|e| anyhow::anyhow!("calibration: robot: {e}"))?;
+    m.apply_cal_params(&cal.params)
+        .map_err(|e| anyhow::anyhow!("calibration: params: {e}"))?;
+    Ok(Some(m))
+}
+
+/// Flange poses of the views through the calibration's arm model (from each record's `q`),
+/// when the calibration carries one: the poses its hand-eye was identified with. Views whose
+/// record has no `q` keep theirs. Returns whether the arm model was used.
+pub fn apply_arm(
+    cal: &CalibrationFile,
+    data: &mut camera::CameraData,
+    ds: &crate::dataset::Dataset,
+) -> anyhow::Result<bool> {
+    let Some(m) = arm_model(cal)? else {
+        return Ok(false);
+    };
+    anyhow::ensure!(
+        crate::plausible::dataset::same_robot(&cal.robot, &ds.header.robot),
+        "robot.model: the calibration is for robot model {:?}, the dataset for {:?}: a file from \
+         another robot or cell",
+        cal.robot.model,
+        ds.header.robot.model
+    );
+    for v in &mut data.views {
+        if let Some(q) = ds.poses().find(|r| r.id == v.id).and_then(|r| r.q.as_ref()) {
+            let q: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
+            v.flange = m.flange_pose(&q);
+        }
+    }
+    Ok(true)
+}
+
 /// `robocal predict` on a camera calibration: CSV `id,corner,u_px,v_px` for every board corner
-/// at every pose of `data` (flange from the record, else FK of `q`).
+/// at every pose of `data` (flange from the record, else FK of `q`; through the calibration's
+/// arm model from `q` when it carries one).
 pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, usize, [f64; 2])>> {
     let cal = CalibrationFile::load(cal_path)?;
     let (k, x, target, mount, tgt) = from_calibration(&cal)?;
@@ -155,7 +197,7 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
             corners: vec![],
         });
     }
-    let cd = camera::CameraData {
+    let mut cd = camera::CameraData {
         width: cal
             .camera()
             .ok()
@@ -170,6 +212,7 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
         mount,
         views,
     };
+    apply_arm(&cal, &mut cd, &ds).with_context(|| format!("{}", cal_path.display()))?;
     Ok(camera::predict(&cd, &k, &x, &target))
 }
 

@@ -133,6 +133,10 @@ pub enum CameraError {
     Intrinsics(String),
     #[error("no closed-form hand-eye method produced a solution (the robot poses need rotations about at least two different axes)")]
     HandEye,
+    /// The robot's motion and the images disagree: the joint fit had to bend the intrinsics
+    /// far from what the board alone gives. Refused rather than written.
+    #[error("the robot poses and the images disagree: {0}")]
+    Inconsistent(String),
 }
 
 /// One hand-eye estimate.
@@ -374,6 +378,59 @@ fn robust_sigma(v: &[f64]) -> f64 {
 }
 
 /// Hand-eye ML fit: intrinsics (free per `mask`), X, target, optional board parameters.
+/// Refuse a joint fit that had to bend the intrinsics to reconcile the robot's motion with the
+/// images: the focal length more than 5 % from the board-only calibration `k_board`, or the
+/// principal point outside the image. The commonest cause is a square size in the wrong unit
+/// (`--square 3` for a 30 mm board): the board alone calibrates at any scale, but the robot's
+/// translations fix the metric one. `implied_scale` refits with the board scale free to name
+/// the square size the robot's motion implies.
+fn check_joint_fit(
+    data: &CameraData,
+    k_board: &Intrinsics,
+    k_joint: &Intrinsics,
+    implied_scale: impl FnOnce() -> f64,
+) -> Result<(), CameraError> {
+    let rel = (k_joint.fx / k_board.fx - 1.0)
+        .abs()
+        .max((k_joint.fy / k_board.fy - 1.0).abs());
+    let (w, h) = (data.width as f64, data.height as f64);
+    let pp_out = w > 0.0
+        && h > 0.0
+        && (!(0.0..=w).contains(&k_joint.cx) || !(0.0..=h).contains(&k_joint.cy));
+    if rel.is_finite() && rel <= 0.05 && !pp_out {
+        return Ok(());
+    }
+    let what = format!(
+        "with the declared square size {:.3} mm the joint fit needs fx {:.1} px and a principal \
+         point at ({:.1}, {:.1}) px in a {}×{} image, where the board alone gives fx {:.1} px at \
+         ({:.1}, {:.1}) px",
+        data.board.square_mm,
+        k_joint.fx,
+        k_joint.cx,
+        k_joint.cy,
+        data.width,
+        data.height,
+        k_board.fx,
+        k_board.cx,
+        k_board.cy
+    );
+    let s = implied_scale();
+    let cause = if s.is_finite() && s > 0.0 && (s - 1.0).abs() > 0.05 {
+        format!(
+            "the robot's motion says the squares are {:.2} mm, not {:.3}: check `--square` / the \
+             header's `target.square_mm` (millimetres)",
+            data.board.square_mm * s,
+            data.board.square_mm
+        )
+    } else {
+        "the square size is consistent with the robot's motion, so the robot poses do not belong \
+         to these images (check the records' `flange` / `q`, the `mount`, and that the camera \
+         did not move on its mount)"
+            .to_string()
+    };
+    Err(CameraError::Inconsistent(format!("{what}; {cause}")))
+}
+
 #[allow(clippy::too_many_arguments)]
 fn ml_fit(
     obs: &[Obs],
@@ -665,6 +722,20 @@ pub fn calibrate(
             .collect();
         (kf, xf, tf, sf, cf, rep) = ml_fit(&obs_used, &g, &kf, model.mask(), &xf, &tf, bc, sf, cf);
     }
+    check_joint_fit(train, &k1, &kf, || {
+        ml_fit(
+            &obs,
+            &g,
+            &k1,
+            model.mask(),
+            &best.x,
+            &best.target,
+            BoardModel { scale: true, ..bc },
+            1.0,
+            [0.0; 2],
+        )
+        .3
+    })?;
     let ml = Estimate {
         method: "ml".into(),
         x: xf,

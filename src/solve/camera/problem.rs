@@ -48,13 +48,40 @@ pub struct BoardModel {
     pub centre: [f64; 3],
 }
 
-/// Joint zero offsets seen through the camera (eye-in-hand, [`Layout::HandEye`] only): the
-/// flange pose of view `v` is `FK(q_v + δ)` through `model`, `δ` free for `joints` (0-based).
-pub struct ArmOffsets<'a> {
+/// The arm's kinematic parameters seen through the camera (eye-in-hand, [`Layout::HandEye`]
+/// only): the flange pose of view `v` is `FK(q_v; θ + δ)` through `model`, `δ` free for the
+/// model parameters `params` (indices into [`crate::model::KinematicModel::params`]: joint
+/// zeros `phi`, link lengths `a` / `d`, twists `alpha` / `beta`; mm or rad).
+pub struct ArmModel<'a> {
     pub model: &'a crate::model::KinematicModel,
     /// Joint angles (rad) per view.
     pub q: &'a [Vec<f64>],
-    pub joints: Vec<usize>,
+    pub params: Vec<usize>,
+}
+
+impl ArmModel<'_> {
+    /// The model with the changes `delta` (one per entry of `params`) and its base and tool
+    /// groups at identity, so that its measured pose is the flange pose.
+    pub fn model_at(&self, delta: &[f64]) -> crate::model::KinematicModel {
+        changed_model(self.model, &self.params, delta)
+    }
+}
+
+/// `model` with `delta[k]` added to parameter `params[k]`, base and tool at identity.
+pub fn changed_model(
+    model: &crate::model::KinematicModel,
+    params: &[usize],
+    delta: &[f64],
+) -> crate::model::KinematicModel {
+    let mut m = model.clone();
+    let mut v = m.param_values();
+    for (&i, d) in params.iter().zip(delta) {
+        v[i] += d;
+    }
+    m.set_param_values(&v);
+    m.set_base(&Isometry3::identity());
+    m.set_tool(&Isometry3::identity());
+    m
 }
 
 /// The problem.
@@ -68,8 +95,8 @@ pub struct Reproj<'a> {
     /// Values of the fixed intrinsics.
     pub intr_fixed: Intrinsics,
     pub board: BoardModel,
-    /// Joint offsets (free after the board parameters), when given.
-    pub arm: Option<ArmOffsets<'a>>,
+    /// Arm parameter changes (free after the board parameters), when given.
+    pub arm: Option<ArmModel<'a>>,
 }
 
 impl Reproj<'_> {
@@ -107,14 +134,14 @@ impl Reproj<'_> {
         let o = self.pose_offset(b);
         pose_from_slice(&x.as_slice()[o..o + 6])
     }
-    /// Offset of the joint offsets.
+    /// Offset of the arm parameter changes.
     pub fn arm_offset(&self) -> usize {
         self.board_offset() + self.board.scale as usize + 2 * self.board.bend as usize
     }
-    /// Joint offsets (rad) at `x`, per free joint.
-    pub fn joint_offsets(&self, x: &DVector<f64>) -> Vec<f64> {
+    /// Arm parameter changes (mm / rad) at `x`, one per entry of [`ArmModel::params`].
+    pub fn arm_deltas(&self, x: &DVector<f64>) -> Vec<f64> {
         let o = self.arm_offset();
-        let n = self.arm.as_ref().map_or(0, |a| a.joints.len());
+        let n = self.arm.as_ref().map_or(0, |a| a.params.len());
         (0..n).map(|k| x[o + k]).collect()
     }
     /// `(scale, [bend x, bend y])` at `x`.
@@ -156,7 +183,7 @@ impl Reproj<'_> {
             v.extend(bend);
         }
         if let Some(a) = &self.arm {
-            v.extend(std::iter::repeat_n(0.0, a.joints.len()));
+            v.extend(std::iter::repeat_n(0.0, a.params.len()));
         }
         DVector::from_vec(v)
     }
@@ -177,26 +204,20 @@ impl Reproj<'_> {
         let free_idx: Vec<usize> = (0..N_INTR).filter(|i| self.intr_free[*i]).collect();
         let xs = x.as_slice();
         let bo = self.board_offset();
-        // Flange poses and joint axes (base frame) per view when the joint offsets are free.
+        // Flange poses and their parameter Jacobians (base frame; rows 0..3 position, 3..6
+        // small-angle rotation) per view when the arm parameters are free.
         let ao = self.arm_offset();
-        let arm_frames: Option<Vec<(Isometry3<f64>, Vec<(Vector3<f64>, Vector3<f64>)>)>> =
+        let arm_frames: Option<Vec<(Isometry3<f64>, nalgebra::Matrix6xX<f64>)>> =
             self.arm.as_ref().map(|a| {
-                let d = self.joint_offsets(x);
+                let m = a.model_at(&self.arm_deltas(x));
                 a.q.iter()
                     .map(|q| {
-                        let mut qq = q.clone();
-                        for (k, &jn) in a.joints.iter().enumerate() {
-                            qq[jn] += d[k];
+                        let (pose, jf) = m.pose_param_jacobian(q);
+                        let mut js = nalgebra::Matrix6xX::zeros(a.params.len());
+                        for (k, &pi) in a.params.iter().enumerate() {
+                            js.set_column(k, &jf.column(pi));
                         }
-                        let axes = a
-                            .joints
-                            .iter()
-                            .map(|&jn| {
-                                let fr = a.model.joint_frame(&qq, jn + 1);
-                                (fr.rotation * Vector3::z(), fr.translation.vector)
-                            })
-                            .collect();
-                        (a.model.flange_pose(&qq), axes)
+                        (pose, js)
                     })
                     .collect()
             });
@@ -242,11 +263,17 @@ impl Reproj<'_> {
                         .to_rotation_matrix();
                     let chain = rx.matrix().transpose() * rf.matrix().transpose();
                     if let Some(af) = &arm_frames {
-                        // F(δ) = Exp(ω_k δ_k about p_k) F: F⁻¹y changes by −F_R⁻¹ (ω × (y − p)).
-                        d_arm = af[o.view]
-                            .1
-                            .iter()
-                            .map(|(w, pk)| -(chain * w.cross(&(y1 - pk))))
+                        // δF: position δp, rotation δθ (base frame): F⁻¹y changes by
+                        // −F_R⁻¹ (δθ × (y − p) + δp).
+                        let (fp, js) = &af[o.view];
+                        let rel = y1 - fp.translation.vector;
+                        d_arm = js
+                            .column_iter()
+                            .map(|c| {
+                                let dp = Vector3::new(c[0], c[1], c[2]);
+                                let dw = Vector3::new(c[3], c[4], c[5]);
+                                -(chain * (dw.cross(&rel) + dp))
+                            })
                             .collect();
                     }
                     (y3, vec![(ox, jx), (ob, chain * jb)], chain * rb.matrix())
@@ -300,7 +327,7 @@ impl Reproj<'_> {
 
 impl LsqProblem for Reproj<'_> {
     fn n_params(&self) -> usize {
-        self.arm_offset() + self.arm.as_ref().map_or(0, |a| a.joints.len())
+        self.arm_offset() + self.arm.as_ref().map_or(0, |a| a.params.len())
     }
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
         self.eval(x, false).0
@@ -382,8 +409,16 @@ mod tests {
                 assert!(e < 1e-5, "{layout:?} column {c}: {e}");
             }
         }
-        // Joint offsets through the UR5e model (flange from q, not from the inputs).
+        // Arm parameters through the UR5e model (flange from q, not from the inputs): joint
+        // zeros, link lengths and twists.
         let model = crate::model::KinematicModel::preset("ur5e").unwrap();
+        let params: Vec<usize> = [
+            "phi2", "phi3", "phi4", "phi5", "a3", "d4", "alpha5", "beta3",
+        ]
+        .iter()
+        .map(|n| model.param_index(n).unwrap())
+        .collect();
+        let np = params.len();
         let qs: Vec<Vec<f64>> = (0..3)
             .map(|v| vec![0.1 * v as f64, -1.3, 1.4, -1.6 + 0.2 * v as f64, -1.5, 0.3])
             .collect();
@@ -394,15 +429,15 @@ mod tests {
             intr_free: [true; N_INTR],
             intr_fixed: k,
             board,
-            arm: Some(ArmOffsets {
+            arm: Some(ArmModel {
                 model: &model,
                 q: &qs,
-                joints: vec![1, 2, 3, 4],
+                params,
             }),
         };
         let mut x0 = p.pack(&k, &[x_he, b], 1.002, [0.3, -0.2]);
         let ao = p.arm_offset();
-        for kk in 0..4 {
+        for kk in 0..np {
             x0[ao + kk] = 0.001 * (kk as f64 + 1.0);
         }
         let (_, ja) = p.residuals_jacobian(&x0);
