@@ -733,8 +733,11 @@ pub fn diagnose(
     };
     for _ in 0..opt.max_effects {
         let t_round = std::time::Instant::now();
-        let mut scores = score_round(&state, train, &remaining, opt);
-        let npg = np_gain(&state, train, np_hp, opt);
+        // The candidate scores and the kernel benchmark are independent: both at once.
+        let (mut scores, npg) = rayon::join(
+            || score_round(&state, train, &remaining, opt),
+            || np_gain(&state, train, np_hp, opt),
+        );
         if npg > opt.np_benchmark_gain {
             for s in &mut scores {
                 s.np_ratio = (1.0 - (1.0 - s.cv_gain).powi(2)) / npg;
