@@ -303,6 +303,16 @@ fn example_cell_file_reads() {
         .find(|d| d.role == robocal::acquire::devices::Role::Arm)
         .unwrap();
     robocal::model::KinematicModel::preset(arm.model.as_deref().unwrap()).unwrap();
+    // The camera cell's example: a camera on the flange and its board with a centre.
+    let f = robocal::acquire::devices::DevicesFile::read(root().join("examples/CAMERA-CELL.toml"))
+        .unwrap();
+    let b = f.board.as_ref().expect("[board]");
+    assert!(b.center_mm.is_some());
+    assert!(f
+        .devices
+        .iter()
+        .any(|d| d.role == robocal::acquire::devices::Role::Camera
+            && d.mount.as_deref() == Some("flange")));
 }
 
 /// `--live` is required to move hardware; the device file is validated before anything.
@@ -334,6 +344,53 @@ fn live_session_needs_live_and_a_valid_device_file() {
     assert_eq!(code, 1);
     assert!(err.contains("adress"), "{err}");
     assert!(!out.exists(), "nothing created for a bad device file");
+}
+
+/// A camera cell's device file (a camera, no tracker) makes a camera session; it needs the
+/// board and where it is, and says so before anything connects or moves.
+#[test]
+fn live_camera_session_needs_the_board_and_its_centre() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("s");
+    let devices = "[[device]]\nname = \"ur5e\"\nrole = \"arm\"\nvendor = \"universal-robots\"\n\
+                   protocol = \"rtde\"\nmodel = \"ur5e\"\naddress = \"127.0.0.1\"\n\n\
+                   [[device]]\nname = \"cam\"\nrole = \"camera\"\nvendor = \"generic\"\n\
+                   protocol = \"opencv\"\naddress = \"0\"\n";
+    let run = |text: &str| {
+        let f = dir.path().join("cell.toml");
+        std::fs::write(&f, text).unwrap();
+        robocal(&[
+            "session",
+            "--devices",
+            f.to_str().unwrap(),
+            "--live",
+            "--yes",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (code, _, err) = run(devices);
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("[board]") && err.contains("center_mm"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let (code, _, err) = run(&format!(
+        "{devices}\n[board]\ncols = 8\nrows = 5\nsquare_mm = 30.0\n"
+    ));
+    assert_eq!(code, 1);
+    assert!(err.contains("no center_mm"), "{err}");
+    assert!(!out.exists());
+    // Metres typed for millimetres: refused by the device file itself.
+    let (code, _, err) = run(&format!(
+        "{devices}\n[board]\ncols = 8\nrows = 5\nsquare_mm = 0.03\ncenter_mm = [0.0, 0.0, 0.0]\n"
+    ));
+    assert_eq!(code, 1);
+    assert!(
+        err.contains("square_mm = 0.03") && err.contains("millimetres"),
+        "{err}"
+    );
 }
 
 fn history_checks(loc: &str) {

@@ -15,6 +15,16 @@
 //! # ports = { rtde = 30004, dashboard = 29999, script = 30003 }   # rtde only
 //! # max_speed_deg_s = 90.0       # arms: the cell's speed limit (caps --speed-deg-s)
 //! # max_accel_deg_s2 = 180.0     # arms: the cell's acceleration limit (caps --accel-deg-s2)
+//! # mount = "flange"             # cameras: "flange" (eye-in-hand, default) or "base"
+//!
+//! # A camera cell's calibration board (optional): written into the dataset header's `target`
+//! # block by `robocal run`, and a camera session centres its shell of viewpoints on it.
+//! [board]
+//! kind = "chessboard"       # chessboard | charuco (then marker_mm and dictionary)
+//! cols = 8                  # inner corners
+//! rows = 5
+//! square_mm = 30.0
+//! center_mm = [-441.9, -133.3, 0.0]   # the board's centre in the robot base (sessions)
 //! ```
 use std::path::Path;
 
@@ -27,6 +37,50 @@ pub struct DevicesFile {
     /// The devices, in file order.
     #[serde(default, rename = "device")]
     pub devices: Vec<DeviceEntry>,
+    /// The calibration board of a camera cell.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board: Option<BoardEntry>,
+}
+
+/// The calibration board of a camera cell (`[board]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoardEntry {
+    /// `chessboard` or `charuco`.
+    #[serde(default = "chessboard")]
+    pub kind: String,
+    /// Inner corners per row / column.
+    pub cols: u32,
+    pub rows: u32,
+    /// Square size (mm).
+    pub square_mm: f64,
+    /// ChArUco marker size (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_mm: Option<f64>,
+    /// ChArUco dictionary (e.g. `DICT_4X4_50`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dictionary: Option<String>,
+    /// The board's centre in the robot base (mm): where a camera session's viewpoints look.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center_mm: Option<[f64; 3]>,
+}
+
+fn chessboard() -> String {
+    "chessboard".into()
+}
+
+impl BoardEntry {
+    /// The dataset header's `target` block.
+    pub fn target(&self) -> crate::dataset::TargetHeader {
+        crate::dataset::TargetHeader {
+            kind: self.kind.clone(),
+            cols: self.cols,
+            rows: self.rows,
+            square_mm: self.square_mm,
+            marker_mm: self.marker_mm,
+            dictionary: self.dictionary.clone(),
+        }
+    }
 }
 
 /// What a device does in the cell.
@@ -126,6 +180,9 @@ pub struct DeviceEntry {
     /// Arms: the cell's joint acceleration limit (deg/s²); `--accel-deg-s2` may not exceed it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_accel_deg_s2: Option<f64>,
+    /// Cameras: `flange` (eye-in-hand, the default) or `base` (eye-to-hand).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mount: Option<String>,
 }
 
 impl DeviceEntry {
@@ -192,6 +249,39 @@ impl DevicesFile {
     }
 
     fn validate(&self, path: &str) -> Result<(), DevicesError> {
+        if let Some(b) = &self.board {
+            let bad = |message: String| DevicesError::Invalid {
+                path: path.into(),
+                device: "[board]".into(),
+                message,
+            };
+            if b.cols < 2 || b.rows < 2 || b.cols > 200 || b.rows > 200 {
+                return Err(bad(format!(
+                    "cols = {}, rows = {}: the board's inner corners per row / column (2 – 200)",
+                    b.cols, b.rows
+                )));
+            }
+            if !(b.square_mm.is_finite() && b.square_mm >= 1.0 && b.square_mm <= 500.0) {
+                return Err(bad(format!(
+                    "square_mm = {}: the square size in millimetres (1 – 500; metres or \
+                     centimetres typed?)",
+                    b.square_mm
+                )));
+            }
+            if let Some(c) = b.center_mm {
+                if c.iter().any(|v| !v.is_finite() || v.abs() > 1.0e4) {
+                    return Err(bad(format!(
+                        "center_mm = {c:?}: the board's centre in the robot base, mm (|v| ≤ 10 m)"
+                    )));
+                }
+            }
+            crate::solve::camera::data::target_of(&b.target()).map_err(bad)?;
+            if !self.devices.iter().any(|d| d.role == Role::Camera) {
+                return Err(bad(
+                    "a [board] without a camera device (role = \"camera\")".into()
+                ));
+            }
+        }
         let mut names = std::collections::BTreeSet::new();
         for d in &self.devices {
             let bad = |message: String| DevicesError::Invalid {
@@ -252,6 +342,16 @@ impl DevicesFile {
                     }
                 }
             }
+            if let Some(m) = &d.mount {
+                if d.role != Role::Camera {
+                    return Err(bad("`mount` is for cameras only".into()));
+                }
+                if m != "flange" && m != "base" {
+                    return Err(bad(format!(
+                        "mount = {m:?}: \"flange\" (eye-in-hand) or \"base\" (eye-to-hand)"
+                    )));
+                }
+            }
             if d.ports.is_some() && d.protocol != Protocol::Rtde {
                 return Err(bad("`ports` is for protocol rtde only".into()));
             }
@@ -299,6 +399,37 @@ protocol = "rtde"
 address = "10.0.0.9"
 ports = { rtde = 30004 }
 "#;
+
+    #[test]
+    fn board_table_is_strict_and_validated() {
+        let cam = "[[device]]\nname = \"cam\"\nrole = \"camera\"\nvendor = \"generic\"\n\
+                   protocol = \"opencv\"\naddress = \"0\"\nmount = \"flange\"\n";
+        let ok = format!(
+            "{cam}\n[board]\nkind = \"charuco\"\ncols = 7\nrows = 4\nsquare_mm = 30.0\n\
+             marker_mm = 22.0\ndictionary = \"DICT_4X4_50\"\ncenter_mm = [1.0, 2.0, 3.0]\n"
+        );
+        let f = DevicesFile::parse(&ok, "cell.toml").unwrap();
+        let b = f.board.as_ref().unwrap();
+        assert_eq!(b.target().kind, "charuco");
+        assert_eq!(b.center_mm, Some([1.0, 2.0, 3.0]));
+        assert_eq!(f.devices[0].mount.as_deref(), Some("flange"));
+        let err = |t: String| DevicesFile::parse(&t, "cell.toml").unwrap_err().to_string();
+        let board = "\n[board]\ncols = 8\nrows = 5\nsquare_mm = 30.0\n";
+        // A board without a camera, a charuco board without its dictionary, an unknown field,
+        // a bad mount, a mount on an arm.
+        assert!(err(board.to_string()).contains("without a camera"));
+        assert!(err(format!(
+            "{cam}\n[board]\nkind = \"charuco\"\ncols = 8\nrows = 5\nsquare_mm = 30.0\n"
+        ))
+        .contains("cell.toml"));
+        assert!(err(format!("{cam}{board}colour = 1\n")).contains("colour"));
+        assert!(err(cam.replace("flange", "wrist")).contains("mount"));
+        assert!(err(format!("{cam}{board}center_mm = [1.0, 2.0]\n")).contains("center_mm"));
+        assert!(err(format!(
+            "{cam}\n[board]\ncols = 1\nrows = 5\nsquare_mm = 30.0\n"
+        ))
+        .contains("inner corners"));
+    }
 
     #[test]
     fn parses_and_rejects() {

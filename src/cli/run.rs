@@ -286,6 +286,55 @@ fn camera_header(
     Ok(())
 }
 
+/// The dataset header's `camera` and `target` blocks of a real cell: the image size from one
+/// frame grabbed now (which also proves the camera answers before anything moves), the mount
+/// and the board from the device file.
+fn live_camera_header(
+    header: &mut Header,
+    devices_file: &Path,
+    cam: &dyn robocal_drivers::traits::ImageSource,
+    rt: &tokio::runtime::Runtime,
+    board: Option<(u32, u32)>,
+) -> anyhow::Result<()> {
+    let f = crate::acquire::devices::DevicesFile::read(devices_file)?;
+    let entry = f
+        .devices
+        .iter()
+        .find(|d| d.role == crate::acquire::devices::Role::Camera);
+    let img = rt.block_on(cam.grab()).with_context(|| {
+        format!(
+            "grabbing a first image from camera {:?} ({})",
+            entry.map_or("?", |e| e.name.as_str()),
+            devices_file.display()
+        )
+    })?;
+    anyhow::ensure!(
+        img.width > 0 && img.height > 0,
+        "camera {:?} returned an empty image",
+        entry.map_or("?", |e| e.name.as_str())
+    );
+    let cam = crate::dataset::CameraHeader {
+        kind: "mono".into(),
+        width: img.width,
+        height: img.height,
+        name: entry.map(|e| e.name.clone()),
+        mount: Some(
+            entry
+                .and_then(|e| e.mount.clone())
+                .unwrap_or_else(|| "flange".into()),
+        ),
+    };
+    let target = f.board.as_ref().map(|b| {
+        let mut t = b.target();
+        if let Some((c, r)) = board {
+            (t.cols, t.rows) = (c, r);
+        }
+        t
+    });
+    header.set_camera(&cam, target.as_ref());
+    Ok(())
+}
+
 fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
     AcquireOptions {
         speed: cfg.speed,
@@ -338,10 +387,13 @@ fn cell_camera(mode: &str, config: &Path) -> anyhow::Result<CellCamera> {
                 .iter()
                 .find(|d| d.role == crate::acquire::devices::Role::Camera)
                 .map(|d| d.name.clone());
-            CellCamera {
-                name: cam,
-                board: None,
-            }
+            // A chessboard declared in the file is detected at capture time as in dry runs.
+            let board = f
+                .board
+                .as_ref()
+                .filter(|b| b.kind == "chessboard")
+                .map(|b| (b.cols, b.rows));
+            CellCamera { name: cam, board }
         }
     })
 }
@@ -540,6 +592,8 @@ fn acquire_in(
     let mut header = header_for(&plan, &info);
     if cfg.camera && cfg.mode == "sim" {
         camera_header(&mut header, &config_path, cfg.capture.board)?;
+    } else if let Some(cam) = devices.camera.clone().filter(|_| cfg.camera) {
+        live_camera_header(&mut header, &config_path, &*cam, &rt, cfg.capture.board)?;
     }
     let journal_path = dir.join(DATASET);
     let (mut journal, existing, warnings) = Journal::open_or_create(&journal_path, &header)?;

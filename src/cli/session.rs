@@ -280,8 +280,9 @@ fn protocol_name<T: serde::Serialize>(p: &T) -> String {
         .unwrap_or_else(|| "?".into())
 }
 
-/// The cell as a device file states it (no geometry: visibility from the plan spec).
-fn describe_devices(path: &Path) -> anyhow::Result<CellDescription> {
+/// The cell as a device file states it (no geometry: visibility from the plan spec), and the
+/// kind of session it makes: kinematic with a tracker, camera with a camera and no tracker.
+fn describe_devices(path: &Path) -> anyhow::Result<(CellDescription, SessionKind)> {
     use crate::acquire::devices::{DevicesFile, Role};
     let f = DevicesFile::read(path)?;
     let arm = f
@@ -297,7 +298,52 @@ fn describe_devices(path: &Path) -> anyhow::Result<CellDescription> {
             arm.name
         )
     })?;
-    Ok(CellDescription {
+    let camera = f.devices.iter().find(|d| d.role == Role::Camera);
+    let kind = match (tracker, camera) {
+        (Some(_), _) => SessionKind::Kinematic,
+        (None, Some(_)) => SessionKind::Camera,
+        (None, None) => bail!(
+            "{}: neither a tracker (kinematic session) nor a camera (camera session): add a \
+             device with role = \"tracker\" or role = \"camera\"",
+            path.display()
+        ),
+    };
+    let camera = match (kind, camera) {
+        (SessionKind::Camera, Some(c)) => {
+            let b = f.board.as_ref().with_context(|| {
+                format!(
+                    "{}: a camera session needs the cell's board: add a [board] table (kind, \
+                     cols, rows = inner corners, square_mm, center_mm = its centre in the robot \
+                     base)",
+                    path.display()
+                )
+            })?;
+            let center_mm = b.center_mm.with_context(|| {
+                format!(
+                    "{}: [board] has no center_mm: give the board's centre in the robot base \
+                     (mm), where the session's viewpoints look",
+                    path.display()
+                )
+            })?;
+            Some(session::camera::CameraCell {
+                name: c.name.clone(),
+                // Known from the first image (the dataset header records it).
+                width: 0,
+                height: 0,
+                mount: c.mount.clone().unwrap_or_else(|| "flange".into()),
+                board: Some(session::camera::BoardCell {
+                    kind: b.kind.clone(),
+                    cols: b.cols,
+                    rows: b.rows,
+                    square_mm: b.square_mm,
+                    center_mm,
+                }),
+            })
+        }
+        _ => None,
+    };
+    let cell = CellDescription {
+        camera,
         robot_model: model,
         // The arm reports its serial number when it connects (dataset header).
         robot_serial: None,
@@ -311,7 +357,8 @@ fn describe_devices(path: &Path) -> anyhow::Result<CellDescription> {
             .map(|d| format!("{:?} {}", d.role, d.name))
             .collect(),
         ..Default::default()
-    })
+    };
+    Ok((cell, kind))
 }
 
 /// The devices of the session: `robocal run`'s acquisition on the session's cell file copy.
@@ -394,13 +441,8 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                     d.display()
                 );
             }
-            (
-                Mode::Live,
-                describe_devices(d)?,
-                "devices.toml",
-                None,
-                SessionKind::Kinematic,
-            )
+            let (cell, kind) = describe_devices(d)?;
+            (Mode::Live, cell, "devices.toml", None, kind)
         }
         _ => bail!("give --sim SCENARIO.toml (dry run) or --devices CELL.toml --live"),
     };

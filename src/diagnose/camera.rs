@@ -217,9 +217,9 @@ struct Ctx<'a> {
     held: Option<(CameraData, Vec<Vec<f64>>)>,
 }
 
-fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
-    let arm = s.on.contains(&Cand::Arm) && c.model.is_some();
-    let p = Reproj {
+/// The reprojection problem of state `s`, with the arm parameters `arm` free when given.
+fn problem<'a>(c: &'a Ctx, s: &St, arm: Option<Vec<usize>>) -> Reproj<'a> {
+    Reproj {
         obs: &c.obs,
         flange: &c.g,
         layout: Layout::HandEye,
@@ -230,12 +230,17 @@ fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
             bend: s.on.contains(&Cand::Bend),
             centre: c.centre,
         },
-        arm: arm.then(|| ArmModel {
-            model: c.model.expect("checked"),
+        arm: c.model.zip(arm).map(|(model, params)| ArmModel {
+            model,
             q: &c.q,
-            params: c.arm_params.clone(),
+            params,
         }),
-    };
+    }
+}
+
+fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
+    let arm = s.on.contains(&Cand::Arm) && c.model.is_some();
+    let p = problem(c, s, arm.then(|| c.arm_params.clone()));
     let mut x0 = p.pack(&s.k, &[s.x, s.target], s.scale, s.bend);
     if arm && s.deltas.len() == c.arm_params.len() {
         let o = p.arm_offset();
@@ -648,23 +653,7 @@ fn select_arm_params(c: &Ctx, s: &St) -> (Vec<usize>, Vec<(String, String)>) {
         .filter(|(_, p)| p.free && matches!(p.group, crate::model::ParamGroup::Joint(_)))
         .map(|(i, _)| i)
         .collect();
-    let p = Reproj {
-        obs: &c.obs,
-        flange: &c.g,
-        layout: Layout::HandEye,
-        intr_free: s.mask,
-        intr_fixed: s.k,
-        board: BoardModel {
-            scale: s.on.contains(&Cand::Scale),
-            bend: s.on.contains(&Cand::Bend),
-            centre: c.centre,
-        },
-        arm: Some(ArmModel {
-            model: m,
-            q: &c.q,
-            params: cand.clone(),
-        }),
-    };
+    let p = problem(c, s, Some(cand.clone()));
     let x0 = p.pack(&s.k, &[s.x, s.target], s.scale, s.bend);
     let (_, j) = crate::solve::lm::LsqProblem::residuals_jacobian(&p, &x0);
     let ao = p.arm_offset();

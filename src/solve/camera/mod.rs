@@ -424,8 +424,8 @@ fn check_joint_fit(
         )
     } else {
         "the square size is consistent with the robot's motion, so the robot poses do not belong \
-         to these images (check the records' `flange` / `q`, the `mount`, and that the camera \
-         did not move on its mount)"
+         to these images (check the records' `flange` / `q`, the `mount`, that the camera did \
+         not move on its mount, and that the robot model is this arm's)"
             .to_string()
     };
     Err(CameraError::Inconsistent(format!("{what}; {cause}")))
@@ -686,17 +686,21 @@ pub fn calibrate(
         centre: bend_centre(&board),
         ..opts.board
     };
-    let (mut kf, mut xf, mut tf, mut sf, mut cf, mut rep) = ml_fit(
-        &obs,
-        &g,
-        &k1,
-        model.mask(),
-        &best.x,
-        &best.target,
-        bc,
-        1.0,
-        [0.0; 2],
-    );
+    // From the best closed form, on every corner (`board` says which board parameters are free).
+    let from_best = |board: BoardModel| {
+        ml_fit(
+            &obs,
+            &g,
+            &k1,
+            model.mask(),
+            &best.x,
+            &best.target,
+            board,
+            1.0,
+            [0.0; 2],
+        )
+    };
+    let (mut kf, mut xf, mut tf, mut sf, mut cf, mut rep) = from_best(bc);
     let sig2 = robust_sigma(rep.residuals.as_slice()).max(1e-4);
     let bad: Vec<bool> = (0..obs.len())
         .map(|i| {
@@ -723,18 +727,7 @@ pub fn calibrate(
         (kf, xf, tf, sf, cf, rep) = ml_fit(&obs_used, &g, &kf, model.mask(), &xf, &tf, bc, sf, cf);
     }
     check_joint_fit(train, &k1, &kf, || {
-        ml_fit(
-            &obs,
-            &g,
-            &k1,
-            model.mask(),
-            &best.x,
-            &best.target,
-            BoardModel { scale: true, ..bc },
-            1.0,
-            [0.0; 2],
-        )
-        .3
+        from_best(BoardModel { scale: true, ..bc }).3
     })?;
     let ml = Estimate {
         method: "ml".into(),
