@@ -101,8 +101,8 @@ fn table(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs]) {
 /// jointly with the geometry): what each physical effect buys on held-out poses.
 fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], plots: &Path) {
     let (groups, untestable) = diagnose::candidates(&d.geometric.model, train);
-    // Of a group of many variants (joint coupling: every driver joint), the one the first
-    // round scored best.
+    // Of a group of many variants (joint coupling: every driver joint; ripple: every harmonic),
+    // the one the first round scored best.
     let round0: Vec<String> = d
         .rounds
         .first()
@@ -120,13 +120,13 @@ fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], plots:
     let mut rows = Vec::new();
     for g in groups {
         // One representative per group: the linear drift of a warm-up grid, the middle of
-        // a change-point grid, every harmonic of a ripple group.
+        // a change-point grid; the best-scored harmonic of a ripple group.
         let picks: Vec<Block> = match g.first() {
             Some(Block::BaseShift { .. }) => vec![g[g.len() / 2].clone()],
             Some(Block::JointDrift { .. }) | Some(Block::LengthDrift { .. }) => {
                 vec![g[0].clone()]
             }
-            Some(Block::Coupling { .. }) => g
+            Some(Block::Coupling { .. }) | Some(Block::Ripple { .. }) => g
                 .iter()
                 .find(|b| round0.contains(&b.label()))
                 .or(g.first())

@@ -145,9 +145,15 @@ pub enum Block {
     /// only the moment is identifiable. Small-deflection (first-order) model: the marker
     /// moves by `R_base (δφ × (p − o_j))`, p and o_j at the measured angles (kind
     /// `link_deflection`).
+    ///
+    /// `anisotropic`: separate compliances for bending about the two link-fixed axes
+    /// orthogonal to the joint axis (the `x` and `y` axes of MDH frame `joint`, which turn
+    /// with the joint): `δφ = Σ_c (a_c (x·M⊥_c) x + b_c (y·M⊥_c) y)`, two coefficients per
+    /// mass point (a link's cross-section and a bearing are stiffer one way than the other).
     LinkDeflection {
         joint: usize,
         points: Vec<MassPoint>,
+        anisotropic: bool,
     },
     /// Joint-coupled error: the angle error of joint `joint` driven by the angle of joint
     /// `driver` (wrist cross-talk, cable/hose torque, encoder coupling):
@@ -250,7 +256,12 @@ impl EffectModel for Block {
     /// Number of linear coefficients.
     fn n_params(&self) -> usize {
         match self {
-            Block::Compliance { points, .. } | Block::LinkDeflection { points, .. } => points.len(),
+            Block::Compliance { points, .. } => points.len(),
+            Block::LinkDeflection {
+                points,
+                anisotropic,
+                ..
+            } => points.len() * if *anisotropic { 2 } else { 1 },
             Block::Eccentricity { .. } => 4,
             Block::Ripple { .. } | Block::Coupling { .. } | Block::WaveGenerator { .. } => 2,
             // One growth rate and an offset rate per joint (the dof is not known here: the
@@ -274,6 +285,9 @@ impl EffectModel for Block {
                 ratio, harmonic, ..
             } => format!(", {harmonic}×N, N={ratio}"),
             Block::TempDrift { .. } => "lengths + offsets, temperature".into(),
+            Block::LinkDeflection {
+                anisotropic: true, ..
+            } => ", link x/y".into(),
             _ => String::new(),
         };
         let lengths = if matches!(self, Block::LengthDrift { .. }) {
@@ -326,9 +340,22 @@ impl EffectModel for Block {
                     format!("cos {harmonic}q [rad]"),
                 ]
             }
-            Block::LinkDeflection { points, .. } => points
+            Block::LinkDeflection {
+                points,
+                anisotropic,
+                ..
+            } => points
                 .iter()
-                .map(|p| format!("c_bend·m@{} [rad·kg/Nm]", p.label()))
+                .flat_map(|p| {
+                    if *anisotropic {
+                        vec![
+                            format!("c_bend_x·m@{} [rad·kg/Nm]", p.label()),
+                            format!("c_bend_y·m@{} [rad·kg/Nm]", p.label()),
+                        ]
+                    } else {
+                        vec![format!("c_bend·m@{} [rad·kg/Nm]", p.label())]
+                    }
+                })
                 .collect(),
             Block::Coupling { driver, .. } => {
                 vec![
@@ -464,7 +491,7 @@ impl EffectModel for Block {
     ) -> Vec<Vector3<f64>> {
         let mut cols = vec![Vector3::zeros(); self.n_params()];
         for (j, c, f) in self.joint_features(model, ctx) {
-            if let Some(ip) = model.param_index(&format!("phi{}", j + 1)) {
+            if let Some(ip) = phi_index(model, j) {
                 cols[c] += jm.column(ip) * f;
             }
         }
@@ -484,8 +511,13 @@ impl EffectModel for Block {
                     }
                 }
             }
-            Block::LinkDeflection { joint, points } => {
-                let (rb, lever, dirs) = deflection_terms(model, &ctx.q, *joint, points);
+            Block::LinkDeflection {
+                joint,
+                points,
+                anisotropic,
+            } => {
+                let (rb, lever, dirs) =
+                    deflection_terms(model, &ctx.q, *joint, points, *anisotropic);
                 for (c, d) in dirs.iter().enumerate() {
                     cols[c] = rb * d.cross(&lever);
                 }
@@ -514,12 +546,12 @@ impl EffectModel for Block {
                 }
                 Ok(())
             }
-            Block::LinkDeflection { joint, points } => {
+            Block::LinkDeflection { joint, points, .. } => {
                 // The bending moment must vary over the poses (its direction or size).
                 let m: Vec<Vector3<f64>> = train
                     .iter()
                     .map(|o| {
-                        deflection_terms(model, &o.q, *joint, points)
+                        deflection_terms(model, &o.q, *joint, points, false)
                             .2
                             .iter()
                             .sum::<Vector3<f64>>()
@@ -557,6 +589,21 @@ impl EffectModel for Block {
                 if ratio.is_nan() || *ratio <= 0.0 || sd < 2.0 * period {
                     return Err(format!(
                         "joint {joint} moves less than two wave-generator periods (sd {:.3}°, period {:.3}°)",
+                        sd.to_degrees(),
+                        period.to_degrees()
+                    ));
+                }
+                Ok(())
+            }
+            Block::Ripple { joint, harmonic } if *harmonic > 4 => {
+                // A high harmonic needs the joint to sweep at least one of its periods (else
+                // it is a smooth function of q over the data, confounded with the offset and
+                // eccentricity).
+                let sd = spread(train.iter().filter_map(|o| o.q.get(joint - 1).copied()));
+                let period = std::f64::consts::TAU / f64::from(*harmonic);
+                if sd < period {
+                    return Err(format!(
+                        "joint {joint} moves less than one period of harmonic {harmonic} (sd {:.2}°, period {:.2}°)",
                         sd.to_degrees(),
                         period.to_degrees()
                     ));
@@ -632,6 +679,18 @@ impl EffectModel for Block {
     }
 }
 
+/// Index of the joint-offset parameter `phi<j+1>` of joint `j` (0-based) in `model`
+/// (without allocating a name for the first 8 joints: this runs per pose and block).
+fn phi_index(model: &KinematicModel, j: usize) -> Option<usize> {
+    const NAMES: [&str; 8] = [
+        "phi1", "phi2", "phi3", "phi4", "phi5", "phi6", "phi7", "phi8",
+    ];
+    match NAMES.get(j) {
+        Some(n) => model.param_index(n),
+        None => model.param_index(&format!("phi{}", j + 1)),
+    }
+}
+
 /// Joints a [`Block::TempDrift`] carries an offset rate for (the library's arms: 6).
 pub const TEMP_DRIFT_JOINTS: usize = 6;
 
@@ -667,12 +726,15 @@ impl Block {
 /// base), the lever from the joint origin to the marker (robot base, mm) and, per mass
 /// point, the bending moment of 1 kg about the joint origin with its axial component
 /// removed (N·m per kg, robot base frame). The marker moves by
-/// `R_base (Σ_c coef_c M⊥_c) × lever`.
+/// `R_base (Σ_c coef_c M⊥_c) × lever`. `anisotropic`: two terms per mass point, the
+/// components of `M⊥_c` along the link-fixed `x` and `y` axes of frame `joint`
+/// (`(x·M⊥_c) x`, `(y·M⊥_c) y`), one coefficient each.
 pub fn deflection_terms(
     model: &KinematicModel,
     q: &[f64],
     joint: usize,
     points: &[MassPoint],
+    anisotropic: bool,
 ) -> (nalgebra::Rotation3<f64>, Vector3<f64>, Vec<Vector3<f64>>) {
     let n = model.dof();
     let fj = model.joint_frame(q, joint.min(n));
@@ -691,6 +753,15 @@ pub fn deflection_terms(
             let m = ((c - o) * 1e-3).cross(&g);
             m - z * z.dot(&m)
         })
+        .flat_map(|m: Vector3<f64>| {
+            if anisotropic {
+                let x = fj.rotation * Vector3::x();
+                let y = fj.rotation * Vector3::y();
+                vec![x * x.dot(&m), y * y.dot(&m)]
+            } else {
+                vec![m]
+            }
+        })
         .collect();
     (model.base().rotation.to_rotation_matrix(), marker - o, dirs)
 }
@@ -704,8 +775,13 @@ pub fn point_displacement(
 ) -> Vector3<f64> {
     let mut d = Vector3::zeros();
     for e in effects {
-        if let Block::LinkDeflection { joint, points } = &e.block {
-            let (rb, lever, dirs) = deflection_terms(model, &ctx.q, *joint, points);
+        if let Block::LinkDeflection {
+            joint,
+            points,
+            anisotropic,
+        } = &e.block
+        {
+            let (rb, lever, dirs) = deflection_terms(model, &ctx.q, *joint, points, *anisotropic);
             let phi: Vector3<f64> = dirs.iter().zip(&e.coefs).map(|(m, c)| m * *c).sum();
             d += rb * phi.cross(&lever);
         }
@@ -1063,18 +1139,26 @@ impl Effect {
                 P::new(&format!("sin{harmonic}"), "deg", deg(c[0]), deg(s(0))),
                 P::new(&format!("cos{harmonic}"), "deg", deg(c[1]), deg(s(1))),
             ],
-            Block::LinkDeflection { points, .. } => points
-                .iter()
-                .enumerate()
-                .map(|(k, pt)| {
-                    P::new(
-                        &format!("c_bend_times_mass@{}", pt.label()),
-                        "deg*kg/(N*m)",
-                        deg(c[k]),
-                        deg(s(k)),
-                    )
-                })
-                .collect(),
+            Block::LinkDeflection {
+                points,
+                anisotropic,
+                ..
+            } => {
+                let axes: &[&str] = if *anisotropic { &["_x", "_y"] } else { &[""] };
+                points
+                    .iter()
+                    .flat_map(|pt| axes.iter().map(move |a| (pt, *a)))
+                    .enumerate()
+                    .map(|(k, (pt, a))| {
+                        P::new(
+                            &format!("c_bend{a}_times_mass@{}", pt.label()),
+                            "deg*kg/(N*m)",
+                            deg(c[k]),
+                            deg(s(k)),
+                        )
+                    })
+                    .collect()
+            }
             Block::Coupling { driver, .. } => vec![
                 P::new(&format!("sin_q{driver}"), "deg", deg(c[0]), deg(s(0))),
                 P::new(&format!("cos_q{driver}"), "deg", deg(c[1]), deg(s(1))),
@@ -1209,8 +1293,21 @@ impl Effect {
                 p.insert("latency_s".into(), num(c[0]));
                 p.insert("std".into(), num(s[0]));
             }
-            Block::LinkDeflection { points, .. } => {
+            Block::LinkDeflection {
+                points,
+                anisotropic,
+                ..
+            } => {
                 p.insert("model".into(), json!("gravity_bending_point_masses"));
+                // Anisotropic: coefficients in point order, x then y of each point.
+                p.insert(
+                    "axes".into(),
+                    json!(if *anisotropic {
+                        "link_x_y"
+                    } else {
+                        "isotropic"
+                    }),
+                );
                 p.insert("gravity_dir".into(), json!(GRAVITY_DIR));
                 p.insert(
                     "points".into(),
@@ -1313,32 +1410,34 @@ impl Effect {
         };
         let rad = |v: f64| v.to_radians();
         // Mass points and their per-point coefficients (deg·kg/(N·m) in the file, rad inside).
-        let mass_points = |coef_key: &str| -> anyhow::Result<(Vec<MassPoint>, Vec<f64>)> {
-            let pts = p
-                .get("points")
-                .and_then(|v| v.as_array())
-                .ok_or_else(|| anyhow::anyhow!("{}: missing \"points\"", e.kind))?
-                .iter()
-                .map(|v| {
-                    v.as_str()
-                        .and_then(MassPoint::parse)
-                        .ok_or_else(|| anyhow::anyhow!("{}: bad point {v}", e.kind))
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            let c: Vec<f64> = arr(coef_key)?.into_iter().map(rad).collect();
-            if c.len() != pts.len() {
-                anyhow::bail!(
-                    "{}: {} points but {} coefficients",
-                    e.kind,
-                    pts.len(),
-                    c.len()
-                );
-            }
-            Ok((pts, c))
-        };
+        let mass_points =
+            |coef_key: &str, per_point: usize| -> anyhow::Result<(Vec<MassPoint>, Vec<f64>)> {
+                let pts = p
+                    .get("points")
+                    .and_then(|v| v.as_array())
+                    .ok_or_else(|| anyhow::anyhow!("{}: missing \"points\"", e.kind))?
+                    .iter()
+                    .map(|v| {
+                        v.as_str()
+                            .and_then(MassPoint::parse)
+                            .ok_or_else(|| anyhow::anyhow!("{}: bad point {v}", e.kind))
+                    })
+                    .collect::<anyhow::Result<Vec<_>>>()?;
+                let c: Vec<f64> = arr(coef_key)?.into_iter().map(rad).collect();
+                if c.len() != pts.len() * per_point {
+                    anyhow::bail!(
+                        "{}: {} points but {} coefficients (need {} per point)",
+                        e.kind,
+                        pts.len(),
+                        c.len(),
+                        per_point
+                    );
+                }
+                Ok((pts, c))
+            };
         let (block, coefs) = match e.kind.as_str() {
             "joint_compliance" => {
-                let (pts, c) = mass_points("c_times_mass_deg_kg_per_nm")?;
+                let (pts, c) = mass_points("c_times_mass_deg_kg_per_nm", 1)?;
                 (
                     Block::Compliance {
                         joint: joint()?,
@@ -1414,11 +1513,22 @@ impl Effect {
                 )
             }
             "link_deflection" => {
-                let (pts, c) = mass_points("c_bend_times_mass_deg_kg_per_nm")?;
+                let anisotropic = match p.get("axes").and_then(|v| v.as_str()) {
+                    None | Some("isotropic") => false,
+                    Some("link_x_y") => true,
+                    Some(other) => anyhow::bail!(
+                        "link_deflection: \"axes\" must be \"isotropic\" or \"link_x_y\" (got \"{other}\")"
+                    ),
+                };
+                let (pts, c) = mass_points(
+                    "c_bend_times_mass_deg_kg_per_nm",
+                    if anisotropic { 2 } else { 1 },
+                )?;
                 (
                     Block::LinkDeflection {
                         joint: joint()?,
                         points: pts,
+                        anisotropic,
                     },
                     c,
                 )
@@ -1565,9 +1675,22 @@ mod new_effect_tests {
                 block: Block::LinkDeflection {
                     joint: 3,
                     points: pts.clone(),
+                    anisotropic: false,
                 },
                 coefs: vec![3e-4; pts.len()],
                 std: vec![f64::NAN; pts.len()],
+                tau_std: f64::NAN,
+            },
+            Effect {
+                block: Block::LinkDeflection {
+                    joint: 1,
+                    points: mass_points(&model, 1),
+                    anisotropic: true,
+                },
+                coefs: (0..2 * mass_points(&model, 1).len())
+                    .map(|k| if k % 2 == 0 { 4e-4 } else { -1e-4 })
+                    .collect(),
+                std: vec![f64::NAN; 2 * mass_points(&model, 1).len()],
                 tau_std: f64::NAN,
             },
             Effect {
@@ -1626,7 +1749,25 @@ mod new_effect_tests {
         ctx.q[0] += std::f64::consts::PI;
         let d_a = apply_effects(&model, &effects[..1], &ctx) - apply_effects(&model, &[], &ctx);
         assert!(d_a.norm() > 1e-3);
-        let mut bad = effects[2].to_cal();
+        // Anisotropic bending: the two axes act separately (x only ≠ y only), and a file
+        // with a coefficient missing or unknown axes is refused by name.
+        let one_axis = |k0: usize| {
+            let mut e = effects[1].clone();
+            for (k, c) in e.coefs.iter_mut().enumerate() {
+                *c = if k % 2 == k0 { 4e-4 } else { 0.0 };
+            }
+            apply_effects(&model, &[e], &ctx) - apply_effects(&model, &[], &ctx)
+        };
+        let (dx, dy) = (one_axis(0), one_axis(1));
+        assert!(dx.norm() > 1e-4 && dy.norm() > 1e-4 && (dx - dy).norm() > 1e-4);
+        let mut bad = effects[1].to_cal();
+        bad.params.insert("axes".into(), json!("isotropic"));
+        let err = Effect::from_cal(&bad).unwrap_err().to_string();
+        assert!(err.contains("per point"), "{err}");
+        bad.params.insert("axes".into(), json!("diagonal"));
+        let err = Effect::from_cal(&bad).unwrap_err().to_string();
+        assert!(err.contains("axes"), "{err}");
+        let mut bad = effects[3].to_cal();
         bad.params.insert("gear_ratio".into(), json!(-3.0));
         let err = Effect::from_cal(&bad).unwrap_err().to_string();
         assert!(err.contains("gear_ratio"), "{err}");

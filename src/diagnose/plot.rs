@@ -146,8 +146,8 @@ pub fn driver_value(state: &State, e: &Effect, o: &PoseObs) -> (f64, String) {
                 .sum(),
             format!("gravity torque about joint {joint} (N·m per kg, summed over mass points)"),
         ),
-        Block::LinkDeflection { joint, points } => {
-            let (_, _, m) = deflection_terms(&state.model, &o.ctx.q, *joint, points);
+        Block::LinkDeflection { joint, points, .. } => {
+            let (_, _, m) = deflection_terms(&state.model, &o.ctx.q, *joint, points, false);
             (
                 m.iter().sum::<nalgebra::Vector3<f64>>().norm(),
                 format!("bending moment at joint {joint} (N·m per kg, summed)"),
