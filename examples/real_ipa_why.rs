@@ -26,12 +26,11 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
-use robocal::dataset::PoseRecord;
 use robocal::diagnose::fit::{residuals, rms3, State};
 use robocal::diagnose::transfer::refit_setup;
 use robocal::diagnose::{self, nonparam, Options};
 use robocal::model::KinematicModel;
-use robocal::solve::obs::{session_observations, PoseObs};
+use robocal::solve::obs::PoseObs;
 
 fn data_dir() -> Option<PathBuf> {
     let p = std::env::var_os("ROBOCAL_REAL_DATA")
@@ -51,22 +50,9 @@ fn load(
         .map(|h| robocal::dataset::read_dataset(h).map(|l| l.dataset))
         .transpose()?;
     let model = KinematicModel::from_robot_block(&main.header.robot)?;
-    let dof = model.dof();
-    let mut session: Vec<&PoseRecord> = main.poses().collect();
-    if let Some(x) = &extra {
-        session.extend(x.poses());
-    }
-    let is_val = |p: &PoseRecord| p.group.as_deref() == Some("validation");
-    let tr: Vec<&PoseRecord> = main.poses().filter(|p| !is_val(p)).collect();
-    let mut he: Vec<&PoseRecord> = main.poses().filter(|p| is_val(p)).collect();
-    if let Some(x) = &extra {
-        he.extend(x.poses());
-    }
-    Ok((
-        model,
-        session_observations(&tr, &session, dof).0,
-        session_observations(&he, &session, dof).0,
-    ))
+    let (train, held, _) =
+        robocal::solve::obs::split_observations(&main, extra.as_ref(), model.dof());
+    Ok((model, train, held))
 }
 
 fn geometric(model: &KinematicModel, train: &[PoseObs]) -> anyhow::Result<State> {

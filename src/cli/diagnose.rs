@@ -91,19 +91,12 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
             .with_context(|| format!("{}: params", c.display()))?;
     }
     let dof = model.dof();
+    let (train, held, skipped) =
+        obs::split_observations(&main.dataset, extra.as_ref().map(|x| &x.dataset), dof);
     let mut session: Vec<&PoseRecord> = main.dataset.poses().collect();
     if let Some(x) = &extra {
         session.extend(x.dataset.poses());
     }
-    let is_val = |p: &PoseRecord| p.group.as_deref() == Some("validation");
-    let train_recs: Vec<&PoseRecord> = main.dataset.poses().filter(|p| !is_val(p)).collect();
-    let mut held_recs: Vec<&PoseRecord> = main.dataset.poses().filter(|p| is_val(p)).collect();
-    if let Some(x) = &extra {
-        held_recs.extend(x.dataset.poses());
-    }
-    let (train, mut skipped) = obs::session_observations(&train_recs, &session, dof);
-    let (held, s2) = obs::session_observations(&held_recs, &session, dof);
-    skipped.extend(s2);
     if let (Some(x), Some(h)) = (&extra, &args.heldout) {
         let recs: Vec<&PoseRecord> = x.dataset.poses().collect();
         anyhow::ensure!(

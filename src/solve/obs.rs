@@ -295,6 +295,31 @@ pub fn session_observations(
     out
 }
 
+/// The training / held-out split of a session: the records of `main` outside the
+/// `validation` group train; its `validation` records and every record of `extra` (a
+/// held-out file) are held out. Contexts are computed over all records of both files.
+/// Returns the training and held-out observations and the records skipped.
+pub fn split_observations(
+    main: &Dataset,
+    extra: Option<&Dataset>,
+    dof: usize,
+) -> (Vec<PoseObs>, Vec<PoseObs>, Vec<Skipped>) {
+    let mut session: Vec<&PoseRecord> = main.poses().collect();
+    if let Some(x) = extra {
+        session.extend(x.poses());
+    }
+    let is_val = |p: &PoseRecord| p.group.as_deref() == Some("validation");
+    let train: Vec<&PoseRecord> = main.poses().filter(|p| !is_val(p)).collect();
+    let mut held: Vec<&PoseRecord> = main.poses().filter(|p| is_val(p)).collect();
+    if let Some(x) = extra {
+        held.extend(x.poses());
+    }
+    let (train, mut skipped) = session_observations(&train, &session, dof);
+    let (held, s2) = session_observations(&held, &session, dof);
+    skipped.extend(s2);
+    (train, held, skipped)
+}
+
 fn build(
     records: &[&PoseRecord],
     session: &[&PoseRecord],
