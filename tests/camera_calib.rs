@@ -243,6 +243,23 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
         .and_then(|t| t.parse().ok())
         .expect("implied square size");
     assert!((implied - 30.0).abs() < 0.5, "{e}");
+    // Metres typed for millimetres (1000× too small): the closed-form scale still names 30 mm.
+    let l = robocal::solve::camera::data::load(
+        &train,
+        &robocal::solve::camera::data::Overrides {
+            square_mm: Some(0.03),
+            ..Default::default()
+        },
+        false,
+    )
+    .unwrap();
+    let e = robocal::solve::camera::calibrate(&l.data, None, &Default::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("the squares are 30.0") || e.contains("the squares are 29.9"),
+        "{e}"
+    );
 }
 
 #[test]
