@@ -219,18 +219,22 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
         0
     );
     assert!(!bad.join("calibration.json").exists());
-    let l = robocal::solve::camera::data::load(
-        &train,
-        &robocal::solve::camera::data::Overrides {
-            square_mm: Some(3.0),
-            ..Default::default()
-        },
-        false,
-    )
-    .unwrap();
-    let e = robocal::solve::camera::calibrate(&l.data, None, &Default::default())
-        .unwrap_err()
-        .to_string();
+    // The library's refusal of the training data declared with `square` mm squares.
+    let refusal = |square: f64| {
+        let l = robocal::solve::camera::data::load(
+            &train,
+            &robocal::solve::camera::data::Overrides {
+                square_mm: Some(square),
+                ..Default::default()
+            },
+            false,
+        )
+        .unwrap();
+        robocal::solve::camera::calibrate(&l.data, None, &Default::default())
+            .unwrap_err()
+            .to_string()
+    };
+    let e = refusal(3.0);
     eprintln!("--square 3: {e}");
     assert!(
         e.contains("`--square`") && e.contains("target.square_mm") && e.contains("millimetres"),
@@ -244,18 +248,7 @@ fn run_calibrate_predict_camera_on_the_simulated_cell() {
         .expect("implied square size");
     assert!((implied - 30.0).abs() < 0.5, "{e}");
     // Metres typed for millimetres (1000× too small): the closed-form scale still names 30 mm.
-    let l = robocal::solve::camera::data::load(
-        &train,
-        &robocal::solve::camera::data::Overrides {
-            square_mm: Some(0.03),
-            ..Default::default()
-        },
-        false,
-    )
-    .unwrap();
-    let e = robocal::solve::camera::calibrate(&l.data, None, &Default::default())
-        .unwrap_err()
-        .to_string();
+    let e = refusal(0.03);
     assert!(
         e.contains("the squares are 30.0") || e.contains("the squares are 29.9"),
         "{e}"

@@ -1202,6 +1202,16 @@ mod tests {
     use nalgebra::Point3;
     use std::sync::Arc;
 
+    /// Uniform noise in ±`amp` from a 64-bit LCG seeded with `seed` (reproducible test data).
+    fn lcg_noise(mut seed: u64, amp: f64) -> impl FnMut() -> f64 {
+        move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            amp * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
+        }
+    }
+
     /// The columns a candidate is scored with are the problem's own Jacobian: each matches
     /// the central finite difference of the prediction in that coefficient (at zero, on top
     /// of an already fitted effect), for a candidate of every kind.
@@ -1284,13 +1294,7 @@ mod tests {
         let truth_b = 0.02f64.to_radians();
         let mut truth = Effect::zero(Block::Backlash { joint: 2 });
         truth.coefs = vec![truth_b];
-        let mut seed = 11u64;
-        let mut noise = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            0.01 * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
-        };
+        let mut noise = lcg_noise(11, 0.01);
         let mut pose = |k: u64| {
             let f = k as f64;
             let q: Vec<f64> = (0..6)
@@ -1380,13 +1384,7 @@ mod tests {
                 tau_std: f64::NAN,
             },
         ];
-        let mut seed = 5u64;
-        let mut noise = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            0.01 * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
-        };
+        let mut noise = lcg_noise(5, 0.01);
         let mut pose = |k: u64| {
             let f = k as f64;
             let q: Vec<f64> = (0..6)
@@ -1442,13 +1440,7 @@ mod tests {
             std: vec![f64::NAN; 6],
             tau_std: f64::NAN,
         };
-        let mut seed = 7u64;
-        let mut noise = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            0.02 * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
-        };
+        let mut noise = lcg_noise(7, 0.02);
         let mut pose = |id: u64, t: f64| {
             let f = id as f64;
             let q: Vec<f64> = (0..6)
