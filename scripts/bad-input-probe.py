@@ -75,8 +75,16 @@ def pivot_dataset(path, scale=1.0, n=60, bad=None):
     return write_jsonl(path, rows)
 
 
+def limit_memory():
+    """A case that reads /dev/zero or a huge line must not take the machine down with it:
+    6 GiB of address space per run (a run that needs more is killed: counted as a panic)."""
+    import resource
+    resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))
+
+
 class Probe:
     def __init__(self, exe, timeout, verbose):
+        self.cwd = None
         self.exe = exe
         self.timeout = timeout
         self.verbose = verbose
@@ -86,7 +94,7 @@ class Probe:
         t = timeout or self.timeout
         try:
             p = subprocess.run([self.exe] + args, capture_output=True, text=True, timeout=t,
-                               stdin=subprocess.DEVNULL)
+                               stdin=subprocess.DEVNULL, preexec_fn=limit_memory, cwd=self.cwd)
             rc, out, err = p.returncode, p.stdout, p.stderr
         except subprocess.TimeoutExpired as e:
             rc, out, err = None, (e.stdout or b"").decode(errors="replace") if isinstance(e.stdout, bytes) else (e.stdout or ""), ""
@@ -111,6 +119,272 @@ class Probe:
         if self.verbose:
             print(f"{outcome:7} {name}: {first[:160]}", flush=True)
         return outcome
+
+
+def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
+    """Issue 26 classes: outputs that are not regular files, inputs that are not regular or
+    are unbounded, read-only history, accept specs that check nothing, session options
+    checked before anything moves, calibration claims, id order, plausibility of the newer
+    readers."""
+    b = P.run
+    import stat
+    os.makedirs(j("i26"), exist_ok=True)
+    k = lambda *p: j("i26", *p)  # noqa: E731
+
+    # ---- input files that are not regular, or unbounded (§7)
+    fifo = k("in.fifo")
+    os.mkfifo(fifo)
+    adir = k("a-dir")
+    os.makedirs(adir)
+    garbage = k("garbage.bin")
+    open(garbage, "wb").write(bytes(range(256)) * 16)
+    longline = k("long.jsonl")
+    with open(longline, "w") as f:
+        f.write(json.dumps(hdr) + "\n")
+        f.write(json.dumps({"kind": "event", "t": 0.0, "what": "note", "text": "x" * (5 << 20)}) + "\n")
+    empty = k("empty.jsonl")
+    open(empty, "w").close()
+    pts = k("pts.csv")
+    with open(pts, "w") as f:
+        f.write("name,x_mm,y_mm,z_mm\n")
+        for i, (x, y, z) in enumerate([(0, 0, 0), (50, 0, 0), (0, 60, 0), (0, 0, 70), (30, 30, 30)]):
+            f.write(f"f{i},{x},{y},{z}\n")
+    plan = j("plan.json")
+    readers = [
+        ("inspect", lambda x: ["inspect", x], True),
+        ("calibrate nominal", lambda x: ["calibrate", "nominal", "--data", x, "--out", k("o")], True),
+        ("calibrate kinematics", lambda x: ["calibrate", "kinematics", "--data", x, "--out", k("o")], True),
+        ("calibrate pivot", lambda x: ["calibrate", "pivot", "--data", x], True),
+        ("calibrate laser", lambda x: ["calibrate", "laser", "--data", x, "--out", k("o")], True),
+        ("calibrate robot-world", lambda x: ["calibrate", "robot-world", "--data", x, "--out", k("rw.json")], True),
+        ("calibrate rcm", lambda x: ["calibrate", "rcm", "--data", x, "--out", k("o")], True),
+        ("calibrate camera", lambda x: ["calibrate", "camera", "--data", x, "--out", k("o"), "--quiet"], True),
+        ("diagnose", lambda x: ["diagnose", "--data", x, "--out", k("o")], True),
+        ("diagnose --heldout", lambda x: ["diagnose", "--data", good, "--heldout", x, "--out", k("o")], True),
+        ("predict --data", lambda x: ["predict", "--calibration", cal, "--data", x], True),
+        ("predict --calibration", lambda x: ["predict", "--calibration", x, "--data", good], False),
+        ("calibrate nominal --heldout", lambda x: ["calibrate", "nominal", "--data", good, "--heldout", x, "--out", k("o")], True),
+        ("plan --check", lambda x: ["plan", "--check", x], False),
+        ("plan --spec", lambda x: ["plan", "--spec", x, "--robot", "denso-vs060", "--out", k("p.json")], False),
+        ("plan --chain", lambda x: ["plan", "--spec", ANNULUS, "--chain", x, "--out", k("p.json")], True),
+        ("run --plan", lambda x: ["run", "--plan", x, "--sim", LAB, "--out", k("r"), "--virtual-clock", "--in-process"], False),
+        ("run --sim", lambda x: ["run", "--plan", plan, "--sim", x, "--out", k("r"), "--virtual-clock", "--in-process"], False),
+        ("session --sim", lambda x: ["session", "--sim", x, "--out", k("s"), "--plan-only", "--no-history"], False),
+        ("session --accept", lambda x: ["session", "--sim", LAB, "--accept", x, "--out", k("s"), "--plan-only", "--no-history"], False),
+        ("session --spec", lambda x: ["session", "--sim", LAB, "--spec", x, "--out", k("s"), "--plan-only", "--no-history"], False),
+        ("register --ct", lambda x: ["register", "--ct", x, "--tracker", pts, "--out", k("reg.json")], False),
+        ("register --tracker", lambda x: ["register", "--ct", pts, "--tracker", x, "--out", k("reg.json")], False),
+        ("register --ct-mesh", lambda x: ["register", "--ct-mesh", x, "--tracker", pts, "--out", k("reg.json")], False),
+        ("register --tracker-data", lambda x: ["register", "--ct", pts, "--tracker-data", x, "--out", k("reg.json")], True),
+        ("chain --registration", lambda x: ["chain", "--registration", x, "--robot-world", x, "--targets", pts, "--robot-sigma-mm", "0.1"], False),
+        ("chain --targets", lambda x: ["chain", "--registration", garbage, "--robot-world", garbage, "--targets", x, "--robot-sigma-mm", "0.1"], False),
+        ("import csv", lambda x: ["import", "csv", "--input", x, "--out", k("imp.jsonl"), "--robot", "ur10", "--joints", "a,b,c,d,e,f", "--joint-unit", "deg", "--pos", "x,y,z", "--length-unit", "mm"], False),
+        ("report --dir", lambda x: ["report", "--dir", x], False),
+    ]
+    kinds = [("FIFO", fifo, ["fifo", "regular file"], 8),
+             ("/dev/zero", "/dev/zero", ["device", "regular file"], 5),
+             ("directory", adir, ["directory"], 10),
+             ("garbage", garbage, [], 10),
+             ("empty", empty, [], 10),
+             ("5 MiB line", longline, ["longer than", "line"], 20)]
+    for rname, cmd, dataset in readers:
+        for kname, path, exp, t in kinds:
+            if rname == "report --dir" and kname not in ("FIFO", "/dev/zero", "garbage"):
+                continue
+            if kname == "5 MiB line" and not dataset:
+                exp = []
+            b(f"input {kname}: {rname}", cmd(path), exp, timeout=t)
+
+    # ---- outputs that are not regular files (§1); a private device node, never the host's
+    def node(name):
+        p = k(name)
+        try:
+            os.mknod(p, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+            return p
+        except OSError:
+            return None
+    real = k("real.out")
+    targets = []
+    f2 = k("out.fifo")
+    os.mkfifo(f2)
+    targets.append(("FIFO", f2, ["fifo"]))
+    dn = node("out.null")
+    if dn:
+        targets.append(("device node", dn, ["device"]))
+    od = k("out-dir.csv")
+    os.makedirs(od)
+    targets.append(("directory", od, ["directory"]))
+    lf = k("link-fifo.out")
+    os.symlink(f2, lf)
+    targets.append(("symlink to FIFO", lf, ["fifo"]))
+    dl = k("dangling.out")
+    os.symlink(k("missing", "x.out"), dl)
+    targets.append(("dangling symlink", dl, ["symbolic link", "missing"]))
+    writers = [
+        ("predict --out", lambda x: ["predict", "--calibration", cal, "--data", goodheld, "--out", x]),
+        ("plan --out", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--out", x]),
+        ("plan --csv", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--csv", x]),
+        ("plan --urscript", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--urscript", x]),
+        ("plan --summary", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--summary", x]),
+        ("import csv --out", lambda x: ["import", "csv", "--input", k("imp.csv"), "--out", x, "--robot", "ur10", "--joints", "a,b,c,d,e,f", "--joint-unit", "deg", "--pos", "x,y,z", "--length-unit", "mm"]),
+        ("register --out", lambda x: ["register", "--ct", pts, "--tracker", pts, "--out", x]),
+        ("report --out .md", lambda x: ["report", "--dir", j("o-kin"), "--out", x]),
+    ]
+    open(k("small.toml"), "w").write(open(ANNULUS).read().replace("points = 200", "points = 12"))
+    with open(k("imp.csv"), "w") as f:
+        f.write("a,b,c,d,e,f,x,y,z\n")
+        for i in range(30):
+            f.write(",".join(str(v) for v in [i, -10 + i, 20, 5, -i, 3, 400 + i, 10 * i, 300]) + "\n")
+    for wname, cmd in writers:
+        for tname, path, exp in targets:
+            b(f"output {tname}: {wname}", cmd(path), exp, timeout=15)
+        # Control: a symbolic link to a regular file is written through and stays a link.
+        open(real, "w").write("old")
+        link = k("link.out")
+        if os.path.lexists(link):
+            os.remove(link)
+        os.symlink(real, link)
+        out = b(f"ctl output symlink to a file: {wname}", cmd(link), good=True, timeout=60)
+        if out == "ok" and not os.path.islink(link):
+            P.results[-1] = (P.results[-1][0], "broken", "the symbolic link was replaced by a file")
+    # report --out X.html must not overwrite a report.md it did not write.
+    rep = k("rep")
+    os.makedirs(rep)
+    if os.path.exists(cal):
+        open(os.path.join(rep, "calibration.json"), "w").write(open(cal).read())
+    open(os.path.join(rep, "report.md"), "w").write("my notes")
+    out = b("ctl report --out x.html keeps another report.md", ["report", "--dir", rep, "--out", os.path.join(rep, "x.html")], good=True)
+    if out == "ok" and open(os.path.join(rep, "report.md")).read() != "my notes":
+        P.results[-1] = (P.results[-1][0], "accept", "report.md overwritten")
+
+    # ---- read-only history (§8)
+    hd = k("hist")
+    os.makedirs(hd)
+    P.cwd = hd
+    for url in ("mysql://u@h/db", "sqlite3://x.db", "http://example/x", "ftp://a/b", "redis://h"):
+        out = b(f"history --db {url}", ["history", "--robot", "X", "--db", url], ["scheme", "postgres"])
+    for name in ("typo.sqlite", "sub/dir/typo.sqlite"):
+        b(f"history --db missing {name}", ["history", "--robot", "X", "--db", os.path.join(hd, name)], ["no history database"])
+    import sqlite3
+    foreign = os.path.join(hd, "foreign.sqlite")
+    c = sqlite3.connect(foreign)
+    c.execute("CREATE TABLE patients (id INTEGER)")
+    c.commit()
+    c.close()
+    before = open(foreign, "rb").read()
+    b("history --db foreign SQLite", ["history", "--robot", "X", "--db", foreign], ["not a robocal history"])
+    if open(foreign, "rb").read() != before:
+        P.results[-1] = (P.results[-1][0], "accept", "the foreign database was altered")
+    b("history --db a text file", ["history", "--robot", "X", "--db", garbage], ["not a sqlite", "not a robocal"])
+    b("history --db a directory", ["history", "--robot", "X", "--db", adir], ["regular file", "directory"])
+    P.cwd = None
+    if len(os.listdir(hd)) != 1:
+        P.results.append(("history created files in its working directory", "accept", str(os.listdir(hd))))
+
+    # ---- accept specs (§4): kind named, matches the cell, has an accuracy criterion
+    acc = lambda name, text: (open(k(name), "w").write(text), k(name))[1]  # noqa: E731
+    specs = [
+        ("camera spec on a kinematic cell", os.path.join(ROOT, "accept/camera.toml"), ["judges camera"]),
+        ("only a name", acc("a1.toml", 'name = "x"\n'), ["session"]),
+        ("no session kind", acc("a2.toml", 'name = "x"\nheldout_rms_mm_max = 1.0\n'), ["session"]),
+        ("no accuracy criterion", acc("a3.toml", 'name = "x"\nsession = "kinematic"\nskipped_fraction_max = 0.1\n'), ["accuracy criterion"]),
+        ("only must_improve", acc("a4.toml", 'name = "x"\nsession = "kinematic"\nmust_improve = true\n'), ["accuracy criterion"]),
+        ("camera criterion in a kinematic spec", acc("a5.toml", 'name = "x"\nsession = "kinematic"\nheldout_rms_mm_max = 1.0\nheldout_reprojection_px_max = 0.5\n'), ["never be checked"]),
+        ("unknown session kind", acc("a6.toml", 'name = "x"\nsession = "laser"\nheldout_rms_mm_max = 1.0\n'), ["session"]),
+        ("camera spec without px criterion", acc("a7.toml", 'name = "x"\nsession = "camera"\nhand_eye_ci95_mm_max = 1.0\n'), ["heldout_reprojection_px_max"]),
+        ("param ci only", acc("a8.toml", 'name = "x"\nsession = "kinematic"\nparam_ci95_mm_max = 1.0\n'), ["accuracy criterion"]),
+    ]
+    for i, (name, path, exp) in enumerate(specs):
+        b(f"session --accept: {name}", ["session", "--sim", LAB, "--out", k(f"acc{i}"), "--plan-only", "--no-history", "--accept", path], exp, timeout=60)
+    b("ctl session --accept research --plan-only", ["session", "--sim", LAB, "--out", k("acc-ok"), "--plan-only", "--no-history", "--accept", os.path.join(ROOT, "accept/research.toml")], good=True, timeout=300)
+
+    # ---- session options checked before anything is created (§5)
+    gj = k("garbage.json")
+    open(gj, "w").write("not json")
+    for i, (opts, exp) in enumerate([
+            (["--speed-deg-s=NaN"], ["speed"]), (["--speed-deg-s=inf"], ["speed"]), (["--speed-deg-s=0"], ["speed"]),
+            (["--speed-deg-s=-3"], ["speed"]), (["--speed-deg-s=1000"], ["limit"]), (["--accel-deg-s2=NaN"], ["accel"]),
+            (["--accel-deg-s2=0"], ["accel"]), (["--accel-deg-s2=1e9"], ["limit"]), (["--frames=0"], ["frames"]),
+            (["--frames=100000000"], ["frames"]), (["--history", "mysql://h/db"], ["scheme"]),
+            (["--history", garbage], ["sqlite"]), (["--history", adir], ["regular file", "directory"]),
+            (["--chain-targets", pts, "--chain-registration", gj, "--chain-robot-world", gj], ["garbage.json"]),
+            (["--chain-targets", fifo, "--chain-registration", gj, "--chain-robot-world", gj], ["fifo", "garbage.json"]),
+            (["--chain-targets", pts, "--chain-registration", gj, "--chain-robot-world", gj, "--chain-tool-sigma-mm=NaN"], ["sigma"]),
+            (["--arm", "nosuch"], ["nosuch"]), (["--poses", "0"], ["poses"]), (["--heldout-points", "1"], ["heldout"])]):
+        b(f"session {' '.join(o if '/' not in o else os.path.basename(o) for o in opts)}", ["session", "--sim", LAB, "--out", k(f"opt{i}"), "--plan-only"] + opts, exp, timeout=60)
+
+    # ---- calibration claims (§3)
+    calj = json.load(open(cal)) if os.path.exists(cal) else None
+    if calj:
+        def cvar(name, f):
+            c = json.loads(json.dumps(calj))
+            f(c)
+            json.dump(c, open(k(name), "w"))
+            return k(name)
+        cases = [
+            ("params []", cvar("c-empty.json", lambda c: c.update(params=[])), ["params", "empty"]),
+            ("compliance 1e308", cvar("c-comp.json", lambda c: c.update(effects=[{"kind": "joint_compliance", "joint": 2, "params": {"points": ["j3"], "c_times_mass_deg_kg_per_nm": [1e308]}}])), ["plausible"]),
+            ("scale_ppm 1e300", cvar("c-scale.json", lambda c: c.update(effects=[{"kind": "tracker_scale", "params": {"scale_ppm": 1e300}}])), ["plausible"]),
+            ("kind banana", cvar("c-banana.json", lambda c: c.update(kind="banana")), ["banana"]),
+            ("effect warp_drive", cvar("c-warp.json", lambda c: c.update(effects=[{"kind": "warp_drive", "params": {}}])), ["warp_drive"]),
+            ("effect without params", cvar("c-noparam.json", lambda c: c.update(effects=[{"kind": "backlash", "joint": 2, "params": {}}])), ["backlash", "half_lost_motion"]),
+            ("kind laser without a beam", cvar("c-laser.json", lambda c: c.update(kind="laser")), ["laser"]),
+        ]
+        for name, path, exp in cases:
+            b(f"predict: calibration {name}", ["predict", "--calibration", path, "--data", goodheld], exp)
+            b(f"diagnose --calibration {name}", ["diagnose", "--data", good, "--calibration", path, "--out", k("o")], exp + ["kinematic"] if "kind" in name else exp, timeout=120)
+
+    # ---- dataset ids reversed / swapped / merged (§3: a regression)
+    poses = small[1:]
+    rev = write_jsonl(k("rev.jsonl"), [small[0]] + list(reversed(poses)))
+    sw = [small[0]] + poses[:]
+    sw[5], sw[6] = sw[6], sw[5]
+    swp = write_jsonl(k("swap.jsonl"), sw)
+    merged = write_jsonl(k("merged.jsonl"), [small[0]] + poses[:30] + poses[:10])
+    for what, path, exp in [("ids reversed", rev, ["id"]), ("ids swapped", swp, ["id"]), ("ids repeated (two files merged)", merged, ["id"])]:
+        b(f"inspect: {what}", ["inspect", path], exp)
+        b(f"calibrate nominal: {what}", ["calibrate", "nominal", "--data", path, "--out", k("o")], exp)
+        b(f"calibrate kinematics: {what}", ["calibrate", "kinematics", "--data", path, "--out", k("o")], exp)
+        b(f"predict: {what}", ["predict", "--calibration", cal, "--data", path], exp)
+        b(f"diagnose: {what}", ["diagnose", "--data", path, "--out", k("o")], exp)
+
+    # ---- quaternions (§3): non-unit, 1e308, wrong order, in every reader of marker poses
+    def qvar(name, g):
+        rows = json.loads(json.dumps(small))
+        g(rows)
+        return write_jsonl(k(name + ".jsonl"), rows)
+    has_q = any("quat" in (r.get("marker") or {}) for r in small[1:])
+    if has_q:
+        qcases = [("marker quat norm 2", qvar("q2", lambda rs: rs[3]["marker"].update(quat=[2.0, 0, 0, 0]))),
+                  ("marker quat 1e308", qvar("q308", lambda rs: rs[3]["marker"].update(quat=[1e308, 0, 0, 0]))),
+                  ("marker quat zeros", qvar("q0", lambda rs: rs[3]["marker"].update(quat=[0, 0, 0, 0])))]
+        for name, path in qcases:
+            for cmd in (["inspect", path], ["calibrate", "nominal", "--data", path, "--out", k("o")],
+                        ["calibrate", "robot-world", "--data", path, "--out", k("rw.json")], ["predict", "--calibration", cal, "--data", path]):
+                b(f"{cmd[0]} {cmd[1] if cmd[0] == 'calibrate' else ''}: {name}".replace("  ", " "), cmd, ["quat"])
+    pq = [("pivot quat norm 3", pivot_dataset(k("pq3.jsonl"), bad=lambda rs: rs[3]["marker"].update(quat=[3.0, 0, 0, 0]))),
+          ("pivot quat NaN-like 1e308", pivot_dataset(k("pq308.jsonl"), bad=lambda rs: rs[3]["marker"].update(quat=[1e308, 1e308, 0, 0])))]
+    for name, path in pq:
+        b(f"calibrate pivot: {name}", ["calibrate", "pivot", "--data", path], ["quat"])
+        b(f"inspect: {name}", ["inspect", path], ["quat"])
+
+    # ---- chain --joints-deg outside the limits (§3)
+    reg = k("reg-ok.json")
+    b("ctl register paired", ["register", "--ct", pts, "--tracker", pts, "--out", reg], good=True)
+    rw = k("rw-ok.json")
+    json.dump({"format": "robocal-robot-world/1",
+               "T_base_tracker": {"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}}, open(rw, "w"))
+    if os.path.exists(reg) and os.path.exists(cal):
+        for q in ("800,0,0,0,0,0", "0,0,0,0,0,1e308", "0,0,0,0,0,-400", "0,200,0,0,0,0"):
+            b(f"chain --joints-deg {q}", ["chain", "--registration", reg, "--robot-world", rw, "--targets", pts, "--calibration", cal, "--joints-deg", q], ["limit"])
+        b("ctl chain --joints-deg 0,10,80,0,40,0", ["chain", "--registration", reg, "--robot-world", rw, "--targets", pts, "--calibration", cal, "--joints-deg", "0,10,80,0,40,0"], good=True)
+
+    # ---- bounded counts (§7)
+    for cmd, exp in [(["calibrate", "kinematics", "--data", good, "--out", k("o"), "--bootstrap", "100000000"], ["bootstrap"]),
+                     (["calibrate", "camera", "--data", good, "--out", k("o"), "--bootstrap", "100000000"], ["bootstrap", "camera"]),
+                     (["calibrate", "rcm", "--data", good, "--out", k("o"), "--bootstrap", "100000000"], ["bootstrap", "camera", "instrument"]),
+                     (["chain", "--registration", garbage, "--robot-world", garbage, "--targets", pts, "--robot-sigma-mm", "0.1", "--mc", "100000000000"], ["mc"])]:
+        b(f"{cmd[0]} {cmd[1]} {cmd[-2]} {cmd[-1]}", cmd, exp, timeout=30)
 
 
 def main():
@@ -344,6 +618,8 @@ def main():
                 ["plan", "--check", garbage], ["predict", "--calibration", garbage, "--data", good],
                 ["report", "--dir", d + "/nonexistent"], ["calibrate", "pivot", "--data", garbage]):
         b("garbage: " + " ".join(c if c != garbage else "GARBAGE" for c in cmd[:2]), cmd, [], timeout=10)
+
+    issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood)
 
     # ---- summary
     cats = {}

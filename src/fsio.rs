@@ -1,12 +1,180 @@
 //! Durable file writes: the one atomic-write helper every file robocal writes goes through
 //! (temporary file in the same directory, fsync, rename over the target, fsync of the
-//! directory), and the exclusive run-directory lock of `robocal run`.
+//! directory), the bounded reader every input file goes through ([`read`],
+//! [`read_to_string`]), and the exclusive run-directory lock of `robocal run`.
 //!
 //! A crash (kill -9, power cut) at any moment leaves either the old file or the new one,
 //! never a torn one; after [`write_atomic`] returns the new content and its directory entry
 //! are on disk.
-use std::io::Write as _;
+//!
+//! Trust at the boundary (issue 26 §1, §7): the writer only ever replaces a regular file. An
+//! existing target that is a device, FIFO, socket or directory is refused (renaming over
+//! `/dev/null` would break the host); a symbolic link is resolved and its regular-file target
+//! written (the link stays a link); a dangling link is refused. Temporary files a killed
+//! writer left behind (`.<name>.tmp<pid>` of a process that no longer runs) are removed on the
+//! next write of the same file. The reader refuses anything but a regular file (a FIFO would
+//! block forever, `/dev/zero` never ends) and files larger than [`MAX_INPUT_BYTES`].
+use std::io::{Read as _, Write as _};
 use std::path::{Path, PathBuf};
+
+/// Largest input file robocal reads whole (bytes): 512 MiB. Every file robocal reads is far
+/// smaller (the largest real dataset is a few MB; images are read by the camera drivers).
+pub const MAX_INPUT_BYTES: u64 = 512 << 20;
+
+/// What a non-regular file is, for messages.
+fn kind_name(ft: &std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt as _;
+        if ft.is_fifo() {
+            return "a FIFO (named pipe)";
+        }
+        if ft.is_char_device() {
+            return "a character device";
+        }
+        if ft.is_block_device() {
+            return "a block device";
+        }
+        if ft.is_socket() {
+            return "a socket";
+        }
+    }
+    if ft.is_dir() {
+        "a directory"
+    } else if ft.is_symlink() {
+        "a symbolic link"
+    } else {
+        "not a regular file"
+    }
+}
+
+fn invalid(msg: String) -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::InvalidInput, msg)
+}
+
+/// Checks that `path` is a regular file of at most [`MAX_INPUT_BYTES`] (symbolic links
+/// followed) and returns its size. The error names what the path is instead (a FIFO, a
+/// device, a directory) and why it is refused. Nothing is opened, so a FIFO never blocks.
+pub fn check_input(path: &Path) -> std::io::Result<u64> {
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(invalid(format!(
+            "{}, not a regular file: give a file (reading a FIFO, device or socket could block \
+             forever or never end)",
+            kind_name(&meta.file_type())
+        )));
+    }
+    if meta.len() > MAX_INPUT_BYTES {
+        return Err(invalid(format!(
+            "{} bytes, more than the {} MiB robocal reads from one input file: not an input \
+             file of robocal (a wrong path?)",
+            meta.len(),
+            MAX_INPUT_BYTES >> 20
+        )));
+    }
+    Ok(meta.len())
+}
+
+/// Reads a whole input file, bounded: a regular file ([`check_input`]) and never more than
+/// [`MAX_INPUT_BYTES`] (a file that grows while it is read included). The drop-in replacement
+/// of `std::fs::read` for every input robocal reads.
+pub fn read(path: impl AsRef<Path>) -> std::io::Result<Vec<u8>> {
+    let path = path.as_ref();
+    let len = check_input(path)?;
+    let f = std::fs::File::open(path)?;
+    let mut buf = Vec::with_capacity(len as usize);
+    f.take(MAX_INPUT_BYTES + 1).read_to_end(&mut buf)?;
+    if buf.len() as u64 > MAX_INPUT_BYTES {
+        return Err(invalid(format!(
+            "grew past {} MiB while it was read: not an input file of robocal",
+            MAX_INPUT_BYTES >> 20
+        )));
+    }
+    Ok(buf)
+}
+
+/// [`read`] as UTF-8 text (the drop-in replacement of `std::fs::read_to_string`).
+pub fn read_to_string(path: impl AsRef<Path>) -> std::io::Result<String> {
+    String::from_utf8(read(path)?).map_err(|e| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "not UTF-8 text (invalid byte at offset {}): a binary file or another encoding",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })
+}
+
+/// The file [`write_atomic`] may replace for `path`: `path` itself when it does not exist or
+/// is a regular file; the final target of a symbolic link when that is a regular file (the
+/// link is kept); an error for anything else (device, FIFO, socket, directory, dangling link).
+pub fn output_target(path: &Path) -> std::io::Result<PathBuf> {
+    let meta = match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(path.to_path_buf()),
+        Err(e) => return Err(e),
+        Ok(m) => m,
+    };
+    if meta.is_file() {
+        return Ok(path.to_path_buf());
+    }
+    if meta.file_type().is_symlink() {
+        let target = std::fs::canonicalize(path).map_err(|_| {
+            invalid(
+                "a symbolic link to a missing file: refusing to replace the link (give the \
+                 target's path, or remove the link)"
+                    .to_string(),
+            )
+        })?;
+        let tm = std::fs::metadata(&target)?;
+        if tm.is_file() {
+            return Ok(target);
+        }
+        return Err(invalid(format!(
+            "a symbolic link to {}, which is {}: robocal writes only regular files \
+             (replacing it would destroy it)",
+            target.display(),
+            kind_name(&tm.file_type())
+        )));
+    }
+    Err(invalid(format!(
+        "{}, not a regular file: robocal writes only regular files (replacing it would destroy \
+         it); give another output path",
+        kind_name(&meta.file_type())
+    )))
+}
+
+/// Whether process `pid` runs (Linux: `/proc/<pid>`; elsewhere assumed running).
+fn pid_alive(pid: u32) -> bool {
+    if cfg!(target_os = "linux") {
+        Path::new(&format!("/proc/{pid}")).exists()
+    } else {
+        true
+    }
+}
+
+/// Removes the temporary files `.<name>.tmp<pid>` in `dir` that a killed writer of a process
+/// no longer running left behind (regular files only).
+fn clean_stale_temps(dir: &Path, name: &str) {
+    let prefix = format!(".{name}.tmp");
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let file_name = e.file_name();
+        let Some(pid) = file_name
+            .to_str()
+            .and_then(|n| n.strip_prefix(&prefix))
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let regular = e.file_type().is_ok_and(|t| t.is_file());
+        if regular && pid != std::process::id() && !pid_alive(pid) {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
 
 /// The directory holding `path` (`.` for a bare file name).
 fn parent_dir(path: &Path) -> &Path {
@@ -27,14 +195,28 @@ pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
 /// Writes `bytes` to `path` atomically and durably: a temporary file next to it
 /// (`.<name>.tmp<pid>`), fsync, rename over `path`, fsync of the directory. On error the
 /// temporary file is removed and `path` is unchanged.
+///
+/// Only a regular file is ever replaced ([`output_target`]): a device, FIFO, socket or
+/// directory at `path` is an error, a symbolic link is written through (the link is kept).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let target = output_target(path)?;
+    let path = target.as_path();
     let dir = parent_dir(path);
     let name = path
         .file_name()
         .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    clean_stale_temps(dir, &name);
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    // A temporary file of this process from an earlier, failed write (or anything an attacker
+    // placed there): never written through, removed first, then created exclusively.
+    if std::fs::symlink_metadata(&tmp).is_ok_and(|m| !m.is_dir()) {
+        let _ = std::fs::remove_file(&tmp);
+    }
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
         drop(f);
@@ -159,6 +341,8 @@ impl DirLock {
 #[cfg(test)]
 mod tests {
     use super::*;
+    #[cfg(unix)]
+    use std::os::unix::fs::FileTypeExt as _;
 
     #[test]
     fn write_atomic_replaces_whole_file_and_leaves_no_temp() {
@@ -183,6 +367,93 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("missing-dir"));
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn write_atomic_never_replaces_what_is_not_a_regular_file() {
+        let d = tempfile::tempdir().unwrap();
+        // A FIFO and a directory are refused and stay what they are.
+        let fifo = d.path().join("fifo");
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        let e = write_atomic(&fifo, b"x").unwrap_err().to_string();
+        assert!(
+            e.contains("FIFO") && e.contains("not a regular file"),
+            "{e}"
+        );
+        assert!(std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo());
+        let dir = d.path().join("dir");
+        std::fs::create_dir(&dir).unwrap();
+        let e = write_atomic(&dir, b"x").unwrap_err().to_string();
+        assert!(e.contains("a directory"), "{e}");
+        assert!(dir.is_dir());
+        // A symbolic link to a regular file: the target is written, the link stays a link.
+        let real = d.path().join("real.json");
+        std::fs::write(&real, "old").unwrap();
+        let link = d.path().join("link.json");
+        std::os::unix::fs::symlink(&real, &link).unwrap();
+        write_atomic(&link, b"new").unwrap();
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        assert_eq!(std::fs::read(&real).unwrap(), b"new");
+        // A link to a FIFO or a missing file is refused.
+        let to_fifo = d.path().join("to-fifo");
+        std::os::unix::fs::symlink(&fifo, &to_fifo).unwrap();
+        let e = write_atomic(&to_fifo, b"x").unwrap_err().to_string();
+        assert!(e.contains("FIFO"), "{e}");
+        let dangling = d.path().join("dangling");
+        std::os::unix::fs::symlink(d.path().join("missing"), &dangling).unwrap();
+        let e = write_atomic(&dangling, b"x").unwrap_err().to_string();
+        assert!(e.contains("missing file"), "{e}");
+        assert!(!d.path().join("missing").exists());
+    }
+
+    #[test]
+    fn stale_temp_files_of_dead_processes_are_removed_on_the_next_write() {
+        let d = tempfile::tempdir().unwrap();
+        // PID 4194304 + 1 is above Linux's PID_MAX_LIMIT: never a running process.
+        let stale = d.path().join(".a.json.tmp4194305");
+        std::fs::write(&stale, "torn").unwrap();
+        let other = d.path().join(".b.json.tmp4194305");
+        std::fs::write(&other, "another file's").unwrap();
+        write_atomic(&d.path().join("a.json"), b"ok").unwrap();
+        if cfg!(target_os = "linux") {
+            assert!(!stale.exists(), "stale temp file kept");
+        }
+        assert!(other.exists(), "another file's temp file removed");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn read_refuses_fifos_directories_and_devices_without_blocking() {
+        let d = tempfile::tempdir().unwrap();
+        let fifo = d.path().join("fifo");
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        let e = read(&fifo).unwrap_err().to_string();
+        assert!(e.contains("FIFO"), "{e}");
+        let e = read_to_string(d.path()).unwrap_err().to_string();
+        assert!(e.contains("directory"), "{e}");
+        let e = read("/dev/zero").unwrap_err().to_string();
+        assert!(e.contains("character device"), "{e}");
+        let bin = d.path().join("bin");
+        std::fs::write(&bin, [0xffu8, 0xfe, 0]).unwrap();
+        let e = read_to_string(&bin).unwrap_err().to_string();
+        assert!(e.contains("not UTF-8"), "{e}");
+        std::fs::write(&bin, "text").unwrap();
+        assert_eq!(read_to_string(&bin).unwrap(), "text");
     }
 
     #[test]

@@ -19,8 +19,18 @@ struct Out {
 
 /// Runs the binary with a deadline; a run past it is killed and reported as a hang.
 fn run(args: &[&str]) -> Out {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
+    run_in(None, &[], args)
+}
+
+/// [`run`] in directory `cwd` (else the test's) with extra environment variables.
+fn run_in(cwd: Option<&Path>, env: &[(&str, &str)], args: &[&str]) -> Out {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_robocal"));
+    if let Some(d) = cwd {
+        cmd.current_dir(d);
+    }
+    let mut child = cmd
         .args(args)
+        .envs(env.iter().copied())
         .env("ROBOCAL_LOG", "warn")
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -53,7 +63,11 @@ fn run(args: &[&str]) -> Out {
 /// Asserts a clear refusal: exit 1, no panic, and every `needle` in the message.
 #[track_caller]
 fn refused(args: &[&str], needles: &[&str]) -> String {
-    let o = run(args);
+    refused_out(run(args), args, needles)
+}
+
+#[track_caller]
+fn refused_out(o: Out, args: &[&str], needles: &[&str]) -> String {
     assert!(
         !o.text.contains("panicked at"),
         "PANIC: robocal {args:?}\n{}",
@@ -736,4 +750,292 @@ fn bad_input_file_readers_survive_mutated_files() {
         println!("mutated {k}: {ok} accepted, {err} refused");
     }
     println!("file readers: {:.1} s", t0.elapsed().as_secs_f64());
+}
+
+// ---- issue 26: trust at every boundary. One test per class; each fails on the binary
+// before the fix (confident wrong answer, clobbered file, silent accept or hang).
+
+fn strs(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
+fn mkfifo(p: &Path) {
+    assert!(Command::new("mkfifo").arg(p).status().unwrap().success());
+}
+
+/// A calibration of the geometric test robot (nominal fit on 40 poses) and its held-out file.
+fn nominal_cal(dir: &Path) -> (PathBuf, PathBuf) {
+    let good = write(dir, "good.jsonl", &geo(40));
+    let held = write(dir, "held.jsonl", &geo_held(20));
+    let out = dir.join("nom");
+    let o = run(&["calibrate", "nominal", "--data", s(&good), "--out", s(&out)]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    (out.join("calibration.json"), held)
+}
+
+#[test]
+fn bad_input_outputs_never_replace_what_is_not_a_regular_file() {
+    use std::os::unix::fs::FileTypeExt as _;
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let (cal, held) = nominal_cal(dp);
+    let predict = |out: &Path| {
+        vec![
+            "predict".to_string(),
+            "--calibration".into(),
+            s(&cal).into(),
+            "--data".into(),
+            s(&held).into(),
+            "--out".into(),
+            s(out).into(),
+        ]
+    };
+    // A FIFO (as a device node would be) is refused and stays a FIFO.
+    let fifo = dp.join("out.fifo");
+    mkfifo(&fifo);
+    refused(&strs(&predict(&fifo)), &["FIFO", "not a regular file"]);
+    assert!(std::fs::symlink_metadata(&fifo)
+        .unwrap()
+        .file_type()
+        .is_fifo());
+    // A directory given as the output file.
+    let dir_out = dp.join("a-dir");
+    std::fs::create_dir(&dir_out).unwrap();
+    refused(&strs(&predict(&dir_out)), &["directory"]);
+    assert!(dir_out.is_dir());
+    // A symbolic link: written through, the link stays a link.
+    let real = dp.join("real.csv");
+    std::fs::write(&real, "old").unwrap();
+    let link = dp.join("link.csv");
+    std::os::unix::fs::symlink(&real, &link).unwrap();
+    // A temporary file a killed writer left (a PID above Linux's limit: not running).
+    let stale = dp.join(".real.csv.tmp4194305");
+    std::fs::write(&stale, "torn").unwrap();
+    let o = run(&strs(&predict(&link)));
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    assert!(std::fs::read_to_string(&real).unwrap().len() > 100);
+    assert!(!stale.exists(), "the stale temporary file was left");
+    // `report --out X.html` never overwrites a report.md it did not write.
+    let rep = dp.join("rep");
+    std::fs::create_dir(&rep).unwrap();
+    std::fs::copy(&cal, rep.join("calibration.json")).unwrap();
+    let mine = rep.join("report.md");
+    std::fs::write(&mine, "my notes").unwrap();
+    let o = run(&[
+        "report",
+        "--dir",
+        s(&rep),
+        "--out",
+        s(&rep.join("summary.html")),
+    ]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    assert_eq!(std::fs::read_to_string(&mine).unwrap(), "my notes");
+    assert!(rep.join("summary.md").is_file());
+}
+
+#[test]
+fn bad_input_non_regular_and_unbounded_inputs_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let fifo = dp.join("in.fifo");
+    mkfifo(&fifo);
+    refused(&["inspect", s(&fifo)], &["FIFO", "not a regular file"]);
+    refused(&["inspect", "/dev/zero"], &["character device"]);
+    refused(&["inspect", s(dp)], &["directory"]);
+    refused(
+        &["calibrate", "pivot", "--data", s(&fifo)],
+        &["FIFO", "not a regular file"],
+    );
+    refused(&["plan", "--check", s(&fifo)], &["FIFO"]);
+    // One 5 MiB line: refused by its length, not parsed.
+    let mut rows = geo(3);
+    rows[2]["note"] = json!("x".repeat(5 << 20));
+    let long = write(dp, "long.jsonl", &rows);
+    refused(&["inspect", s(&long)], &["long.jsonl:3", "longer than"]);
+}
+
+#[test]
+fn bad_input_history_queries_never_create_or_alter_a_database() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let o = run_in(
+        Some(dp),
+        &[("ROBOCAL_DB", "mysql://user@host/db")],
+        &["history", "--robot", "X"],
+    );
+    refused_out(o, &["history"], &["mysql://", "postgres://"]);
+    assert!(
+        std::fs::read_dir(dp).unwrap().next().is_none(),
+        "history created something in its working directory"
+    );
+    // A mistyped path creates no database.
+    let typo = dp.join("histroy.sqlite");
+    refused(
+        &["history", "--robot", "X", "--db", s(&typo)],
+        &["no history database"],
+    );
+    assert!(!typo.exists());
+    // A foreign SQLite file gets no table added.
+    let foreign = dp.join("foreign.sqlite");
+    let c = rusqlite::Connection::open(&foreign).unwrap();
+    c.execute_batch("CREATE TABLE patients (id INTEGER);")
+        .unwrap();
+    drop(c);
+    let before = std::fs::read(&foreign).unwrap();
+    refused(
+        &["history", "--robot", "X", "--db", s(&foreign)],
+        &["not a robocal history", "patients"],
+    );
+    assert_eq!(std::fs::read(&foreign).unwrap(), before);
+}
+
+#[test]
+fn bad_input_accept_spec_must_judge_the_sessions_kind() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let session = |out: &Path, accept: &Path| {
+        run(&[
+            "session",
+            "--sim",
+            s(&lab()),
+            "--out",
+            s(out),
+            "--plan-only",
+            "--no-history",
+            "--accept",
+            s(accept),
+        ])
+    };
+    // A camera spec on a kinematic (tracker) cell: it would check nothing.
+    let out = dp.join("s1");
+    let o = session(&out, &root().join("accept/camera.toml"));
+    refused_out(o, &["session"], &["judges camera sessions", "kinematic"]);
+    assert!(!out.exists(), "a refused session created its directory");
+    // A spec holding only a name.
+    let only_name = dp.join("name.toml");
+    std::fs::write(&only_name, "name = \"x\"\n").unwrap();
+    let out = dp.join("s2");
+    let o = session(&out, &only_name);
+    refused_out(o, &["session"], &["name.toml", "session"]);
+    // A kinematic spec without an accuracy criterion.
+    let no_acc = dp.join("noacc.toml");
+    std::fs::write(
+        &no_acc,
+        "name = \"x\"\nsession = \"kinematic\"\nskipped_fraction_max = 0.1\n",
+    )
+    .unwrap();
+    let o = session(&out, &no_acc);
+    refused_out(o, &["session"], &["no accuracy criterion"]);
+    assert!(!out.exists());
+}
+
+#[test]
+fn bad_input_session_options_are_checked_before_anything_is_created() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let garbage = dp.join("garbage.json");
+    std::fs::write(&garbage, "not json").unwrap();
+    let targets = dp.join("t.csv");
+    std::fs::write(&targets, "name,x_mm,y_mm,z_mm\nt1,0,0,0\n").unwrap();
+    for (i, (extra, needles)) in [
+        (vec!["--speed-deg-s=NaN"], vec!["--speed-deg-s", "finite"]),
+        (vec!["--speed-deg-s", "1000"], vec!["cell's limit of 180"]),
+        (vec!["--accel-deg-s2=inf"], vec!["--accel-deg-s2"]),
+        (vec!["--frames", "0"], vec!["--frames 0"]),
+        (
+            vec!["--history", "mysql://h/db"],
+            vec!["mysql://", "postgres://"],
+        ),
+        (
+            vec![
+                "--chain-targets",
+                s(&targets),
+                "--chain-registration",
+                s(&garbage),
+                "--chain-robot-world",
+                s(&garbage),
+            ],
+            vec!["garbage.json"],
+        ),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = dp.join(format!("s{i}"));
+        let mut a = vec![
+            "session",
+            "--sim",
+            s(&lab()),
+            "--out",
+            s(&out),
+            "--plan-only",
+        ];
+        a.extend(extra);
+        refused(&a, &needles);
+        assert!(
+            !out.exists(),
+            "{a:?}: a refused session created its directory"
+        );
+    }
+}
+
+#[test]
+fn bad_input_calibration_claims_are_checked_before_use() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let (cal, held) = nominal_cal(dp);
+    let base: Value = serde_json::from_str(&std::fs::read_to_string(&cal).unwrap()).unwrap();
+    let variant = |name: &str, f: &dyn Fn(&mut Value)| {
+        let mut v = base.clone();
+        f(&mut v);
+        let p = dp.join(name);
+        std::fs::write(&p, v.to_string()).unwrap();
+        p
+    };
+    let empty = variant("empty.json", &|v| v["params"] = json!([]));
+    refused(
+        &["predict", "--calibration", s(&empty), "--data", s(&held)],
+        &["params", "empty"],
+    );
+    let huge = variant("huge.json", &|v| {
+        v["effects"] = json!([{"kind": "joint_compliance", "joint": 2,
+            "params": {"points": ["j3"], "c_times_mass_deg_kg_per_nm": [1e308]}}])
+    });
+    refused(
+        &["predict", "--calibration", s(&huge), "--data", s(&held)],
+        &["effects[0].params", "not a plausible coefficient"],
+    );
+    let good = write(dp, "g.jsonl", &geo(40));
+    let banana = variant("banana.json", &|v| v["kind"] = json!("banana"));
+    refused(
+        &[
+            "diagnose",
+            "--data",
+            s(&good),
+            "--calibration",
+            s(&banana),
+            "--out",
+            s(&dp.join("x")),
+        ],
+        &["banana", "kind"],
+    );
+    let warp = variant("warp.json", &|v| {
+        v["effects"] = json!([{"kind": "warp_drive", "params": {"factor": 9.0}}])
+    });
+    refused(
+        &[
+            "diagnose",
+            "--data",
+            s(&good),
+            "--calibration",
+            s(&warp),
+            "--out",
+            s(&dp.join("x")),
+        ],
+        &["warp_drive", "effects[0]"],
+    );
 }

@@ -369,6 +369,22 @@ pub fn robot_link_from_calibration(
             model.dof()
         )));
     }
+    // The joints must be a pose the robot can take (degrees, inside its limits): 800° or
+    // radians would give the uncertainty of a pose that does not exist.
+    let tol = crate::plausible::dataset::JOINT_LIMIT_TOL_DEG.to_radians();
+    for (k, (&x, &(lo, hi))) in q.iter().zip(&model.joint_limits()).enumerate() {
+        if !x.is_finite() || x < lo - tol || x > hi + tol {
+            return Err(RegisterError::Invalid(format!(
+                "--joints-deg: joint {} = {}° is outside the robot's limits [{:.1}°, {:.1}°] \
+                 ({}): give the pose in degrees",
+                k + 1,
+                x.to_degrees(),
+                lo.to_degrees(),
+                hi.to_degrees(),
+                cal.robot.model
+            )));
+        }
+    }
     if let Some(c) = cal.extra.get("bootstrap").and_then(|b| b.get("covariance")) {
         let fc: BootstrapCovariance = serde_json::from_value(c.clone()).map_err(|e| {
             RegisterError::Invalid(format!("calibration: `bootstrap.covariance`: {e}"))
@@ -481,7 +497,7 @@ impl ChainReport {
     }
     /// Reads `chain.json`.
     pub fn load(path: &std::path::Path) -> Result<Self, RegisterError> {
-        let text = std::fs::read_to_string(path).map_err(|e| RegisterError::Io {
+        let text = crate::fsio::read_to_string(path).map_err(|e| RegisterError::Io {
             path: path.display().to_string(),
             source: e,
         })?;

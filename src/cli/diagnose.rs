@@ -51,7 +51,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let out = run(&args)?;
     if args.json {
         let p = args.out.join("diagnosis.json");
-        match std::fs::read_to_string(&p) {
+        match crate::fsio::read_to_string(&p) {
             Ok(text) => println!("{text}"),
             // Laser diagnoses write their own report file.
             Err(_) => println!("{}", serde_json::json!({ "summary": out })),
@@ -86,6 +86,14 @@ pub fn run(args: &Args) -> anyhow::Result<String> {
         .with_context(|| format!("{}: robot block", args.data.display()))?;
     if let Some(c) = &args.calibration {
         let cal = crate::plausible::calibration::load_for(c, &ds.header.robot, &args.data)?;
+        if cal.kind() != crate::dataset::CalibrationKind::Kinematic {
+            anyhow::bail!(
+                "{}: field `kind`: {:?} is not a kinematic calibration: diagnose starts only \
+                 from a kinematic calibration of this robot",
+                c.display(),
+                cal.kind()
+            );
+        }
         model
             .apply_cal_params(&cal.params)
             .with_context(|| format!("{}: params", c.display()))?;

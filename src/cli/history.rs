@@ -25,7 +25,9 @@ pub struct Args {
 /// Run `robocal history`.
 pub fn exec(a: Args) -> anyhow::Result<()> {
     let loc = history::location(a.db.as_deref());
-    let mut h = History::open(&loc).with_context(|| format!("opening the history {loc}"))?;
+    // A query: never creates or alters a database (issue 26 §8).
+    let mut h =
+        History::open_read_only(&loc).with_context(|| format!("opening the history {loc}"))?;
     let rows = h.robot(&a.robot)?;
     if rows.is_empty() {
         anyhow::bail!("{loc}: no session of robot {:?}", a.robot);

@@ -159,7 +159,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 }
 
 fn read(p: &std::path::Path) -> anyhow::Result<String> {
-    let bytes = std::fs::read(p).with_context(|| format!("{}: cannot read", p.display()))?;
+    let bytes = crate::fsio::read(p).with_context(|| format!("{}: cannot read", p.display()))?;
     String::from_utf8(bytes).map_err(|e| {
         anyhow::anyhow!(
             "{}: not UTF-8 text (byte {}): save it as UTF-8",

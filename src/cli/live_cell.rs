@@ -30,7 +30,8 @@ fn tool_roms(d: &DeviceEntry, base: &Path) -> anyhow::Result<Vec<(String, Vec<u8
         .iter()
         .map(|t| {
             let p = base.join(t);
-            let bytes = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+            let bytes =
+                crate::fsio::read(&p).with_context(|| format!("reading {}", p.display()))?;
             let name = Path::new(t)
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())

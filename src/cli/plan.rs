@@ -81,8 +81,8 @@ fn robot_from_args(a: &Args) -> anyhow::Result<(RobotBlock, KinematicModel)> {
         let ds = Dataset::load(path).with_context(|| format!("reading {}", path.display()))?;
         ds.header.robot
     } else if let Some(path) = &a.urdf {
-        let xml =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let xml = crate::fsio::read_to_string(path)
+            .with_context(|| format!("reading {}", path.display()))?;
         let sc = SerialChain::from_urdf_str(&xml, a.base_link.as_deref(), a.tip_link.as_deref())
             .with_context(|| format!("URDF {}", path.display()))?;
         let name = path

@@ -51,7 +51,7 @@ pub struct Args {
 /// Reads a tracker model file.
 pub fn load_model(path: &std::path::Path) -> anyhow::Result<reg::StereoTrackerModel> {
     let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        crate::fsio::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let m: reg::StereoTrackerModel = serde_json::from_str(&text).with_context(|| {
         format!(
             "{}: not a tracker model (baseline_mm, focal_px, disparity_sigma_px, pixel_sigma_px)",

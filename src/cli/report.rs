@@ -3,7 +3,8 @@
 //!
 //! Markdown is always written: to `DIR/report.md` by default (or `DIR/session-report.md` when
 //! DIR itself is a `robocal diagnose` output, whose own `report.md` is kept), to `--out` when
-//! it ends in `.md`, and beside the HTML as `report.md` when `--out` ends in `.html`.
+//! it ends in `.md`, and beside the HTML with the same stem when `--out` ends in `.html`
+//! (`x.html` → `x.md`: never another file that happens to be called `report.md`).
 //! The headline is printed last (or the whole report as JSON with `--json`).
 use std::path::{Path, PathBuf};
 
@@ -66,10 +67,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             (args.dir.join(name), None)
         }
         (Some(p), Some("md")) => (p.clone(), None),
-        (Some(p), Some("html" | "htm")) => {
-            let parent = p.parent().unwrap_or(Path::new(""));
-            (parent.join("report.md"), Some(p.clone()))
-        }
+        (Some(p), Some("html" | "htm")) => (p.with_extension("md"), Some(p.clone())),
         (Some(p), _) => bail!("--out {}: give a .html or .md path", p.display()),
     };
     write(&md_path, &session.markdown())?;

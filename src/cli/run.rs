@@ -758,7 +758,7 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
         "devices.toml"
     };
     let copy = |src: &Path, name: &str| -> anyhow::Result<()> {
-        let bytes = std::fs::read(src).with_context(|| format!("reading {}", src.display()))?;
+        let bytes = crate::fsio::read(src).with_context(|| format!("reading {}", src.display()))?;
         write_atomic(dir.join(name), &bytes)
     };
     copy(plan_path, "plan.json")?;
@@ -799,7 +799,7 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
 
 fn load_run(dir: &Path) -> anyhow::Result<RunConfig> {
     let p = dir.join("run.json");
-    let text = std::fs::read_to_string(&p)
+    let text = crate::fsio::read_to_string(&p)
         .with_context(|| format!("{} is not a run directory (no run.json)", dir.display()))?;
     let cfg: RunConfig = serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
     if cfg.format != RUN_FORMAT {
@@ -952,7 +952,7 @@ mod tests {
     fn run_guard_enforces_the_plans_table_and_envelope() {
         let spec_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/seed001-annulus.toml");
         let mut spec =
-            crate::plan::PlanSpec::from_toml_str(&std::fs::read_to_string(spec_path).unwrap())
+            crate::plan::PlanSpec::from_toml_str(&crate::fsio::read_to_string(spec_path).unwrap())
                 .unwrap();
         if let Some(a) = spec.annulus.as_mut() {
             a.points = 5;

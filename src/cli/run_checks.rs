@@ -19,11 +19,19 @@ struct CellArm {
     acc: Option<CellLimit>,
 }
 
-fn cell_arm(mode: &str, config: &Path) -> anyhow::Result<CellArm> {
+fn cell_arm(mode: &str, config: &Path, arm: Option<&str>) -> anyhow::Result<CellArm> {
     if mode == "sim" {
         let s = Scenario::load(config).with_context(|| format!("reading {}", config.display()))?;
-        let Some(a) = s.arms.first() else {
-            anyhow::bail!("{}: the scenario has no [[arm]]", config.display());
+        let a = match arm {
+            Some(n) => s.arms.iter().find(|a| a.name == n),
+            None => s.arms.first(),
+        };
+        let Some(a) = a else {
+            anyhow::bail!(
+                "{}: the scenario has no [[arm]]{}",
+                config.display(),
+                arm.map_or_else(String::new, |n| format!(" named {n:?}"))
+            );
         };
         let src = |k: &str| format!("{}: arm \"{}\" motion.{k}", config.display(), a.name);
         return Ok(CellArm {
@@ -78,7 +86,14 @@ pub fn check_run_inputs(
     accel_deg_s2: f64,
     frames: usize,
 ) -> anyhow::Result<()> {
-    let cell = cell_arm(mode, config)?;
+    let cell = cell_arm(mode, config, None)?;
+    caps(&cell, speed_deg_s, accel_deg_s2, frames)?;
+    recheck(plan, Some(&cell.robot))
+        .with_context(|| format!("checking {}", plan_path.display()))?;
+    Ok(())
+}
+
+fn caps(cell: &CellArm, speed_deg_s: f64, accel_deg_s2: f64, frames: usize) -> anyhow::Result<()> {
     motion_cap("--speed-deg-s", speed_deg_s, "deg/s", cell.vel.as_ref())
         .map_err(anyhow::Error::msg)?;
     motion_cap("--accel-deg-s2", accel_deg_s2, "deg/s²", cell.acc.as_ref())
@@ -87,7 +102,24 @@ pub fn check_run_inputs(
         (1..=10_000).contains(&frames),
         "--frames {frames}: average 1 to 10000 tracker frames per pose"
     );
-    recheck(plan, Some(&cell.robot))
-        .with_context(|| format!("checking {}", plan_path.display()))?;
     Ok(())
+}
+
+/// A session's speed and acceleration caps and frame count, checked against the cell
+/// (`arm` of a scenario, or the device file's arm) before the session is created — the same
+/// checks `robocal run` applies, so a session never stores a value its run would refuse.
+pub fn check_motion_options(
+    mode: &str,
+    config: &Path,
+    arm: Option<&str>,
+    speed_deg_s: f64,
+    accel_deg_s2: f64,
+    frames: usize,
+) -> anyhow::Result<()> {
+    caps(
+        &cell_arm(mode, config, arm)?,
+        speed_deg_s,
+        accel_deg_s2,
+        frames,
+    )
 }

@@ -398,7 +398,7 @@ impl session::Cell for RunCell {
         };
         super::run::exec(args)?;
         let p = run_dir.join("summary.json");
-        let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
+        let text = crate::fsio::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
         serde_json::from_str(&text).with_context(|| format!("{}", p.display()))
     }
 }
@@ -448,13 +448,32 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
     };
     let camera = kind == SessionKind::Camera;
     let accept = match &a.accept {
-        Some(p) => AcceptSpec::from_file(p)?,
+        Some(p) => {
+            let spec = AcceptSpec::from_file(p)?;
+            spec.check_kind(kind, &p.display().to_string())?;
+            spec
+        }
         None if camera => AcceptSpec::from_toml_str(CAMERA_ACCEPT, "accept/camera.toml")?,
         None => AcceptSpec::default_surgical(),
     };
+    // Every motion option against the cell's own limits before anything is created (a NaN
+    // speed would be written as `null` into session.json and never resume).
+    let cell_src = a
+        .sim
+        .as_ref()
+        .or(a.devices.as_ref())
+        .expect("checked above");
+    super::run_checks::check_motion_options(
+        if mode == Mode::Sim { "sim" } else { "live" },
+        cell_src,
+        a.arm.as_deref(),
+        a.speed_deg_s,
+        a.accel_deg_s2,
+        a.frames,
+    )?;
     let spec_text = match &a.spec {
         Some(p) => {
-            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+            crate::fsio::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
         }
         None if camera => CAMERA_SPECS
             .iter()
@@ -493,18 +512,14 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         spec_file: "spec.toml".into(),
         poses,
         heldout_points,
-        frames: a.frames.max(1),
+        frames: a.frames,
         speed_deg_s: a.speed_deg_s,
         accel_deg_s2: a.accel_deg_s2,
         operator_note: a.note.clone(),
         plan_only: a.plan_only,
         kind,
     };
-    let src = a
-        .sim
-        .as_ref()
-        .or(a.devices.as_ref())
-        .expect("checked above");
+    let src = cell_src;
     session::create(dir, setup, src, cell, &spec_text, accept)?;
     if let Some(text) = scenario_text {
         // The session runs on the single-arm scenario (the copy keeps the original's content
@@ -532,7 +547,7 @@ pub fn exec(a: Args) -> anyhow::Result<i32> {
             })
         }
         (None, None, Some(d)) if d.join("fleet.json").is_file() => {
-            let text = std::fs::read_to_string(d.join("fleet.json"))?;
+            let text = crate::fsio::read_to_string(d.join("fleet.json"))?;
             let arms: Vec<String> = serde_json::from_str::<serde_json::Value>(&text)?
                 .get("arms")
                 .and_then(|v| serde_json::from_value(v.clone()).ok())
@@ -632,7 +647,41 @@ pub fn fleet_table(sessions: &[session::SessionFile]) -> String {
     t
 }
 
+/// The options used only after the acquisition (fleet history, chain files), checked before
+/// anything is created or moves (issue 26 §5): a bad `--history` or `--chain-registration`
+/// found after an hour of acquisition leaves a session without a verdict line.
+fn check_late_options(a: &Args) -> anyhow::Result<()> {
+    if !a.no_history {
+        let loc = crate::session::history::location(a.history.as_deref());
+        crate::session::history::check_location(&loc)
+            .with_context(|| format!("the fleet history {loc} (--history / ROBOCAL_DB)"))?;
+    }
+    anyhow::ensure!(
+        a.chain_tool_sigma_mm.is_finite() && a.chain_tool_sigma_mm >= 0.0,
+        "--chain-tool-sigma-mm {}: a finite number ≥ 0 (mm)",
+        a.chain_tool_sigma_mm
+    );
+    if let (Some(targets), Some(reg), Some(rw)) = (
+        &a.chain_targets,
+        &a.chain_registration,
+        &a.chain_robot_world,
+    ) {
+        // Read and check every chain file now, exactly as the closing stage will.
+        let files = crate::chain::ChainFiles {
+            registration: reg,
+            robot_world: rw,
+            targets,
+            robot: crate::chain::RobotLinkSource::SigmaMm(0.0),
+            tool_sigma_mm: a.chain_tool_sigma_mm,
+        };
+        crate::chain::chain_from_files(&files, 1, 1, &mut Vec::new())
+            .context("checking the chain files (--chain-*) before the session starts")?;
+    }
+    Ok(())
+}
+
 fn exec_one(a: Args) -> anyhow::Result<i32> {
+    check_late_options(&a)?;
     let dir = match &a.resume {
         Some(d) => d.clone(),
         None => start(&a)?.0,

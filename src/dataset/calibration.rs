@@ -72,7 +72,7 @@ impl CalibrationFile {
     /// Reads and checks a calibration file.
     pub fn load(path: impl AsRef<Path>) -> Result<CalibrationFile, DatasetError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| DatasetError::io(path, e))?;
+        let text = crate::fsio::read_to_string(path).map_err(|e| DatasetError::io(path, e))?;
         CalibrationFile::parse(&text, path)
     }
 
@@ -95,6 +95,9 @@ impl CalibrationFile {
             msg: e.to_string(),
         })?;
         check_calibration(value).map_err(|p| p.at(path, None))?;
+        // What robocal writes, its own readers accept (issue 26 §3): the plausibility checks
+        // `predict` and `diagnose --calibration` apply, before anything is written.
+        crate::plausible::calibration::check_values(self, path)?;
         write_atomic(path, self.to_json_pretty().as_bytes())
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! The reader is strict: every line must be valid JSON, every known field must have its
 //! documented type, joint vectors must have the chain's dof, quaternions must be unit and
-//! pose ids must be unique (they increase, except poses retried at the end of a run). The only tolerated damage is a **torn last line** (no trailing
+//! pose ids must be unique and increase, except poses a `skip` / `retry` / `fault` event
+//! named, retried at the end of a run. The only tolerated damage is a **torn last line** (no trailing
 //! newline and not valid JSON), which is dropped with a [`LoadWarning`]. Unknown fields
 //! are kept (`extra`) and written back unchanged.
 use std::path::Path;
@@ -55,6 +56,9 @@ pub(crate) struct Validator {
     last_pose_id: Option<u64>,
     /// Every pose id seen so far (ids are unique).
     pose_ids: std::collections::HashSet<u64>,
+    /// Pose ids a `skip` / `retry` / `fault` event named: the only poses that may come
+    /// after a larger id (retried at the end of the run).
+    retry_ids: std::collections::HashSet<u64>,
 }
 
 impl Validator {
@@ -64,6 +68,7 @@ impl Validator {
             dof: header.robot.dof().unwrap_or(0),
             last_pose_id: None,
             pose_ids: Default::default(),
+            retry_ids: Default::default(),
         }
     }
 
@@ -108,7 +113,17 @@ impl Validator {
             }
             Record::Event(_) => {}
         }
+        self.note_event(&rec);
         Ok(rec)
+    }
+
+    /// Remembers the pose an event says was skipped or retried (it may come again later).
+    fn note_event(&mut self, rec: &Record) {
+        if let Record::Event(e) = rec {
+            if let (Some(id), "skip" | "retry" | "fault") = (e.id, e.what.as_str()) {
+                self.retry_ids.insert(id);
+            }
+        }
     }
 
     /// Replays an already validated record (keeps the id order).
@@ -117,6 +132,7 @@ impl Validator {
             self.last_pose_id = Some(p.id);
             self.pose_ids.insert(p.id);
         }
+        self.note_event(rec);
     }
 
     fn check_pose(&self, obj: &Map<String, Value>) -> Result<(), Problem> {
@@ -130,6 +146,18 @@ impl Validator {
                 "id",
                 format!("pose id {id} is recorded twice (pose ids must be unique; last id {prev})"),
             ));
+        }
+        if let Some(last) = self.last_pose_id.filter(|&l| id < l) {
+            if !self.retry_ids.contains(&id) {
+                return Err(Problem::field(
+                    "id",
+                    format!(
+                        "pose id {id} comes after pose id {last}: ids increase in acquisition \
+                         order (only a pose a `skip` / `retry` event named may come again at the \
+                         end of a run): records reversed, reordered or merged from two files"
+                    ),
+                ));
+            }
         }
         for (k, ty) in [
             ("point", Ty::UInt),
@@ -297,6 +325,13 @@ fn syntax(file: &Path, line: usize, msg: impl Into<String>) -> DatasetError {
     }
 }
 
+/// Longest line of a dataset file (bytes): 4 MiB. A record with every corner of a large board
+/// is a few tens of kB; a longer line is a corrupt or foreign file, and parsing it would take
+/// tens of times its size in memory.
+pub const MAX_LINE_BYTES: usize = 4 << 20;
+/// Most records in one dataset file: 2 million (a 100 Hz stream of 5.5 hours).
+pub const MAX_RECORDS: usize = 2_000_000;
+
 /// Parses the bytes of a dataset file; `file` names it in errors and warnings.
 pub fn parse_dataset(bytes: &[u8], file: &Path) -> Result<Loaded, DatasetError> {
     let mut header: Option<Header> = None;
@@ -312,6 +347,28 @@ pub fn parse_dataset(bytes: &[u8], file: &Path) -> Result<Loaded, DatasetError> 
             Some(i) => (&rest[..i], true),
             None => (rest, false),
         };
+        if line.len() > MAX_LINE_BYTES {
+            return Err(syntax(
+                file,
+                lineno,
+                format!(
+                    "the line is {} bytes, longer than the {} MiB a dataset record can be: a \
+                     corrupt file or not a robocal dataset",
+                    line.len(),
+                    MAX_LINE_BYTES >> 20
+                ),
+            ));
+        }
+        if lineno > MAX_RECORDS + 1 {
+            return Err(syntax(
+                file,
+                lineno,
+                format!(
+                    "more than {MAX_RECORDS} records: split the acquisition into several \
+                     datasets"
+                ),
+            ));
+        }
         let parsed: Result<Value, String> = std::str::from_utf8(line)
             .map_err(|e| format!("not valid UTF-8: {e}"))
             .and_then(|s| serde_json::from_str::<Value>(s).map_err(|e| e.to_string()));
@@ -368,7 +425,7 @@ pub fn parse_dataset(bytes: &[u8], file: &Path) -> Result<Loaded, DatasetError> 
 /// Reads a dataset file. A torn last line is dropped, returned as a warning and logged.
 pub fn read_dataset(path: impl AsRef<Path>) -> Result<Loaded, DatasetError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| DatasetError::io(path, e))?;
+    let bytes = crate::fsio::read(path).map_err(|e| DatasetError::io(path, e))?;
     parse_dataset(&bytes, path)
 }
 

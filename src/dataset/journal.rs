@@ -61,7 +61,7 @@ impl Journal {
     /// line is truncated away (and reported in the returned [`Loaded`]'s warnings).
     pub fn open(path: impl AsRef<Path>) -> Result<(Journal, Loaded), DatasetError> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|e| DatasetError::io(path, e))?;
+        let bytes = crate::fsio::read(path).map_err(|e| DatasetError::io(path, e))?;
         let loaded = parse_dataset(&bytes, path)?;
         let io = |e| DatasetError::io(path, e);
         let mut file = OpenOptions::new().append(true).open(path).map_err(io)?;
@@ -105,7 +105,7 @@ impl Journal {
         header: &Header,
     ) -> Result<(Journal, Vec<Record>, Vec<LoadWarning>), DatasetError> {
         let path = path.as_ref();
-        match std::fs::read(path) {
+        match crate::fsio::read(path) {
             Ok(bytes)
                 if bytes.contains(&b'\n')
                     || serde_json::from_slice::<serde_json::Value>(&bytes).is_ok() =>

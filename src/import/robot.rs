@@ -76,7 +76,7 @@ pub fn resolve(spec: &str) -> Result<RobotBlock, ImportError> {
         ur10()
     } else if lower.ends_with(".json") || lower.ends_with(".urdf") {
         let path = Path::new(spec);
-        let text = std::fs::read_to_string(path).map_err(|e| ImportError::Io {
+        let text = crate::fsio::read_to_string(path).map_err(|e| ImportError::Io {
             file: spec.into(),
             source: e,
         })?;

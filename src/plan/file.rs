@@ -183,7 +183,7 @@ impl PlanFile {
 
     /// Read and validate a plan file.
     pub fn read(path: &std::path::Path) -> Result<Self, PlanError> {
-        let s = std::fs::read_to_string(path).map_err(|e| PlanError::Io {
+        let s = crate::fsio::read_to_string(path).map_err(|e| PlanError::Io {
             path: path.display().to_string(),
             message: e.to_string(),
         })?;

@@ -380,7 +380,7 @@ impl PlanSpec {
 
     /// Read a TOML spec file.
     pub fn from_file(path: &std::path::Path) -> Result<Self, PlanError> {
-        let s = std::fs::read_to_string(path).map_err(|e| PlanError::Io {
+        let s = crate::fsio::read_to_string(path).map_err(|e| PlanError::Io {
             path: path.display().to_string(),
             message: e.to_string(),
         })?;

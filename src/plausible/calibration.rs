@@ -27,11 +27,100 @@ fn err(file: &Path, field: String, msg: String) -> DatasetError {
     }
 }
 
-/// Checks the values of a calibration file on their own: every `value` and `std` finite,
-/// `std ≥ 0`, and for a kinematic calibration every arm parameter within
-/// [`MAX_ARM_CORRECTION_MM`] / [`MAX_ARM_CORRECTION_DEG`] of the nominal chain of the file's
-/// own robot block, the tool within [`MAX_TOOL_MM`] and the base within 100 m.
+/// The calibration kinds robocal writes (the top-level `kind`; absent means kinematic).
+pub const KNOWN_KINDS: [&str; 4] = ["kinematic", "laser", "rcm", "camera"];
+/// Largest plausible magnitude of a number in an effect's parameters (a coefficient, a time
+/// in seconds since `created`, ppm): 1e9.
+pub const MAX_EFFECT_VALUE: f64 = 1.0e9;
+
+/// The first number in `v` (recursively) that is not finite or above `max` in magnitude,
+/// with its path below `at`.
+fn bad_number(v: &serde_json::Value, at: String, max: f64) -> Option<(String, f64)> {
+    match v {
+        serde_json::Value::Number(n) => {
+            let x = n.as_f64().unwrap_or(f64::INFINITY);
+            (!x.is_finite() || x.abs() > max).then_some((at, x))
+        }
+        serde_json::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .find_map(|(i, x)| bad_number(x, format!("{at}[{i}]"), max)),
+        serde_json::Value::Object(o) => o
+            .iter()
+            .find_map(|(k, x)| bad_number(x, format!("{at}.{k}"), max)),
+        _ => None,
+    }
+}
+
+/// Checks what a calibration file claims before any number of it is used: a kind robocal
+/// knows, at least one parameter (a kinematic or laser calibration without parameters is
+/// not a calibration: applying it gives the nominal model, metres off), every effect of a
+/// kinematic calibration one robocal can apply (an unknown effect silently ignored would be
+/// a confident wrong prediction) and every effect number finite and plausible.
+fn check_kind_and_effects(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetError> {
+    let kind = cal.kind();
+    if let CalibrationKind::Other(k) = &kind {
+        if !KNOWN_KINDS.contains(&k.as_str()) {
+            return Err(err(
+                file,
+                "kind".into(),
+                format!(
+                    "unknown calibration kind \"{k}\": robocal writes {} (a file of another \
+                     program, or a typo)",
+                    KNOWN_KINDS.join(", ")
+                ),
+            ));
+        }
+    }
+    if matches!(kind, CalibrationKind::Kinematic | CalibrationKind::Laser) && cal.params.is_empty()
+    {
+        return Err(err(
+            file,
+            "params".into(),
+            "empty: a calibration without parameters would predict with the nominal model (no \
+             base, no tool: metres off); an unfinished or hand-edited file"
+                .into(),
+        ));
+    }
+    for (i, e) in cal.effects.iter().enumerate() {
+        if let Some((at, x)) = bad_number(
+            &serde_json::Value::Object(e.params.clone()),
+            format!("effects[{i}].params"),
+            MAX_EFFECT_VALUE,
+        ) {
+            return Err(err(
+                file,
+                at,
+                format!(
+                    "effect \"{}\": {x:e} is not a plausible coefficient (finite, at most \
+                     {MAX_EFFECT_VALUE:e} in magnitude): a corrupted or mistyped file",
+                    e.kind
+                ),
+            ));
+        }
+        if kind == CalibrationKind::Kinematic {
+            if let Err(why) = crate::diagnose::effects::Effect::from_cal(e) {
+                return Err(err(
+                    file,
+                    format!("effects[{i}]"),
+                    format!(
+                        "{why}: robocal cannot apply this effect, and ignoring it would give \
+                         predictions that silently lack it"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks the values of a calibration file on their own: its kind and effects
+/// ([`check_kind_and_effects`]), every `value` and `std` finite, `std ≥ 0`, and for a
+/// kinematic calibration every arm parameter within [`MAX_ARM_CORRECTION_MM`] /
+/// [`MAX_ARM_CORRECTION_DEG`] of the nominal chain of the file's own robot block, the tool
+/// within [`MAX_TOOL_MM`] and the base within 100 m.
 pub fn check_values(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetError> {
+    check_kind_and_effects(cal, file)?;
     for (i, p) in cal.params.iter().enumerate() {
         if !p.value.is_finite() || p.value.abs() > MAX_COORD_MM {
             return Err(err(

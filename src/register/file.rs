@@ -259,7 +259,7 @@ impl RegistrationFile {
 
     /// Reads and checks a registration file.
     pub fn load(path: &Path) -> Result<Self, RegisterError> {
-        let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
+        let text = crate::fsio::read_to_string(path).map_err(|e| io_err(path, e))?;
         Self::parse(&text, &path.display().to_string())
     }
 
@@ -297,7 +297,7 @@ impl RegistrationFile {
 /// Reads an initial transform for ICP: a registration file, or any JSON whose
 /// `T_tracker_ct.matrix` is a 4×4 row-major in mm.
 pub fn load_init(path: &Path) -> Result<Isometry3<f64>, RegisterError> {
-    let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
+    let text = crate::fsio::read_to_string(path).map_err(|e| io_err(path, e))?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| RegisterError::Input {
         file: path.display().to_string(),
         line: e.line(),

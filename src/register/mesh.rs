@@ -78,7 +78,7 @@ fn bad(file: &str, msg: impl Into<String>) -> RegisterError {
 
 /// Reads an STL or PLY mesh (by content: `ply` magic, `solid` + `facet` text, else binary STL).
 pub fn read_mesh(path: &Path) -> Result<Mesh, RegisterError> {
-    let bytes = std::fs::read(path).map_err(|e| io_err(path, e))?;
+    let bytes = crate::fsio::read(path).map_err(|e| io_err(path, e))?;
     let file = path.display().to_string();
     let mesh = parse_mesh(&bytes, &file)?;
     check_mesh(&mesh, &file)?;
@@ -459,13 +459,13 @@ mod tests {
         m.write_ply(&ply).unwrap();
         assert_eq!(read_mesh(&ply).unwrap(), m);
         // Truncated binary STL.
-        let b = std::fs::read(&stl).unwrap();
+        let b = crate::fsio::read(&stl).unwrap();
         let e = parse_mesh(&b[..b.len() - 7], "t.stl")
             .unwrap_err()
             .to_string();
         assert!(e.contains("truncated"), "{e}");
         // Bad index in PLY.
-        let s = std::fs::read_to_string(&ply)
+        let s = crate::fsio::read_to_string(&ply)
             .unwrap()
             .replace("3 1 2 3", "3 1 2 9");
         let e = parse_mesh(s.as_bytes(), "t.ply").unwrap_err().to_string();

@@ -44,7 +44,7 @@ pub fn parse_points_csv(text: &str, file: &str) -> Result<Vec<NamedPoint>, Regis
 
 /// Reads a points CSV file.
 pub fn read_points_csv(path: &Path) -> Result<Vec<NamedPoint>, RegisterError> {
-    let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
+    let text = crate::fsio::read_to_string(path).map_err(|e| io_err(path, e))?;
     parse_points_csv(&text, &path.display().to_string())
 }
 

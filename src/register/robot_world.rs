@@ -550,7 +550,7 @@ impl RobotWorldFile {
 
     /// Reads and checks a file.
     pub fn load(path: &std::path::Path) -> Result<Self, RegisterError> {
-        let text = std::fs::read_to_string(path).map_err(|e| super::io_err(path, e))?;
+        let text = crate::fsio::read_to_string(path).map_err(|e| super::io_err(path, e))?;
         let f: RobotWorldFile = serde_json::from_str(&text).map_err(|e| RegisterError::Input {
             file: path.display().to_string(),
             line: e.line(),

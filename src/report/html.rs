@@ -42,7 +42,7 @@ pub fn check_same_session(dir: &Path, s: &SessionFile) -> anyhow::Result<()> {
         if !p.is_file() {
             continue;
         }
-        let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
+        let text = crate::fsio::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
         let v: serde_json::Value =
             serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
         match v.get("datasets") {
@@ -66,7 +66,7 @@ fn f4(v: Option<f64>) -> String {
 }
 
 fn inline_svg(path: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(path).ok()?;
+    let text = crate::fsio::read_to_string(path).ok()?;
     let start = text.find("<svg")?;
     // Only SVG markup (no script) is inlined.
     if text.contains("<script") {

@@ -98,7 +98,7 @@ fn rel_of(base: &Path, p: &Path) -> String {
 }
 
 fn take<T: SchemaFile>(p: &Path, rel: &str, slot: &mut Vec<Found<T>>, warnings: &mut Vec<String>) {
-    let text = match std::fs::read_to_string(p) {
+    let text = match crate::fsio::read_to_string(p) {
         Ok(t) => t,
         Err(e) => {
             warnings.push(format!("{rel}: {e}"));
@@ -147,7 +147,7 @@ pub fn gather(dir: &Path) -> anyhow::Result<Session> {
                 }
                 Err(e) => s.warnings.push(format!("{rel}: not a dataset ({e})")),
             },
-            _ if name.ends_with(".svg") => match std::fs::read_to_string(&p) {
+            _ if name.ends_with(".svg") => match crate::fsio::read_to_string(&p) {
                 Ok(t) => s.plots.push((rel, t)),
                 Err(e) => s.warnings.push(format!("{rel}: {e}")),
             },

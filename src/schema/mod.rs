@@ -99,7 +99,7 @@ pub fn parse<T: SchemaFile>(text: &str, path: &str) -> Result<T, SchemaError> {
 
 /// Read a `T` from `path` (see [`parse`]).
 pub fn read<T: SchemaFile>(path: &Path) -> Result<T, SchemaError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SchemaError::Io {
+    let text = crate::fsio::read_to_string(path).map_err(|e| SchemaError::Io {
         path: path.display().to_string(),
         source: e,
     })?;

@@ -222,7 +222,7 @@ pub fn named_to_string(rows: &[NamedRow]) -> String {
 
 /// Read a point table file (see [`parse`]).
 pub fn read(path: &Path) -> Result<HashMap<u64, Point3<f64>>, PointsCsvError> {
-    let text = std::fs::read_to_string(path).map_err(|source| PointsCsvError::Io {
+    let text = crate::fsio::read_to_string(path).map_err(|source| PointsCsvError::Io {
         file: path.display().to_string(),
         source,
     })?;

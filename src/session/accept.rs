@@ -38,6 +38,11 @@ pub enum AcceptError {
 pub struct AcceptSpec {
     /// Name of the use case (`surgical-navigation`, ...).
     pub name: String,
+    /// The kind of session this spec judges: `kinematic` (tracker, mm) or `camera` (board
+    /// images, px). Required in a spec file (a spec judging the wrong kind would check
+    /// nothing); absent only in session files written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub session: Option<super::SessionKind>,
     /// Free text shown in the report.
     #[serde(default)]
     pub description: Option<String>,
@@ -75,6 +80,20 @@ pub struct AcceptSpec {
     /// Camera sessions: the largest 95 % half-interval of the hand-eye rotation (deg).
     #[serde(default)]
     pub hand_eye_ci95_deg_max: Option<f64>,
+}
+
+fn kind_name(k: super::SessionKind) -> &'static str {
+    match k {
+        super::SessionKind::Kinematic => "kinematic",
+        super::SessionKind::Camera => "camera",
+    }
+}
+
+fn other_kind(k: super::SessionKind) -> super::SessionKind {
+    match k {
+        super::SessionKind::Kinematic => super::SessionKind::Camera,
+        super::SessionKind::Camera => super::SessionKind::Kinematic,
+    }
 }
 
 fn yes() -> bool {
@@ -118,12 +137,120 @@ impl AcceptSpec {
         )?;
         check("hand_eye_ci95_mm_max", spec.hand_eye_ci95_mm_max, 1e4)?;
         check("hand_eye_ci95_deg_max", spec.hand_eye_ci95_deg_max, 360.0)?;
+        let invalid = |field: &str, message: String| AcceptError::Invalid {
+            path: path.into(),
+            field: field.into(),
+            message,
+        };
+        let Some(kind) = spec.session else {
+            return Err(invalid(
+                "session",
+                "missing: name the kind of session this spec judges, `session = \"kinematic\"` \
+                 (tracker, mm) or `session = \"camera\"` (board images, px)"
+                    .into(),
+            ));
+        };
+        let (own, other) = spec.criteria(kind);
+        if let Some(f) = other.first() {
+            return Err(invalid(
+                f,
+                format!(
+                    "a criterion of {} sessions in a spec for {} sessions (`session = \"{}\"`): \
+                     it would never be checked",
+                    kind_name(other_kind(kind)),
+                    kind_name(kind),
+                    kind_name(kind)
+                ),
+            ));
+        }
+        if own.is_empty() {
+            let need = match kind {
+                super::SessionKind::Kinematic => {
+                    "heldout_rms_mm_max, heldout_max_mm_max or relative_distance_pct_max"
+                }
+                super::SessionKind::Camera => "heldout_reprojection_px_max",
+            };
+            return Err(invalid(
+                "session",
+                format!(
+                    "no accuracy criterion for a {} session: a verdict that checked nothing is \
+                     not a PASS; give at least one of {need}",
+                    kind_name(kind)
+                ),
+            ));
+        }
         Ok(spec)
+    }
+
+    /// The accuracy criteria (fields) this spec sets for sessions of `kind`, and the
+    /// criteria it sets that only sessions of the other kind check.
+    fn criteria(&self, kind: super::SessionKind) -> (Vec<&'static str>, Vec<&'static str>) {
+        let kin = [
+            ("heldout_rms_mm_max", self.heldout_rms_mm_max),
+            ("heldout_max_mm_max", self.heldout_max_mm_max),
+            ("relative_distance_pct_max", self.relative_distance_pct_max),
+            ("param_ci95_mm_max", self.param_ci95_mm_max),
+            ("param_ci95_deg_max", self.param_ci95_deg_max),
+        ];
+        let cam = [
+            (
+                "heldout_reprojection_px_max",
+                self.heldout_reprojection_px_max,
+            ),
+            ("hand_eye_ci95_mm_max", self.hand_eye_ci95_mm_max),
+            ("hand_eye_ci95_deg_max", self.hand_eye_ci95_deg_max),
+        ];
+        let set = |v: &[(&'static str, Option<f64>)], accuracy: usize| {
+            let all: Vec<&'static str> = v
+                .iter()
+                .filter(|(_, x)| x.is_some())
+                .map(|(n, _)| *n)
+                .collect();
+            let acc: Vec<&'static str> = v[..accuracy]
+                .iter()
+                .filter(|(_, x)| x.is_some())
+                .map(|(n, _)| *n)
+                .collect();
+            (acc, all)
+        };
+        let (kin_acc, kin_all) = set(&kin, 3);
+        let (cam_acc, cam_all) = set(&cam, 1);
+        match kind {
+            super::SessionKind::Kinematic => (kin_acc, cam_all),
+            super::SessionKind::Camera => (cam_acc, kin_all),
+        }
+    }
+
+    /// Checks that this spec judges sessions of `kind` (before anything moves): a spec for
+    /// the other kind would check nothing of this session.
+    pub fn check_kind(&self, kind: super::SessionKind, path: &str) -> Result<(), AcceptError> {
+        match self.session {
+            Some(k) if k != kind => Err(AcceptError::Invalid {
+                path: path.into(),
+                field: "session".into(),
+                message: format!(
+                    "this spec judges {} sessions but the cell makes a {} session (a {} cell): \
+                     give an accept spec with `session = \"{}\"` (accept/{}.toml)",
+                    kind_name(k),
+                    kind_name(kind),
+                    match kind {
+                        super::SessionKind::Kinematic => "tracker",
+                        super::SessionKind::Camera => "camera without tracker",
+                    },
+                    kind_name(kind),
+                    match kind {
+                        super::SessionKind::Kinematic => "surgical",
+                        super::SessionKind::Camera => "camera",
+                    }
+                ),
+            }),
+            _ => Ok(()),
+        }
     }
 
     /// Read an `ACCEPT.toml` file.
     pub fn from_file(path: &Path) -> Result<AcceptSpec, AcceptError> {
-        let text = std::fs::read_to_string(path).map_err(|source| AcceptError::Io {
+        let text = crate::fsio::read_to_string(path).map_err(|source| AcceptError::Io {
             path: path.display().to_string(),
             source,
         })?;
@@ -569,6 +696,44 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("heldout_rms_mm_max"), "{e}");
+    }
+
+    #[test]
+    fn a_spec_names_its_session_kind_and_an_accuracy_criterion_of_it() {
+        use crate::session::SessionKind;
+        // No kind; only a name; a kinematic spec with only camera criteria.
+        for (text, needle) in [
+            (
+                "name = \"x\"\nheldout_rms_mm_max = 1.0\n",
+                "session = \"kinematic\"",
+            ),
+            (
+                "name = \"x\"\nsession = \"kinematic\"\n",
+                "no accuracy criterion",
+            ),
+            (
+                "name = \"x\"\nsession = \"camera\"\nskipped_fraction_max = 0.1\n",
+                "heldout_reprojection_px_max",
+            ),
+            (
+                "name = \"x\"\nsession = \"kinematic\"\nheldout_rms_mm_max = 1.0\n\
+                 heldout_reprojection_px_max = 0.5\n",
+                "never be checked",
+            ),
+        ] {
+            let e = AcceptSpec::from_toml_str(text, "a.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("a.toml") && e.contains(needle), "{text}: {e}");
+        }
+        let kin = AcceptSpec::default_surgical();
+        assert_eq!(kin.session, Some(SessionKind::Kinematic));
+        kin.check_kind(SessionKind::Kinematic, "s.toml").unwrap();
+        let e = kin
+            .check_kind(SessionKind::Camera, "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("judges kinematic sessions"), "{e}");
     }
 
     #[test]

@@ -339,7 +339,7 @@ pub fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     let ddir = dir.join("deploy");
     std::fs::create_dir_all(&ddir)?;
     let src = dir.join("diagnose").join("calibration.json");
-    let bytes = std::fs::read(&src).with_context(|| format!("{}", src.display()))?;
+    let bytes = crate::fsio::read(&src).with_context(|| format!("{}", src.display()))?;
     write_atomic(&ddir.join("calibration.json"), &bytes)?;
     let cal = CalibrationFile::load(ddir.join("calibration.json"))
         .context("reading deploy/calibration.json back")?;

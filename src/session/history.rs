@@ -103,11 +103,117 @@ pub fn location(arg: Option<&str>) -> String {
         .unwrap_or_else(|| "robocal-history.sqlite".into())
 }
 
+/// The URL schemes of a history location (anything else with `://` is refused).
+pub const SUPPORTED: &str =
+    "a SQLite file path, or a postgres:// (postgresql://) URL for PostgreSQL";
+
+fn is_postgres(loc: &str) -> bool {
+    loc.starts_with("postgres://") || loc.starts_with("postgresql://")
+}
+
+/// Checks a history location without creating or changing anything (issue 26 §5, §8): an
+/// unknown URL scheme (`mysql://`) is an error naming the supported ones; an existing path
+/// must be a regular file holding a SQLite database that is empty or robocal's (a foreign
+/// database never gets robocal's tables added). A missing file is fine here: a session
+/// creates it. PostgreSQL URLs are checked when connecting.
+pub fn check_location(loc: &str) -> Result<(), HistoryError> {
+    if loc.trim().is_empty() {
+        return Err(HistoryError::Other(format!(
+            "empty history location: give {SUPPORTED}"
+        )));
+    }
+    if is_postgres(loc) {
+        return Ok(());
+    }
+    if let Some((scheme, _)) = loc.split_once("://") {
+        return Err(HistoryError::Other(format!(
+            "{loc}: unknown history URL scheme \"{scheme}://\": supported are {SUPPORTED}"
+        )));
+    }
+    let path = Path::new(loc);
+    match std::fs::metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(HistoryError::Other(format!("{loc}: {e}"))),
+        Ok(m) if !m.is_file() => Err(HistoryError::Other(format!(
+            "{loc} is not a regular file (a directory or device): give the history's SQLite \
+             file"
+        ))),
+        Ok(m) if m.len() == 0 => Ok(()),
+        Ok(_) => {
+            let c = open_sqlite_read_only(loc)?;
+            robocal_tables(&c, loc).map(|_| ())
+        }
+    }
+}
+
+fn open_sqlite_read_only(loc: &str) -> Result<rusqlite::Connection, HistoryError> {
+    rusqlite::Connection::open_with_flags(
+        loc,
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
+    )
+    .map_err(|source| HistoryError::Sqlite {
+        path: loc.into(),
+        source,
+    })
+}
+
+/// Whether the SQLite database holds robocal's tables (`true`) or no table at all (`false`);
+/// an error for a file that is not SQLite or a database with other tables.
+fn robocal_tables(c: &rusqlite::Connection, loc: &str) -> Result<bool, HistoryError> {
+    let names: Vec<String> = c
+        .prepare("SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")
+        .and_then(|mut st| {
+            st.query_map([], |r| r.get::<_, String>(0))?
+                .collect::<Result<Vec<_>, _>>()
+        })
+        .map_err(|e| {
+            HistoryError::Other(format!(
+                "{loc} is not a SQLite database ({e}): give robocal's history file"
+            ))
+        })?;
+    if names.is_empty() {
+        return Ok(false);
+    }
+    if names.iter().any(|n| n == "robocal_session") {
+        return Ok(true);
+    }
+    Err(HistoryError::Other(format!(
+        "{loc} is a SQLite database of something else (tables: {}), not a robocal history: \
+         robocal does not add its tables to a foreign database; give another --history / --db",
+        names.join(", ")
+    )))
+}
+
 impl History {
+    /// Opens the database at `loc` for queries only (`robocal history`): nothing is created
+    /// or altered. A missing SQLite file, an empty or foreign database and an unknown URL
+    /// scheme are errors.
+    pub fn open_read_only(loc: &str) -> Result<History, HistoryError> {
+        check_location(loc)?;
+        if is_postgres(loc) {
+            let c = postgres::Client::connect(loc, postgres::NoTls)?;
+            return Ok(History::Postgres(Box::new(c)));
+        }
+        if !Path::new(loc).is_file() {
+            return Err(HistoryError::Other(format!(
+                "{loc}: no history database there (nothing was recorded at this location; \
+                 check --db / ROBOCAL_DB)"
+            )));
+        }
+        let c = open_sqlite_read_only(loc)?;
+        if !robocal_tables(&c, loc)? {
+            return Err(HistoryError::Other(format!(
+                "{loc}: an empty database, no session recorded in it"
+            )));
+        }
+        Ok(History::Sqlite(c, loc.into()))
+    }
+
     /// Open (and create the schema in) the database at `loc`: a `postgres://` URL or a
-    /// SQLite file path.
+    /// SQLite file path ([`check_location`] first: never a foreign database).
     pub fn open(loc: &str) -> Result<History, HistoryError> {
-        if loc.starts_with("postgres://") || loc.starts_with("postgresql://") {
+        check_location(loc)?;
+        if is_postgres(loc) {
             let mut c = postgres::Client::connect(loc, postgres::NoTls)?;
             for s in SCHEMA {
                 c.batch_execute(s)?;

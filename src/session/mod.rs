@@ -260,7 +260,7 @@ pub struct SessionFile {
 impl SessionFile {
     /// Read and check the format tag.
     pub fn load(path: &Path) -> anyhow::Result<SessionFile> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::fsio::read_to_string(path)
             .with_context(|| format!("{} is not a session directory", path.display()))?;
         let f: SessionFile =
             serde_json::from_str(&text).with_context(|| format!("{}", path.display()))?;
@@ -311,7 +311,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
 
 /// SHA-256 of a file, hex.
 pub fn sha256_file(path: &Path) -> anyhow::Result<String> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let bytes = crate::fsio::read(path).with_context(|| format!("reading {}", path.display()))?;
     Ok(sha256_hex(&bytes))
 }
 
@@ -406,7 +406,7 @@ pub fn create(
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let bytes =
-        std::fs::read(cell_src).with_context(|| format!("reading {}", cell_src.display()))?;
+        crate::fsio::read(cell_src).with_context(|| format!("reading {}", cell_src.display()))?;
     write_atomic(&dir.join(&setup.cell_file), &bytes)?;
     write_atomic(&dir.join(&setup.spec_file), spec_text.as_bytes())?;
     write_atomic(
@@ -768,7 +768,7 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
     // Every artifact records the datasets it came from.
     for name in ["diagnosis.json", "calibration.json"] {
         let p = out.join(name);
-        let text = std::fs::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
+        let text = crate::fsio::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
         let mut v: serde_json::Value =
             serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
         if let Some(o) = v.as_object_mut() {
@@ -969,7 +969,7 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     } else {
         dir.join("calibrate").join("calibration.json")
     };
-    let bytes = std::fs::read(&cal_src).with_context(|| format!("{}", cal_src.display()))?;
+    let bytes = crate::fsio::read(&cal_src).with_context(|| format!("{}", cal_src.display()))?;
     write_atomic(&ddir.join("calibration.json"), &bytes)?;
     let cal = crate::dataset::CalibrationFile::load(ddir.join("calibration.json"))
         .context("reading deploy/calibration.json back")?;
