@@ -26,6 +26,12 @@ pub enum What {
     Ipa(IpaArgs),
     /// Any delimited table with a column mapping.
     Csv(CsvArgs),
+    /// Camera hand-eye: an image folder + the robot's flange poses (any common layout; the
+    /// declared reading is checked by the AX = XB spread test).
+    Handeye(crate::cli::import_handeye::HandeyeArgs),
+    /// NDI Track's CSV export (per tool Q0,Qx,Qy,Qz,Tx,Ty,Tz,Error, then the markers) →
+    /// `pivot` records for `robocal calibrate pivot`.
+    Ndi(crate::cli::import_handeye::NdiArgs),
 }
 
 /// `robocal import ipa`.
@@ -129,6 +135,8 @@ fn parse<T: std::str::FromStr<Err = String>>(s: &str) -> Result<T, String> {
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let (imported, out) = match args.what {
+        What::Handeye(a) => return crate::cli::import_handeye::exec(&a),
+        What::Ndi(a) => return crate::cli::import_handeye::exec_ndi(&a),
         What::Ipa(a) => {
             let text = read(&a.input)?;
             let opts = IpaOptions {

@@ -12,6 +12,7 @@ pub mod diagnose;
 pub mod diagnose_camera;
 pub mod history;
 pub mod import;
+pub mod import_handeye;
 pub mod inspect;
 pub mod live_cell;
 pub mod plan;

@@ -20,6 +20,10 @@ pub const DATASET_FORMAT: &str = "robocal-dataset/1";
 /// The `what` values an `event` record may carry.
 pub const EVENT_KINDS: [&str; 6] = ["skip", "retry", "fault", "resume", "pause", "note"];
 
+/// The robot `model` of a dataset without a kinematic model: every pose record carries its
+/// `flange` pose and no joint angles (`robocal import handeye`).
+pub const NO_ROBOT_MODEL: &str = "none";
+
 /// Number of joints of a built-in robot preset, `None` for an unknown name.
 pub fn preset_dof(model: &str) -> Option<usize> {
     match model {
@@ -275,12 +279,13 @@ pub(crate) fn check_header(v: Value) -> Result<Header, Problem> {
 /// Semantic checks of a typed robot block: a known dof, unit axes, ordered limits.
 pub(crate) fn check_robot_semantics(robot: &RobotBlock, prefix: &str) -> Result<(), Problem> {
     match &robot.chain {
+        None if robot.model == NO_ROBOT_MODEL => {}
         None => {
             if preset_dof(&robot.model).is_none() {
                 return Err(Problem::field(
                     check::join(prefix, "model"),
                     format!(
-                        "unknown preset \"{}\" and no chain given (presets: denso-vs060, ur5e, ur10e)",
+                        "unknown preset \"{}\" and no chain given (presets: denso-vs060, ur5e, ur10e; \"none\" when every pose carries its flange pose)",
                         robot.model
                     ),
                 ));

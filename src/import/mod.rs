@@ -14,7 +14,9 @@
 pub mod error;
 pub mod euler;
 pub mod generic;
+pub mod handeye;
 pub mod ipa;
+pub mod ndi;
 pub mod robot;
 pub mod table;
 

@@ -1,13 +1,15 @@
 //! Cameras as image sources.
 //!
 //! * [`pgm`]: a dependency-free PGM (P5 binary / P2 ASCII, 8- or 16-bit) reader and writer.
+//! * [`decode`]: PNG, JPEG, BMP, TIFF (8/16-bit, grey/colour) and PGM files → 8-bit grey,
+//!   pure Rust (the `image` crate), in the default build.
 //! * [`FolderSource`]: an [`ImageSource`] that serves the image files of a folder in name
-//!   order (recorded sessions, or images a simulator renders from the world); with feature
-//!   `opencv` also PNG, JPEG, BMP and TIFF files.
+//!   order (recorded sessions, or images a simulator renders from the world).
 //! * `opencv` (feature `opencv`): OpenCV `VideoCapture` cameras and network streams, image
 //!   files of any format, chessboard detection. Needs `libopencv-dev`, `clang` and
 //!   `libclang-dev` on the host (Debian's OpenCV 4.6).
 
+pub mod decode;
 #[cfg(feature = "opencv")]
 pub mod opencv;
 pub mod pgm;
@@ -162,13 +164,9 @@ impl FolderSource {
     }
 }
 
-/// The extensions [`FolderSource`] serves: `pgm`, and with feature `opencv` also `png`,
-/// `jpg`, `jpeg`, `bmp`, `tif`, `tiff`.
-pub const IMAGE_EXTENSIONS: &[&str] = if cfg!(feature = "opencv") {
-    &["pgm", "png", "jpg", "jpeg", "bmp", "tif", "tiff"]
-} else {
-    &["pgm"]
-};
+/// The extensions [`FolderSource`] serves: `pgm`, `png`, `jpg`, `jpeg`, `bmp`, `tif`, `tiff`
+/// (any case).
+pub const IMAGE_EXTENSIONS: &[&str] = &["pgm", "png", "jpg", "jpeg", "bmp", "tif", "tiff"];
 
 fn is_image_file(p: &Path) -> bool {
     p.extension()
@@ -176,35 +174,11 @@ fn is_image_file(p: &Path) -> bool {
         .is_some_and(|x| IMAGE_EXTENSIONS.iter().any(|e| x.eq_ignore_ascii_case(e)))
 }
 
-/// Read one image file as 8-bit grey (PGM natively; other formats need feature `opencv`).
-/// The timestamp is 0.
+/// Read one image file as 8-bit grey: PNG, JPEG, BMP, TIFF (8/16-bit, grey/colour) or PGM,
+/// recognised by content ([`decode::read_file`]). The timestamp is 0. The error names the file
+/// and why it cannot be used (missing, a directory, empty, not an image, truncated, ...).
 pub fn read_image_file(path: &Path) -> Result<Image, Error> {
-    let is_pgm = path
-        .extension()
-        .is_some_and(|x| x.eq_ignore_ascii_case("pgm"));
-    if !is_pgm {
-        #[cfg(feature = "opencv")]
-        return opencv::read_image(path);
-        #[cfg(not(feature = "opencv"))]
-        return Err(Error::Format {
-            path: path.display().to_string(),
-            detail: "only PGM images without feature `opencv`".into(),
-        });
-    }
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
-        path: path.display().to_string(),
-        source,
-    })?;
-    let (width, height, data) = pgm::decode(&bytes).map_err(|e| Error::Format {
-        path: path.display().to_string(),
-        detail: e.to_string(),
-    })?;
-    Ok(Image {
-        width,
-        height,
-        data,
-        t: 0.0,
-    })
+    decode::read_file(path)
 }
 
 #[async_trait]

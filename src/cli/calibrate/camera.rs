@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use anyhow::Context as _;
 use serde_json::json;
 
-use crate::solve::camera::calfile::{calibration_file, report_json, table};
-use crate::solve::camera::data::{load, Overrides};
+use crate::solve::camera::calfile::{calibration_file, failure_report_json, report_json, table};
+use crate::solve::camera::data::{load, unusable_lines, Overrides};
 use crate::solve::camera::{self, DistModel, Mount, Options};
 
 /// Arguments of `robocal calibrate camera`.
@@ -90,10 +90,30 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         incremental: a.incremental,
         ..Options::default()
     };
-    let res = camera::calibrate(&train.data, held.as_ref().map(|h| &h.data), &opts)
-        .with_context(|| format!("calibrating the camera of {}", a.data.display()))?;
-    let t_total = t0.elapsed().as_secs_f64();
+    for l in unusable_lines(&train, "training")
+        .into_iter()
+        .chain(held.iter().flat_map(|h| unusable_lines(h, "held-out")))
+    {
+        eprintln!("{l}");
+    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let res = match camera::calibrate(&train.data, held.as_ref().map(|h| &h.data), &opts) {
+        Ok(r) => r,
+        Err(e) => {
+            // The report is written on failure too: it names every image that gave no view.
+            let report = failure_report_json(&train, held.as_ref(), &e.to_string());
+            let path = a.out.join("camera_report.json");
+            crate::fsio::write(&path, serde_json::to_string_pretty(&report)? + "\n")
+                .with_context(|| format!("writing {}", path.display()))?;
+            return Err(anyhow::Error::new(e).context(format!(
+                "calibrating the camera of {} ({} images without a usable board are listed above and in {})",
+                a.data.display(),
+                train.no_board.len(),
+                path.display()
+            )));
+        }
+    };
+    let t_total = t0.elapsed().as_secs_f64();
     let cal = calibration_file(&train, &res);
     crate::dataset::write_calibration(a.out.join("calibration.json"), &cal)?;
     let report = report_json(&train, held.as_ref(), &res, t_detect, t_total);

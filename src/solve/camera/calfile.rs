@@ -243,7 +243,7 @@ pub fn report_json(
     json!({
         "format": "robocal-camera-report/1",
         "views": train.data.views.len(),
-        "views_without_board": train.no_board,
+        "views_without_board": unusable_json(train),
         "target_kind": train.target.kind,
         // Views where only part of the board was seen (ChArUco: cut by the image border or
         // occluded; every corner still carries its board id).
@@ -257,6 +257,31 @@ pub fn report_json(
         "methods": methods,
         "intrinsics_std": res.uncertainty.intrinsics,
         "timing_s": {"detection": t_detect, "total": t_total},
+    })
+}
+
+/// Every image / record of `l` that gave no view: `[{"id", "reason"}]`.
+pub fn unusable_json(l: &Loaded) -> serde_json::Value {
+    l.no_board
+        .iter()
+        .map(|(id, why)| json!({"id": id, "reason": why}))
+        .collect()
+}
+
+/// `camera_report.json` when the calibration failed: why, and every image that gave no view.
+pub fn failure_report_json(
+    train: &Loaded,
+    held: Option<&Loaded>,
+    error: &str,
+) -> serde_json::Value {
+    json!({
+        "format": "robocal-camera-report/1",
+        "failed": error,
+        "views": train.data.views.len(),
+        "views_without_board": unusable_json(train),
+        "target_kind": train.target.kind,
+        "heldout_views": held.map(|h| h.data.views.len()),
+        "heldout_views_without_board": held.map(unusable_json),
     })
 }
 

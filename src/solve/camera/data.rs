@@ -117,26 +117,34 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
     if let Some(b) = bar {
         b.finish_and_clear();
     }
+    if size.is_none() {
+        size = common_size(detected.iter().filter_map(|d| d.as_ref().ok()?.1));
+    }
     let mut views = vec![];
     let mut no_board = vec![];
     for ((r, f), d) in recs.iter().zip(&flanges).zip(detected) {
         match d {
             Ok((c, sz)) => {
-                if let Some(s) = sz {
-                    if size.is_some_and(|h| h != s) {
-                        return Err(CameraDataError::Record {
-                            file: file.clone(),
-                            id: r.id,
-                            msg: format!(
-                                "image is {}×{}, the header's camera is {}×{}",
+                if let (Some(s), Some(want)) = (sz, size) {
+                    if s != want {
+                        let whose = if cam.is_some() {
+                            "the header's camera is"
+                        } else {
+                            "most images are"
+                        };
+                        no_board.push((
+                            r.id,
+                            format!(
+                                "image {}: wrong size {}×{} ({whose} {}×{}): another camera or a resized copy",
+                                r.image.as_deref().unwrap_or("?"),
                                 s.0,
                                 s.1,
-                                size.unwrap().0,
-                                size.unwrap().1
+                                want.0,
+                                want.1
                             ),
-                        });
+                        ));
+                        continue;
                     }
-                    size = Some(s);
                 }
                 views.push(View {
                     id: r.id,
@@ -182,6 +190,27 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
 }
 
 type Corners = (Vec<Option<[f64; 2]>>, Option<(u32, u32)>);
+
+/// The most common image size (the first seen on a tie), `None` without images.
+fn common_size(sizes: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
+    let mut counts: Vec<((u32, u32), usize)> = vec![];
+    for s in sizes {
+        match counts.iter_mut().find(|(k, _)| *k == s) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((s, 1)),
+        }
+    }
+    let best = counts.iter().map(|(_, n)| *n).max()?;
+    counts.into_iter().find(|(_, n)| *n == best).map(|(k, _)| k)
+}
+
+/// The console lines naming every image (or record) that gives no view, and why.
+pub fn unusable_lines(l: &Loaded, label: &str) -> Vec<String> {
+    l.no_board
+        .iter()
+        .map(|(id, why)| format!("{label} pose {id}: not used: {why}"))
+        .collect()
+}
 
 /// What is detected in each image: the header's `target` block, checked.
 #[derive(Debug, Clone, PartialEq)]
@@ -282,9 +311,10 @@ fn corners_of(
     let n = board.cols * board.rows;
     if let Some(img) = &r.image {
         let p: PathBuf = base.join(img);
-        let im = robocal_drivers::camera::read_image_file(&p)
-            .map_err(|e| format!("image {}: {e}", p.display()))?;
-        let c = target.detect(&im.data, im.width, im.height)?;
+        let im = robocal_drivers::camera::read_image_file(&p).map_err(|e| format!("image {e}"))?;
+        let c = target
+            .detect(&im.data, im.width, im.height)
+            .map_err(|e| format!("image {img}: {e}"))?;
         return Ok((c, Some((im.width, im.height))));
     }
     match &r.corners {
