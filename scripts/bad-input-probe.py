@@ -565,6 +565,17 @@ def main():
         b("plan --check: poses outside the edited envelope", ["plan", "--check", env], ["envelope"])
         b("run: plan whose table the poses violate", ["run", "--plan", table, "--sim", LAB, "--out", j("r-table"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["table"], timeout=60)
         b("run: plan for ur5e on the vs060 cell", ["run", "--plan", urplan, "--sim", LAB, "--out", j("r-ur"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["ur5e", "robot", "forward kinematics"], timeout=60)
+        # Safety limits come from the cell (issue 26 §2): a plan may be stricter, never wider.
+        low = plan_variant("plow", lambda pj: pj["spec"]["constraints"].update(table_z_mm=-1000.0))
+        noenv = plan_variant("pnoenv", lambda pj: pj["spec"]["constraints"].pop("envelope", None))
+        wide = plan_variant("pwide", lambda pj: pj["spec"]["constraints"]["envelope"].update(radius=5000.0, z_min=-2000.0))
+        notable = plan_variant("pnotable", lambda pj: pj["spec"]["constraints"].pop("table_z_mm", None))
+        noclear = plan_variant("pnoclear", lambda pj: pj["spec"]["constraints"].update(table_clearance_mm=0.0))
+        nospec = plan_variant("pnospec", lambda pj: pj.update(spec={}))
+        for what, pth, exp in [("table lowered to -1000 mm", low, ["table"]), ("envelope removed", noenv, ["envelope"]),
+                               ("envelope widened", wide, ["envelope"]), ("table removed", notable, ["table"]),
+                               ("table clearance 0", noclear, ["table"]), ("spec emptied", nospec, ["table", "envelope"])]:
+            b(f"run: plan wider than the cell: {what}", ["run", "--plan", pth, "--sim", LAB, "--out", j("r-wide" + what[:5].replace(" ", "")), "--virtual-clock", "--in-process", "--max-poses", "2"], exp, timeout=60)
         b("plan --check: widened joint limits", ["plan", "--check", nolim], ["limit"])
         if True:
             b("run: plan with widened joint limits", ["run", "--plan", nolim, "--sim", LAB, "--out", j("r-lim"), "--virtual-clock", "--in-process", "--max-poses", "2"], ["limit"], timeout=60)

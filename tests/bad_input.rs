@@ -939,6 +939,7 @@ fn bad_input_session_options_are_checked_before_anything_is_created() {
     let dp = d.path();
     let garbage = dp.join("garbage.json");
     std::fs::write(&garbage, "not json").unwrap();
+    let lab = lab();
     let targets = dp.join("t.csv");
     std::fs::write(&targets, "name,x_mm,y_mm,z_mm\nt1,0,0,0\n").unwrap();
     for (i, (extra, needles)) in [
@@ -969,7 +970,7 @@ fn bad_input_session_options_are_checked_before_anything_is_created() {
         let mut a = vec![
             "session",
             "--sim",
-            s(&lab()),
+            s(&lab),
             "--out",
             s(&out),
             "--plan-only",
