@@ -41,7 +41,7 @@ fn val(m: &KinematicModel, name: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
-fn main() {
+pub fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let py = root.join(".venv/peers-pybotics/bin/python");
     if !py.exists() {

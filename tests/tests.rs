@@ -15,6 +15,7 @@ mod laser;
 mod laser_world;
 mod model;
 mod navchain;
+mod perf;
 mod plan;
 mod rcm;
 mod report;

@@ -191,17 +191,46 @@ impl<'a> KinProblem<'a> {
     }
 
     fn eval(&self, x: &DVector<f64>, want_j: bool) -> (DVector<f64>, Option<DMatrix<f64>>) {
+        self.eval_sel(x, want_j, None)
+    }
+
+    /// Residuals of the observations `sel` (indices into `obs`, in that order; rows
+    /// `rows_per_obs() · k` for the `k`-th index) at `x`, without building a sub-problem:
+    /// the bootstrap's exactness check evaluates each subset this way.
+    pub fn residuals_sel(&self, x: &DVector<f64>, sel: &[usize]) -> DVector<f64> {
+        self.eval_sel(x, false, Some(sel)).0
+    }
+
+    /// As [`Self::residuals_sel`], with the Jacobian of those rows.
+    pub fn residuals_jacobian_sel(
+        &self,
+        x: &DVector<f64>,
+        sel: &[usize],
+    ) -> (DVector<f64>, DMatrix<f64>) {
+        let (r, j) = self.eval_sel(x, true, Some(sel));
+        (r, j.unwrap_or_else(|| DMatrix::zeros(0, 0)))
+    }
+
+    fn eval_sel(
+        &self,
+        x: &DVector<f64>,
+        want_j: bool,
+        sel: Option<&[usize]>,
+    ) -> (DVector<f64>, Option<DMatrix<f64>>) {
         let m = self.model_at(x);
         let th = self.effect_params(x);
         let rpo = self.rows_per_obs();
         let nx = self.free.len() + self.n_effect();
-        let mut r = DVector::zeros(rpo * self.obs.len());
-        let mut j = want_j.then(|| DMatrix::zeros(rpo * self.obs.len(), nx));
+        let n_rows = sel.map_or(self.obs.len(), |s| s.len());
+        let mut r = DVector::zeros(rpo * n_rows);
+        let mut j = want_j.then(|| DMatrix::zeros(rpo * n_rows, nx));
         let np = m.params().len();
         let mut buf3 = Matrix3xX::zeros(np);
-        for (i, o) in self.obs.iter().enumerate() {
+        for pos in 0..n_rows {
+            let i = sel.map_or(pos, |s| s[pos]);
+            let o = &self.obs[i];
             let w = self.weights.as_ref().map(|w| w[i].sqrt()).unwrap_or(1.0);
-            let row = rpo * i;
+            let row = rpo * pos;
             let (p, rot_res) = match (self.orientation, want_j) {
                 (Some(s), _) => {
                     let (pose, jp) = m.pose_param_jacobian(&o.q);

@@ -1,0 +1,212 @@
+//! The performance suite of issue 32: `cargo bench --bench perf [-- quick]`.
+//!
+//! Prints, on this machine, each figure of the issue that the kinematic side owns and the
+//! peer on the same input in the same run, with the ratio:
+//! - **bootstrap** 10,000 × 200 on the public 500-pose case (`tests/data/kin-geometric`):
+//!   the whole `robocal calibrate kinematics --bootstrap 10000 --subset 200` process (wall), and
+//!   in-process the fast path vs exact LM refits of the same subsets (time ratio and the
+//!   largest difference of mean and σ, in σ);
+//! - **identification vs poses**: whole `robocal calibrate kinematics` processes on 1,000 /
+//!   10,000 / 100,000 poses (wall, peak RSS, time per pose), on data generated here from the
+//!   identified 500-pose model with 0.035 mm noise (every 10th pose held out);
+//! - **peer**: pybotics + SciPy `least_squares` on the same 500-pose kinematic problem
+//!   (`examples/ident_pybotics.rs`, needs `.venv/peers-pybotics` from `.ci/peers.sh`).
+//!
+//! `quick` stops the pose ladder at 10,000. Nothing in CI runs this or depends on a timing.
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use robocal::dataset::Dataset;
+use robocal::model::KinematicModel;
+use robocal::solve::bootstrap::{bootstrap, BootstrapMethod, BootstrapOptions, SubsetSize};
+use robocal::solve::kinematics::{identify, IdentOptions};
+use serde_json::Value;
+
+#[path = "../examples/ident_pybotics.rs"]
+mod ident_pybotics;
+
+const BIN: &str = env!("CARGO_BIN_EXE_robocal");
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Wall time (s) and peak resident memory (MB) of one `robocal` process.
+fn run_robocal(args: &[&str]) -> (f64, f64) {
+    let t0 = Instant::now();
+    let child = Command::new(BIN)
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn robocal");
+    let mut status = 0;
+    // SAFETY: a zeroed rusage is a valid value; wait4 fills it for our own child.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = child.id() as libc::pid_t;
+    // SAFETY: pid is our child, not yet waited for; the pointers are valid for the call.
+    let rc = unsafe { libc::wait4(pid, &mut status, 0, &mut ru) };
+    let wall = t0.elapsed().as_secs_f64();
+    assert_eq!(rc, pid, "wait4");
+    assert!(
+        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
+        "robocal {args:?} failed ({status})"
+    );
+    (wall, ru.ru_maxrss as f64 / 1024.0)
+}
+
+/// Writes `n` poses near the 500 public ones (joints jittered ±2°), measured through `truth`
+/// with 0.035 mm noise per axis; every 10th pose in group `validation`.
+fn write_poses(path: &Path, template: &Path, truth: &KinematicModel, n: usize) {
+    let text = std::fs::read_to_string(template).expect("template");
+    let mut lines = text.lines();
+    let header = lines.next().expect("header");
+    let poses: Vec<Value> = lines
+        .map(|l| serde_json::from_str::<Value>(l).expect("record"))
+        .filter(|v| v["kind"] == "pose" && v["marker"]["visible"] == true)
+        .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(32);
+    let noise = Normal::new(0.0, 0.035).expect("normal");
+    let jitter = Normal::new(0.0, 1.0).expect("normal");
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).expect("create"));
+    writeln!(out, "{header}").expect("write");
+    for i in 0..n {
+        let mut v = poses[i % poses.len()].clone();
+        let q_deg: Vec<f64> = v["q"]
+            .as_array()
+            .expect("q")
+            .iter()
+            .map(|x| x.as_f64().expect("q") + jitter.sample(&mut rng))
+            .collect();
+        let q: Vec<f64> = q_deg.iter().map(|d| d.to_radians()).collect();
+        let p = truth.measured_point(&q);
+        v["id"] = i.into();
+        v["t"] = (i as f64 * 9.0).into();
+        v["point"] = i.into();
+        v["group"] = if i % 10 == 9 { "validation" } else { "train" }.into();
+        v["q"] = serde_json::json!(q_deg);
+        v["q_cmd"] = serde_json::json!(q_deg);
+        v["marker"]["p"] = serde_json::json!((0..3)
+            .map(|a| p[a] + noise.sample(&mut rng))
+            .collect::<Vec<_>>());
+        if let Some(m) = v["marker"].as_object_mut() {
+            m.remove("quat");
+        }
+        writeln!(out, "{v}").expect("write");
+    }
+}
+
+fn main() {
+    let quick = std::env::args().any(|a| a == "quick");
+    let data = root().join("tests/data/kin-geometric");
+    let train = data.join("train.jsonl");
+    let held = data.join("heldout.jsonl");
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("cal");
+    let s = |p: &Path| p.to_str().expect("utf-8 path").to_string();
+    println!(
+        "machine: {} cores (rayon {} threads), robocal {}",
+        std::thread::available_parallelism().map_or(0, |n| n.get()),
+        rayon::current_num_threads(),
+        BIN
+    );
+
+    // --- bootstrap, whole process
+    let (w0, _) = run_robocal(&[
+        "calibrate",
+        "kinematics",
+        "--data",
+        &s(&train),
+        "--heldout",
+        &s(&held),
+        "--out",
+        &s(&out),
+    ]);
+    let (w, rss) = run_robocal(&[
+        "calibrate",
+        "kinematics",
+        "--data",
+        &s(&train),
+        "--heldout",
+        &s(&held),
+        "--bootstrap",
+        "10000",
+        "--subset",
+        "200",
+        "--out",
+        &s(&out),
+    ]);
+    println!(
+        "bootstrap 10000 x 200 of 500, whole process: {w:.2} s wall ({:.2} s without --bootstrap), \
+         peak {rss:.0} MB",
+        w0
+    );
+
+    // --- bootstrap, in process: fast path vs exact refits of the same subsets
+    let res = identify(
+        &Dataset::load(&train).expect("train"),
+        &IdentOptions {
+            heldout: Some(Dataset::load(&held).expect("heldout")),
+            ..Default::default()
+        },
+    )
+    .expect("identify");
+    let opts = |k, method| BootstrapOptions {
+        k,
+        subset: SubsetSize::Count(200),
+        seed: 1,
+        method,
+        ..Default::default()
+    };
+    let k = if quick { 1000 } else { 10_000 };
+    let fast = bootstrap(&res, &[], &opts(k, BootstrapMethod::Fast)).expect("fast");
+    let exact = bootstrap(&res, &[], &opts(k, BootstrapMethod::Exact)).expect("exact");
+    let (mut dm, mut ds) = (0.0f64, 0.0f64);
+    for (f, e) in fast.summaries.iter().zip(&exact.summaries) {
+        dm = dm.max((f.mean - e.mean).abs() / e.std);
+        ds = ds.max((f.std / e.std - 1.0).abs());
+    }
+    println!(
+        "bootstrap {k} x 200, in process: fast {:.3} s ({} LM fallbacks, audit {:.1e} σ) vs \
+         exact LM refits {:.3} s: {:.1}x; means within {dm:.1e} σ, σ within {:.1} %",
+        fast.elapsed_s,
+        fast.n_fallback,
+        fast.audit_max_sigma.unwrap_or(f64::NAN),
+        exact.elapsed_s,
+        exact.elapsed_s / fast.elapsed_s,
+        100.0 * ds
+    );
+
+    // --- identification vs number of poses, whole process
+    let ladder: &[usize] = if quick {
+        &[1_000, 10_000]
+    } else {
+        &[1_000, 10_000, 100_000]
+    };
+    println!("identification (calibrate kinematics, 10 % held out):");
+    println!(
+        "{:>9} {:>9} {:>9} {:>12}",
+        "poses", "wall s", "peak MB", "µs / pose"
+    );
+    for &n in ladder {
+        let f = tmp.path().join(format!("poses-{n}.jsonl"));
+        write_poses(&f, &train, &res.model, n);
+        let (w, rss) = run_robocal(&[
+            "calibrate",
+            "kinematics",
+            "--data",
+            &s(&f),
+            "--out",
+            &s(&out),
+        ]);
+        println!("{n:>9} {w:>9.2} {rss:>9.0} {:>12.1}", 1e6 * w / n as f64);
+    }
+
+    // --- peer: pybotics + SciPy least_squares on the same 500-pose problem
+    println!("peer (examples/ident_pybotics.rs):");
+    ident_pybotics::main();
+}
