@@ -10,6 +10,7 @@ pub mod keyence;
 pub mod navchain;
 pub mod ndi;
 pub mod rcm;
+pub mod rcm_render;
 pub mod scenario;
 pub mod serve;
 pub mod sim;

@@ -99,6 +99,9 @@ pub struct RcmScenario {
     pub instrument: RcmInstrumentConfig,
     /// Noise.
     pub noise: RcmNoiseConfig,
+    /// How the endoscope image is rendered (`crate::rcm_render`); defaults when absent.
+    #[serde(default)]
+    pub render: crate::rcm_render::RcmRenderConfig,
 }
 
 impl RcmScenario {

@@ -17,6 +17,7 @@ pub mod inspect;
 pub mod live_cell;
 pub mod plan;
 pub mod predict;
+pub mod rcm_images;
 pub mod register;
 pub mod report;
 pub mod run;

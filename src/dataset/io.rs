@@ -271,8 +271,13 @@ pub(crate) fn check_header(v: Value) -> Result<Header, Problem> {
         return Err(Problem::field("robot", "missing"));
     };
     check::robot(robot, "robot")?;
+    // An RCM dataset (an `instrument` block) uses only the instrument pose (`flange`): its
+    // instrument holder need not be a preset (issue 29).
+    let instrument_holder = obj.contains_key("instrument") && !robot.contains_key("chain");
     let header: Header = serde_json::from_value(v).map_err(|e| Problem::Invalid(e.to_string()))?;
-    check_robot_semantics(&header.robot, "robot")?;
+    if !instrument_holder {
+        check_robot_semantics(&header.robot, "robot")?;
+    }
     Ok(header)
 }
 

@@ -252,7 +252,7 @@ pub fn render<R: Rng>(
         .collect()
 }
 
-fn gaussian_blur(img: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
+pub(crate) fn gaussian_blur(img: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
     let r = (3.0 * sigma).ceil() as i64;
     let k: Vec<f64> = (-r..=r)
         .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())

@@ -29,6 +29,19 @@ pub struct Args {
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let ds = Dataset::load(&args.data)?;
     let data = rcm::RcmData::from_dataset(&ds, &args.data)?;
+    if !data.detected.is_empty() {
+        let mut q: Vec<f64> = data.detected.iter().map(|(_, d)| d.sigma_px()).collect();
+        q.sort_by(f64::total_cmp);
+        eprintln!(
+            "shaft lines detected in {} image(s): end-point 1-σ median {:.3} px, worst {:.3} px",
+            q.len(),
+            q[q.len() / 2],
+            q[q.len() - 1]
+        );
+    }
+    for r in &data.refused {
+        eprintln!("warning: view refused by the line detector: {r}");
+    }
     let res = rcm::calibrate(
         &data,
         &rcm::RcmOptions {

@@ -25,6 +25,7 @@ use crate::dataset::{Dataset, Record};
 
 pub mod axxb;
 pub mod dual;
+pub mod lines;
 pub mod ml;
 pub mod plucker;
 pub mod report;
@@ -89,6 +90,10 @@ pub struct RcmData {
     pub radius: f64,
     /// Usable poses.
     pub obs: Vec<RcmObs>,
+    /// Poses whose `shaft_lines` were detected in their image: id and the detection (quality).
+    pub detected: Vec<(u64, lines::ShaftLines)>,
+    /// Views whose image was refused by the line detector: what and why.
+    pub refused: Vec<String>,
 }
 
 impl RcmData {
@@ -105,11 +110,16 @@ impl RcmData {
             k,
             radius,
             obs,
+            detected: Vec::new(),
+            refused: Vec::new(),
         }
     }
     /// Reads the `camera`, `instrument` and per-pose `flange` + `shaft_lines` of a dataset;
-    /// `file` names it in errors. Poses without `shaft_lines` are skipped (the shaft was not
-    /// seen); a pose with `shaft_lines` but no `flange` is an error.
+    /// `file` names it in errors. A pose without `shaft_lines` but with an `image` (path
+    /// relative to the dataset) gets them from [`lines::detect`]; a view the detector refuses
+    /// is skipped and listed in `refused` with the reason. Poses with neither are skipped (the
+    /// shaft was not seen); a pose with `shaft_lines` or an image but no `flange` is an error,
+    /// and so is an image that cannot be read.
     pub fn from_dataset(ds: &Dataset, file: &Path) -> Result<RcmData, RcmError> {
         let f = file.display();
         let camera: EndoscopeCamera = endoscope::block(&ds.header.extra, "camera")
@@ -146,12 +156,44 @@ impl RcmData {
             )));
         }
         let mut obs = Vec::new();
+        let (mut detected, mut refused) = (Vec::new(), Vec::new());
         for (idx, rec) in ds.records.iter().enumerate() {
             let Record::Pose(p) = rec else { continue };
             let line = idx + 2;
             let segs = endoscope::shaft_lines(&p.extra)
                 .map_err(|e| RcmError::Data(format!("{f}:{line}: {e}")))?;
-            let Some(segs) = segs else { continue };
+            let mut found = None;
+            let segs = match (segs, &p.image) {
+                (Some(s), _) => s,
+                (None, Some(img)) => {
+                    let path = file.parent().unwrap_or(Path::new(".")).join(img);
+                    let im = robocal_drivers::camera::read_image_file(&path).map_err(|e| {
+                        RcmError::Data(format!("{f}:{line}: field \"image\": {e}"))
+                    })?;
+                    match lines::detect(
+                        &im.data,
+                        im.width,
+                        im.height,
+                        &camera,
+                        &lines::LineOptions::default(),
+                    ) {
+                        Ok(d) => {
+                            let s = d.segs();
+                            found = Some(d);
+                            s
+                        }
+                        Err(why) => {
+                            refused.push(format!(
+                                "pose {} ({f}:{line}, image {}): {why}",
+                                p.id,
+                                path.display()
+                            ));
+                            continue;
+                        }
+                    }
+                }
+                (None, None) => continue,
+            };
             let fl = p.flange.as_ref().ok_or_else(|| {
                 RcmError::Data(format!(
                     "{f}:{line}: field \"flange\": missing (pose {} has shaft_lines but no instrument pose)",
@@ -163,6 +205,9 @@ impl RcmData {
                     "{f}:{line}: field \"flange\": not finite or quaternion not unit"
                 ))
             })?;
+            if let Some(d) = found {
+                detected.push((p.id, d));
+            }
             obs.push(RcmObs {
                 id: p.id,
                 line,
@@ -170,7 +215,10 @@ impl RcmData {
                 segs,
             });
         }
-        Ok(RcmData::new(camera, inst.shaft_radius_mm, obs))
+        let mut data = RcmData::new(camera, inst.shaft_radius_mm, obs);
+        data.detected = detected;
+        data.refused = refused;
+        Ok(data)
     }
 }
 

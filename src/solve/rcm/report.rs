@@ -32,6 +32,12 @@ pub struct RcmReport {
     pub poses: Vec<(u64, usize, f64)>,
     /// The RCM point.
     pub rcm: RcmPoint,
+    /// Poses whose lines were detected in their image: id and each line's quality.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub detected: Vec<(u64, [super::lines::FittedLine; 2])>,
+    /// Views the line detector refused, with the reason.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub refused: Vec<String>,
 }
 
 /// `camera.hand_eye` of a pose (camera in base).
@@ -130,6 +136,12 @@ pub fn calibration_file(
         std_bootstrap: res.bootstrap,
         poses,
         rcm,
+        detected: data
+            .detected
+            .iter()
+            .map(|(id, d)| (*id, d.lines.clone()))
+            .collect(),
+        refused: data.refused.clone(),
     };
     (cal, report)
 }
