@@ -856,6 +856,21 @@ fn bad_input_non_regular_and_unbounded_inputs_are_refused() {
     rows[2]["note"] = json!("x".repeat(5 << 20));
     let long = write(dp, "long.jsonl", &rows);
     refused(&["inspect", s(&long)], &["long.jsonl:3", "longer than"]);
+    // An unbounded count: refused before the first fit.
+    let good = write(dp, "good.jsonl", &geo(40));
+    refused(
+        &[
+            "calibrate",
+            "kinematics",
+            "--data",
+            s(&good),
+            "--out",
+            s(&dp.join("k")),
+            "--bootstrap",
+            "100000000",
+        ],
+        &["--bootstrap 100000000", "at most 100000"],
+    );
 }
 
 #[test]
