@@ -856,6 +856,21 @@ fn bad_input_non_regular_and_unbounded_inputs_are_refused() {
     rows[2]["note"] = json!("x".repeat(5 << 20));
     let long = write(dp, "long.jsonl", &rows);
     refused(&["inspect", s(&long)], &["long.jsonl:3", "longer than"]);
+    // An unbounded count: refused before the first fit.
+    let good = write(dp, "good.jsonl", &geo(40));
+    refused(
+        &[
+            "calibrate",
+            "kinematics",
+            "--data",
+            s(&good),
+            "--out",
+            s(&dp.join("k")),
+            "--bootstrap",
+            "100000000",
+        ],
+        &["--bootstrap 100000000", "at most 100000"],
+    );
 }
 
 #[test]
@@ -967,14 +982,7 @@ fn bad_input_session_options_are_checked_before_anything_is_created() {
     .enumerate()
     {
         let out = dp.join(format!("s{i}"));
-        let mut a = vec![
-            "session",
-            "--sim",
-            s(&lab),
-            "--out",
-            s(&out),
-            "--plan-only",
-        ];
+        let mut a = vec!["session", "--sim", s(&lab), "--out", s(&out), "--plan-only"];
         a.extend(extra);
         refused(&a, &needles);
         assert!(
@@ -1039,4 +1047,54 @@ fn bad_input_calibration_claims_are_checked_before_use() {
         ],
         &["warp_drive", "effects[0]"],
     );
+}
+
+#[test]
+fn bad_input_plan_wider_than_the_cell_is_refused() {
+    // The lab cell states its table and envelope: an edited plan may not relax them.
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let plan = small_plan(dp);
+    let lab = lab();
+    let base: Value = serde_json::from_str(&std::fs::read_to_string(&plan).unwrap()).unwrap();
+    let edits: [(&str, &dyn Fn(&mut Value), &str); 3] = [
+        (
+            "low",
+            &|v| v["spec"]["constraints"]["table_z_mm"] = json!(-1000.0),
+            "cell's table is at z = 0 mm",
+        ),
+        (
+            "noenv",
+            &|v| {
+                v["spec"]["constraints"]
+                    .as_object_mut()
+                    .unwrap()
+                    .remove("envelope");
+            },
+            "not inside the cell's envelope",
+        ),
+        ("nospec", &|v| v["spec"] = json!({}), "cell's table"),
+    ];
+    for (name, edit, needle) in edits {
+        let mut v = base.clone();
+        edit(&mut v);
+        let p = dp.join(format!("{name}.json"));
+        std::fs::write(&p, v.to_string()).unwrap();
+        let out = dp.join(format!("run-{name}"));
+        refused(
+            &[
+                "run",
+                "--plan",
+                s(&p),
+                "--sim",
+                s(&lab),
+                "--out",
+                s(&out),
+                "--virtual-clock",
+                "--in-process",
+            ],
+            &[needle, "never wider"],
+        );
+        assert!(!out.exists());
+    }
 }

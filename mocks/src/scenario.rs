@@ -213,6 +213,26 @@ pub struct ArmConfig {
     /// Initial joint angles (deg); default all zero.
     #[serde(default)]
     pub home_deg: Option<Vec<f64>>,
+    /// The cell's own safety limits around this arm (table plane, envelope; robot base
+    /// frame): a plan run on this cell may be stricter, never wider.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub safety: Option<CellSafety>,
+}
+
+/// A cell's safety limits in the robot base frame (mm): what the cell is, whatever a plan
+/// file says.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellSafety {
+    /// Table plane height (mm): no arm check point below it.
+    #[serde(default)]
+    pub table_z_mm: Option<f64>,
+    /// Least clearance above the table (mm).
+    #[serde(default)]
+    pub table_clearance_mm: Option<f64>,
+    /// Cartesian envelope every arm check point stays in.
+    #[serde(default)]
+    pub envelope: Option<robocal_drivers::safety::Envelope>,
 }
 
 /// Tracker model (sets the default measurement volume).
@@ -678,10 +698,23 @@ impl Scenario {
 
     /// Read and parse a file.
     pub fn load(path: &Path) -> Result<Self, ScenarioError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
+        let io = |source| ScenarioError::Io {
             path: path.display().to_string(),
             source,
-        })?;
+        };
+        // A scenario is a small regular file: a FIFO or device would block or never end.
+        let meta = std::fs::metadata(path).map_err(io)?;
+        if !meta.is_file() || meta.len() > 64 << 20 {
+            return Err(io(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                if meta.is_file() {
+                    "larger than 64 MiB: not a scenario file"
+                } else {
+                    "not a regular file (a directory, FIFO or device): give the scenario's TOML file"
+                },
+            )));
+        }
+        let text = std::fs::read_to_string(path).map_err(io)?;
         Self::from_toml(&text)
     }
 
@@ -730,6 +763,7 @@ impl Scenario {
                 effects: ArmEffects::default(),
                 motion: MotionConfig::default(),
                 home_deg: None,
+                safety: None,
             }],
             trackers: vec![TrackerConfig {
                 name: "tracker".into(),

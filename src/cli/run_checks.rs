@@ -38,6 +38,11 @@ fn cell_arm(mode: &str, config: &Path, arm: Option<&str>) -> anyhow::Result<Cell
             robot: CellRobot {
                 source: format!("{}: arm \"{}\"", config.display(), a.name),
                 model: Some(a.model.clone()),
+                safety: a.safety.as_ref().map(|s| crate::plan::recheck::CellSafety {
+                    table_z_mm: s.table_z_mm,
+                    table_clearance_mm: s.table_clearance_mm.unwrap_or(0.0),
+                    envelope: s.envelope.clone(),
+                }),
             },
             vel: Some(CellLimit {
                 value: a.motion.max_vel_deg_s,
@@ -69,6 +74,7 @@ fn cell_arm(mode: &str, config: &Path, arm: Option<&str>) -> anyhow::Result<Cell
         robot: CellRobot {
             source: format!("{}: device \"{name}\"", config.display()),
             model,
+            safety: None,
         },
         vel: limit(arm.and_then(|d| d.max_speed_deg_s), "max_speed_deg_s"),
         acc: limit(arm.and_then(|d| d.max_accel_deg_s2), "max_accel_deg_s2"),

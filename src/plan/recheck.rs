@@ -20,6 +20,109 @@ pub struct CellRobot {
     pub source: String,
     /// The arm's model name (a preset name such as `denso-vs060`) when known.
     pub model: Option<String>,
+    /// The cell's own safety limits (table plane, envelope) when it states them.
+    pub safety: Option<CellSafety>,
+}
+
+/// A cell's safety limits (robot base frame, mm): a plan may be stricter, never wider.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CellSafety {
+    /// Table height (mm) and least clearance above it (mm).
+    pub table_z_mm: Option<f64>,
+    pub table_clearance_mm: f64,
+    /// Envelope every arm check point stays in.
+    pub envelope: Option<robocal_drivers::safety::Envelope>,
+}
+
+/// Whether envelope `a` lies inside envelope `b` (both convex: their extreme points decide).
+fn envelope_within(
+    a: &robocal_drivers::safety::Envelope,
+    b: &robocal_drivers::safety::Envelope,
+) -> bool {
+    use robocal_drivers::safety::Envelope as E;
+    let tol = 1e-6;
+    match (a, b) {
+        (
+            E::Cylinder {
+                center_xy: ca,
+                radius: ra,
+                z_min: za,
+                z_max: zb,
+            },
+            E::Cylinder {
+                center_xy: cb,
+                radius: rb,
+                z_min: zc,
+                z_max: zd,
+            },
+        ) => {
+            let d = ((ca[0] - cb[0]).powi(2) + (ca[1] - cb[1]).powi(2)).sqrt();
+            d + ra <= rb + tol && za >= &(zc - tol) && zb <= &(zd + tol)
+        }
+        _ => {
+            // A box's corners; a cylinder inside a box iff its bounding box is.
+            let (lo, hi) = match a {
+                E::Box { min, max } => (*min, *max),
+                E::Cylinder {
+                    center_xy,
+                    radius,
+                    z_min,
+                    z_max,
+                } => (
+                    [center_xy[0] - radius, center_xy[1] - radius, *z_min],
+                    [center_xy[0] + radius, center_xy[1] + radius, *z_max],
+                ),
+            };
+            let inside = |p: [f64; 3]| match b {
+                E::Box { min, max } => (0..3).all(|i| p[i] >= min[i] - tol && p[i] <= max[i] + tol),
+                E::Cylinder { .. } => b.contains(&nalgebra::Point3::from(p)),
+            };
+            (0..8).all(|k| {
+                inside([
+                    if k & 1 == 0 { lo[0] } else { hi[0] },
+                    if k & 2 == 0 { lo[1] } else { hi[1] },
+                    if k & 4 == 0 { lo[2] } else { hi[2] },
+                ])
+            })
+        }
+    }
+}
+
+/// Checks that the plan's constraints are no wider than the cell's (issue 26 §2): a plan
+/// file is editable, the cell is not. Names the limit and where the cell states it.
+pub fn within_cell(c: &ConstraintSpec, cell: &CellSafety, source: &str) -> Result<(), PlanError> {
+    if let Some(tz) = cell.table_z_mm {
+        let floor = tz + cell.table_clearance_mm;
+        let plan_floor = c.table_z_mm.map(|z| z + c.table_clearance_mm);
+        if plan_floor.is_none_or(|f| f < floor - 1e-6) {
+            return Err(bad(format!(
+                "field \"spec.constraints.table_z_mm\": the plan allows the arm down to {} but \
+                 the cell's table is at z = {tz} mm with {} mm clearance ({source}): a plan may be \
+                 stricter than the cell, never wider (an edited plan; re-plan)",
+                plan_floor.map_or("any height (no table)".into(), |f| format!(
+                    "z = {f} mm (table_z_mm + table_clearance_mm)"
+                )),
+                cell.table_clearance_mm
+            )));
+        }
+    }
+    if let Some(ce) = &cell.envelope {
+        let ok = c
+            .envelope
+            .as_ref()
+            .is_some_and(|pe| envelope_within(pe, ce));
+        if !ok {
+            return Err(bad(format!(
+                "field \"spec.constraints.envelope\": {} is not inside the cell's envelope \
+                 {ce:?} ({source}): a plan may be stricter than the cell, never wider (an edited \
+                 plan; re-plan)",
+                c.envelope
+                    .as_ref()
+                    .map_or("no envelope".into(), |e| format!("{e:?}"))
+            )));
+        }
+    }
+    Ok(())
 }
 
 fn bad(message: String) -> PlanError {
@@ -96,6 +199,9 @@ pub fn recheck(plan: &PlanFile, cell: Option<&CellRobot>) -> Result<usize, PlanE
             self_collision: false,
             ..ConstraintSpec::default()
         });
+    if let Some((safety, source)) = cell.and_then(|c| c.safety.as_ref().map(|s| (s, &c.source))) {
+        within_cell(&constraints, safety, source)?;
+    }
     for p in &plan.poses {
         let q: Vec<f64> = p.q_deg.iter().map(|x| x.to_radians()).collect();
         if let Some(r) = constraints::arm_check(&constraints, &model, &q, &tool) {
@@ -109,4 +215,59 @@ pub fn recheck(plan: &PlanFile, cell: Option<&CellRobot>) -> Result<usize, PlanE
         }
     }
     Ok(plan.poses.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use robocal_drivers::safety::Envelope;
+
+    #[test]
+    fn a_plan_may_be_stricter_than_the_cell_never_wider() {
+        let cyl = |r: f64, z0: f64| Envelope::Cylinder {
+            center_xy: [0.0, 0.0],
+            radius: r,
+            z_min: z0,
+            z_max: 1100.0,
+        };
+        let cell = CellSafety {
+            table_z_mm: Some(0.0),
+            table_clearance_mm: 50.0,
+            envelope: Some(cyl(900.0, 0.0)),
+        };
+        let plan = |z: Option<f64>, clear: f64, env: Option<Envelope>| ConstraintSpec {
+            table_z_mm: z,
+            table_clearance_mm: clear,
+            envelope: env,
+            ..ConstraintSpec::default()
+        };
+        // Equal and stricter pass.
+        within_cell(&plan(Some(0.0), 50.0, Some(cyl(900.0, 0.0))), &cell, "c").unwrap();
+        within_cell(&plan(Some(100.0), 50.0, Some(cyl(500.0, 10.0))), &cell, "c").unwrap();
+        let b = Envelope::Box {
+            min: [-500.0, -500.0, 0.0],
+            max: [500.0, 500.0, 900.0],
+        };
+        within_cell(&plan(Some(0.0), 60.0, Some(b)), &cell, "c").unwrap();
+        // Wider: lower table, less clearance, no table, no / larger / offset envelope.
+        for p in [
+            plan(Some(-1000.0), 50.0, Some(cyl(900.0, 0.0))),
+            plan(Some(0.0), 0.0, Some(cyl(900.0, 0.0))),
+            plan(None, 50.0, Some(cyl(900.0, 0.0))),
+            plan(Some(0.0), 50.0, None),
+            plan(Some(0.0), 50.0, Some(cyl(901.0, 0.0))),
+            plan(Some(0.0), 50.0, Some(cyl(900.0, -10.0))),
+            plan(
+                Some(0.0),
+                50.0,
+                Some(Envelope::Box {
+                    min: [-700.0, -700.0, 0.0],
+                    max: [700.0, 700.0, 900.0],
+                }),
+            ),
+        ] {
+            let e = within_cell(&p, &cell, "lab.toml").unwrap_err().to_string();
+            assert!(e.contains("never wider") && e.contains("lab.toml"), "{e}");
+        }
+    }
 }

@@ -47,6 +47,25 @@ pub fn seconds(flag: &str, value: f64, max_s: f64) -> Result<std::time::Duration
     Ok(std::time::Duration::from_secs_f64(value))
 }
 
+/// Most bootstrap refits a command runs (each is a whole fit): 100 000.
+pub const MAX_BOOTSTRAP: usize = 100_000;
+
+/// Checks a count given as `flag` against its cap (bounded time and memory, issue 26 §7).
+pub fn count(flag: &str, value: usize, max: usize, what: &str) -> Result<usize, String> {
+    if value > max {
+        return Err(format!(
+            "{flag} {value}: at most {max} {what} (each is a whole fit; more would run for days \
+             or exhaust memory without changing the result)"
+        ));
+    }
+    Ok(value)
+}
+
+/// [`count`] for a `--bootstrap` option, as an `anyhow` error.
+pub fn bootstrap(value: usize) -> anyhow::Result<usize> {
+    count("--bootstrap", value, MAX_BOOTSTRAP, "bootstrap refits").map_err(anyhow::Error::msg)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -70,5 +89,11 @@ mod tests {
         assert!(seconds("--timeout-s", f64::NAN, 600.0).is_err());
         assert!(seconds("--timeout-s", 0.0, 600.0).is_err());
         assert!(seconds("--timeout-s", 5.0, 600.0).is_ok());
+        let e = count("--bootstrap", 100_000_000, MAX_BOOTSTRAP, "refits").unwrap_err();
+        assert!(
+            e.contains("--bootstrap 100000000") && e.contains("at most 100000"),
+            "{e}"
+        );
+        assert_eq!(count("--bootstrap", 200, MAX_BOOTSTRAP, "refits"), Ok(200));
     }
 }

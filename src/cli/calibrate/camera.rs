@@ -73,6 +73,7 @@ pub fn overrides(board: Option<(u32, u32)>, square: Option<f64>, mount: Option<&
 
 /// Run `robocal calibrate camera`.
 pub fn exec(a: Args) -> anyhow::Result<()> {
+    crate::plausible::limits::bootstrap(a.bootstrap)?;
     let ov = overrides(a.board, a.square, a.mount.as_deref());
     let t0 = std::time::Instant::now();
     let train =

@@ -58,6 +58,7 @@ fn show(v: f64, unit: Unit) -> (f64, &'static str) {
 
 /// Run `robocal calibrate kinematics`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    crate::plausible::limits::bootstrap(args.bootstrap.unwrap_or(0))?;
     let quiet = args.json;
     macro_rules! say {
         ($($t:tt)*) => {

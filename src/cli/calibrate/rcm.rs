@@ -27,6 +27,7 @@ pub struct Args {
 
 /// Run `robocal calibrate rcm`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    crate::plausible::limits::bootstrap(args.bootstrap)?;
     let ds = Dataset::load(&args.data)?;
     let data = rcm::RcmData::from_dataset(&ds, &args.data)?;
     if !data.detected.is_empty() {
