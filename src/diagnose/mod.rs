@@ -74,6 +74,30 @@ pub struct Options {
     /// group per joint; every harmonic counts as a test; after one is accepted the other
     /// harmonics of that joint stay candidates, so a joint can carry several).
     pub ripple_harmonics: Vec<u32>,
+    /// How the chain of effects is chosen (see [`Policy`]).
+    pub policy: Policy,
+    /// Under [`Policy::Best`]: at most this many physical effects in the physics-first chain.
+    pub physics_first_max_effects: usize,
+    /// Under [`Policy::Best`]: the physics-first chain is kept only when its time-blocked CV
+    /// RMS is at least this fraction below the kernel-benchmark chain's.
+    pub policy_margin: f64,
+}
+
+/// How [`diagnose`] chooses its chain of effects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Policy {
+    /// One chain under the options' rules.
+    Single,
+    /// Two chains from the same geometric fit, both selected on training data only: the
+    /// kernel-benchmark chain (the options' rules: a physical effect must explain
+    /// `min_np_ratio` of what a kernel regression explains) and the physics-first chain (no
+    /// such rule, up to `physics_first_max_effects` effects), each followed by its
+    /// correction. The physics-first chain is kept when its final model predicts
+    /// time-blocked folds of the training data better by `policy_margin`; otherwise the
+    /// kernel-benchmark chain. (Real arms: transmission ripple that a kernel on joint space
+    /// cannot represent extrapolates; an effect outside the library that a library effect
+    /// only resembles is predicted as well by the correction alone.)
+    Best,
 }
 
 impl Options {
@@ -85,6 +109,17 @@ impl Options {
         Options {
             min_np_ratio: 0.0,
             max_effects: 6,
+            policy: Policy::Single,
+            ..Options::default()
+        }
+    }
+
+    /// The kernel-benchmark chain alone (the default policy before issue 31 §4; `robocal
+    /// diagnose --kernel-benchmark`): a physical effect must explain half of what a kernel
+    /// regression on joint space explains.
+    pub fn kernel_benchmark() -> Options {
+        Options {
+            policy: Policy::Single,
             ..Options::default()
         }
     }
@@ -106,6 +141,9 @@ impl Default for Options {
             wave_gear_ratio: DEFAULT_WAVE_GEAR_RATIO,
             exclude_kinds: Vec::new(),
             ripple_harmonics: RIPPLE_HARMONICS.collect(),
+            policy: Policy::Best,
+            physics_first_max_effects: 6,
+            policy_margin: 0.05,
         }
     }
 }
@@ -177,9 +215,28 @@ pub struct Diagnosis {
     pub n_heldout_excluded: usize,
     /// Warnings of the diagnosis (for `diagnosis.json`).
     pub warnings: Vec<String>,
+    /// Under [`Policy::Best`]: which chain was kept and why.
+    pub policy_choice: Option<PolicyChoice>,
 }
 
 impl Diagnosis {
+    /// One sentence on the chain the [`Policy::Best`] policy kept (None under another policy).
+    pub fn policy_line(&self) -> Option<String> {
+        let c = self.policy_choice.as_ref()?;
+        let other = if c.other_chain.is_empty() {
+            "none".to_string()
+        } else {
+            c.other_chain.join(", ")
+        };
+        Some(format!(
+            "policy: kept the {} chain (time-blocked CV RMS on the training poses: kernel benchmark {:.4} mm, physics first {:.4} mm; physics first is kept when ≥ {:.0} % lower); the other chain was: {other}",
+            c.chosen,
+            c.cv_rms_kernel_benchmark,
+            c.cv_rms_physics_first,
+            100.0 * c.margin
+        ))
+    }
+
     /// Whether the chain found a physical effect.
     pub fn found_physical(&self) -> bool {
         self.steps
@@ -686,57 +743,47 @@ fn ambiguous(
     (out, Vec::new())
 }
 
-/// Run the whole diagnosis. `model` is the nominal model (its free flags are used for the
-/// geometric fit after [`KinematicModel::fix_point_redundancies`]).
-pub fn diagnose(
-    model: &KinematicModel,
+/// One chain of accepted effects (and, when one was added, the nonparametric correction).
+struct Chain {
+    state: State,
+    steps: Vec<Step>,
+    rounds: Vec<Vec<Score>>,
+    not_identifiable: Vec<Score>,
+    nonparametric: Option<(f64, f64)>,
+    /// Time-blocked cross-validated RMS (per axis, mm) of the final model: the linearised
+    /// refit of the physical chain on each fold's complement, times the correction's
+    /// out-of-fold ratio when a correction was added ([`chain_cv`]).
+    cv_rms: f64,
+}
+
+/// Select effects one at a time from `start` under the rules of `opt` (see the module doc).
+fn select_chain(
+    start: &State,
     train: &[PoseObs],
     heldout: &[PoseObs],
+    cands: Vec<Vec<Block>>,
+    np_hp: Option<(f64, f64)>,
     opt: &Options,
-) -> anyhow::Result<Diagnosis> {
-    let mut model = model.clone();
-    model.fix_point_redundancies();
-    fit_nominal(&mut model, train)?;
-    let nominal = State {
-        model: model.clone(),
-        effects: vec![],
-    };
-    let train_rms_nominal = rms3(&residuals(&nominal, train));
-    let mut state = nominal.clone();
-    let rep = fit(&mut state, train, 50);
-    if rep.rank < rep.n_params {
-        tracing::warn!(
-            "geometric identification Jacobian has rank {} < {} parameters",
-            rep.rank,
-            rep.n_params
-        );
-    }
-    tracing::debug!(
-        "geometric fit: {} iterations, rank {}",
-        rep.iterations,
-        rep.rank
-    );
-    let geometric = state.clone();
-    let train_rms_geometric = rms3(&residuals(&geometric, train));
-    let (cands, untestable) = candidates_with(&state.model, train, opt);
+) -> Chain {
+    let mut state = start.clone();
     let mut remaining = cands;
     let mut steps = Vec::new();
     let mut rounds = Vec::new();
     let mut not_identifiable: Vec<Score> = Vec::new();
-    // Hyper-parameters of the kernel benchmark, chosen once on the geometric residual.
-    let np_hp = if train.len() >= 40 {
-        let (qs, rv) = np_data(&state, train);
-        nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
-            .map(|c| (c.length_scale, c.lambda))
-    } else {
-        None
-    };
+    // The kernel benchmark only matters to the rule that uses it.
+    let use_np = opt.min_np_ratio > 0.0;
     for _ in 0..opt.max_effects {
         let t_round = std::time::Instant::now();
         // The candidate scores and the kernel benchmark are independent: both at once.
         let (mut scores, npg) = rayon::join(
             || score_round(&state, train, &remaining, opt),
-            || np_gain(&state, train, np_hp, opt),
+            || {
+                if use_np {
+                    np_gain(&state, train, np_hp, opt)
+                } else {
+                    f64::NAN
+                }
+            },
         );
         if npg > opt.np_benchmark_gain {
             for s in &mut scores {
@@ -821,51 +868,179 @@ pub fn diagnose(
             })
         });
     }
-    // Nonparametric correction of what remains, only if it predicts held-out folds.
-    let mut nonparametric = None;
-    if opt.allow_nonparametric && train.len() >= 40 {
-        let r = residuals(&state, train);
-        let (qs, rv) = np_data(&state, train);
-        let fo = folds(train, opt.n_folds);
-        if let Some(cv) = nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds) {
-            if cv.cv_rms_after < (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
-                if let Some(mut rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) {
-                    rbf.arm_frame = true;
-                    let before_train = rms3(&r);
-                    let before_held = heldout_rms(&state, heldout);
-                    let e = Effect {
-                        block: Block::Nonparametric(Box::new(rbf)),
-                        coefs: vec![],
-                        std: vec![],
-                        tau_std: f64::NAN,
-                    };
-                    state.effects.push(e.clone());
-                    let ev = Score {
-                        label: "nonparametric".into(),
-                        block: e.block.clone(),
-                        df: train.len() * 3,
-                        f: f64::NAN,
-                        p_value: f64::NAN,
-                        delta_bic: f64::NAN,
-                        cv_gain: 1.0 - cv.cv_rms_after / cv.cv_rms_before,
-                        independence: f64::NAN,
-                        tests: 9,
-                        np_ratio: f64::NAN,
-                    };
-                    steps.push(Step {
-                        effect: e,
-                        evidence: ev,
-                        train_rms_before: before_train,
-                        train_rms_after: rms3(&residuals(&state, train)),
-                        heldout_rms_before: before_held,
-                        heldout_rms_after: heldout_rms(&state, heldout),
-                        state_after: state.clone(),
-                    });
-                    nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
-                }
-            }
-        }
+    let cv_rms = {
+        let (r, j) = stack(&state, train);
+        let rf = row_folds(&folds(train, opt.n_folds));
+        CvBase::new(&j, &r, &rf, opt.n_folds).rms(&j, &DMatrix::zeros(r.len(), 0), &r)
+    };
+    Chain {
+        state,
+        steps,
+        rounds,
+        not_identifiable,
+        nonparametric: None,
+        cv_rms,
     }
+}
+
+/// Add the nonparametric correction of what `chain` leaves, only if it predicts held-out
+/// (time-blocked) folds clearly better than zero.
+fn add_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs], opt: &Options) {
+    if !opt.allow_nonparametric || train.len() < 40 {
+        return;
+    }
+    let state = &mut chain.state;
+    let r = residuals(state, train);
+    let (qs, rv) = np_data(state, train);
+    let fo = folds(train, opt.n_folds);
+    let Some(cv) = nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds) else {
+        return;
+    };
+    if cv.cv_rms_after >= (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
+        return;
+    }
+    let Some(mut rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) else {
+        return;
+    };
+    rbf.arm_frame = true;
+    let before_train = rms3(&r);
+    let before_held = heldout_rms(state, heldout);
+    let e = Effect {
+        block: Block::Nonparametric(Box::new(rbf)),
+        coefs: vec![],
+        std: vec![],
+        tau_std: f64::NAN,
+    };
+    state.effects.push(e.clone());
+    let ev = Score {
+        label: "nonparametric".into(),
+        block: e.block.clone(),
+        df: train.len() * 3,
+        f: f64::NAN,
+        p_value: f64::NAN,
+        delta_bic: f64::NAN,
+        cv_gain: 1.0 - cv.cv_rms_after / cv.cv_rms_before,
+        independence: f64::NAN,
+        tests: 9,
+        np_ratio: f64::NAN,
+    };
+    chain.steps.push(Step {
+        effect: e,
+        evidence: ev,
+        train_rms_before: before_train,
+        train_rms_after: rms3(&residuals(state, train)),
+        heldout_rms_before: before_held,
+        heldout_rms_after: heldout_rms(state, heldout),
+        state_after: state.clone(),
+    });
+    chain.nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
+    if cv.cv_rms_before > 0.0 {
+        chain.cv_rms *= cv.cv_rms_after / cv.cv_rms_before;
+    }
+}
+
+/// Which chain the [`Policy::Best`] policy kept, and the evidence (time-blocked CV RMS of
+/// both final models, training data only).
+#[derive(Debug, Clone)]
+pub struct PolicyChoice {
+    /// `"kernel benchmark"` or `"physics first"`.
+    pub chosen: &'static str,
+    pub cv_rms_kernel_benchmark: f64,
+    pub cv_rms_physics_first: f64,
+    /// The physics-first chain is kept when its CV RMS is at least this fraction below the
+    /// kernel-benchmark chain's.
+    pub margin: f64,
+    /// Effects of the chain that was not kept.
+    pub other_chain: Vec<String>,
+}
+
+/// Run the whole diagnosis. `model` is the nominal model (its free flags are used for the
+/// geometric fit after [`KinematicModel::fix_point_redundancies`]).
+pub fn diagnose(
+    model: &KinematicModel,
+    train: &[PoseObs],
+    heldout: &[PoseObs],
+    opt: &Options,
+) -> anyhow::Result<Diagnosis> {
+    let mut model = model.clone();
+    model.fix_point_redundancies();
+    fit_nominal(&mut model, train)?;
+    let nominal = State {
+        model: model.clone(),
+        effects: vec![],
+    };
+    let train_rms_nominal = rms3(&residuals(&nominal, train));
+    let mut state = nominal.clone();
+    let rep = fit(&mut state, train, 50);
+    if rep.rank < rep.n_params {
+        tracing::warn!(
+            "geometric identification Jacobian has rank {} < {} parameters",
+            rep.rank,
+            rep.n_params
+        );
+    }
+    tracing::debug!(
+        "geometric fit: {} iterations, rank {}",
+        rep.iterations,
+        rep.rank
+    );
+    let geometric = state.clone();
+    let train_rms_geometric = rms3(&residuals(&geometric, train));
+    let (cands, untestable) = candidates_with(&state.model, train, opt);
+    // Hyper-parameters of the kernel benchmark, chosen once on the geometric residual (only
+    // the kernel-benchmark rule uses them).
+    let np_hp = if train.len() >= 40 && opt.min_np_ratio > 0.0 {
+        let (qs, rv) = np_data(&state, train);
+        nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
+            .map(|c| (c.length_scale, c.lambda))
+    } else {
+        None
+    };
+    let single = |o: &Options| {
+        let mut c = select_chain(&geometric, train, heldout, cands.clone(), np_hp, o);
+        add_correction(&mut c, train, heldout, o);
+        c
+    };
+    let (chain, policy_choice) = match opt.policy {
+        Policy::Single => (single(opt), None),
+        Policy::Best => {
+            let pf = Options {
+                min_np_ratio: 0.0,
+                max_effects: opt.physics_first_max_effects,
+                ..opt.clone()
+            };
+            let (kb, pf) = rayon::join(|| single(opt), || single(&pf));
+            let label = |c: &Chain| c.steps.iter().map(|s| s.evidence.label.clone()).collect();
+            let use_pf = pf.cv_rms < (1.0 - opt.policy_margin) * kb.cv_rms;
+            tracing::debug!(
+                "policy: CV RMS kernel benchmark {:.4}, physics first {:.4}",
+                kb.cv_rms,
+                pf.cv_rms
+            );
+            let mut choice = PolicyChoice {
+                chosen: if use_pf {
+                    "physics first"
+                } else {
+                    "kernel benchmark"
+                },
+                cv_rms_kernel_benchmark: kb.cv_rms,
+                cv_rms_physics_first: pf.cv_rms,
+                margin: opt.policy_margin,
+                other_chain: Vec::new(),
+            };
+            let (keep, other) = if use_pf { (pf, kb) } else { (kb, pf) };
+            choice.other_chain = label(&other);
+            (keep, Some(choice))
+        }
+    };
+    let Chain {
+        state,
+        mut steps,
+        rounds,
+        not_identifiable,
+        nonparametric,
+        ..
+    } = chain;
     let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
     // Held-out RMS never counts an ambiguous pose: recompute every held-out figure on the
     // poses whose side of each change point is known.
@@ -911,6 +1086,7 @@ pub fn diagnose(
         not_identifiable,
         nonparametric,
         untestable,
+        policy_choice,
     })
 }
 
@@ -1065,6 +1241,9 @@ impl Diagnosis {
             f(self.heldout_rms_final)
         );
         let _ = writeln!(s, "## Chain\n");
+        if let Some(line) = self.policy_line() {
+            let _ = writeln!(s, "{}\n", line.replacen("policy: k", "K", 1));
+        }
         if self.steps.is_empty() {
             let _ = writeln!(s, "No effect was added: no candidate explained a significant part of the residual (Bonferroni α over the candidate count, ΔBIC, cross-validated gain).\n");
         }

@@ -763,6 +763,7 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
         heldout: Some(val),
         no_nonparametric: false,
         physics_first: false,
+        kernel_benchmark: false,
         json: false,
     })?;
     // Every artifact records the datasets it came from.
