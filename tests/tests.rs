@@ -15,6 +15,7 @@ mod laser;
 mod laser_world;
 mod model;
 mod navchain;
+mod pivot;
 mod plan;
 mod rcm;
 mod report;

@@ -15,6 +15,7 @@ pub mod error;
 pub mod euler;
 pub mod generic;
 pub mod ipa;
+pub mod matrices;
 pub mod robot;
 pub mod table;
 
