@@ -16,6 +16,7 @@ mod laser_world;
 mod model;
 mod navchain;
 mod perf;
+mod pivot;
 mod plan;
 mod rcm;
 mod report;

@@ -7,6 +7,7 @@ pub mod nominal;
 pub mod pivot;
 pub mod rcm;
 pub mod robot_world;
+pub mod tool;
 
 /// Arguments of `robocal calibrate`.
 #[derive(Debug, clap::Args)]
@@ -33,6 +34,9 @@ pub enum What {
     /// Camera intrinsics + hand-eye (seed 004): every closed form side by side, then the
     /// maximum-likelihood refinement on raw corner reprojection.
     Camera(camera::Args),
+    /// Tool (marker) on the flange and base with the identified arm fixed (seed 001 §2.3),
+    /// and the guide tool's frame from the pin forward / reversed (§2.4), with uncertainty.
+    Tool(tool::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -45,5 +49,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Rcm(a) => rcm::exec(a),
         What::RobotWorld(a) => robot_world::exec(a),
         What::Camera(a) => camera::exec(a),
+        What::Tool(a) => tool::exec(a),
     }
 }

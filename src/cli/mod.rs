@@ -7,6 +7,7 @@ use std::ffi::OsString;
 
 pub mod calibrate;
 pub mod chain;
+pub mod correct;
 pub mod devices;
 pub mod diagnose;
 pub mod diagnose_camera;
@@ -65,6 +66,8 @@ pub enum Command {
     History(history::Args),
     /// Turn measurement files (IPA layout, generic CSV) into a robocal dataset.
     Import(import::Args),
+    /// Desired tool poses → corrected joint targets through the identified model's IK.
+    Correct(correct::Args),
 }
 
 /// Parse `args` and run; returns the process exit code.
@@ -105,6 +108,7 @@ where
         Command::Chain(a) => chain::exec(a),
         Command::History(a) => history::exec(a),
         Command::Import(a) => import::exec(a),
+        Command::Correct(a) => correct::exec(a),
     };
     match result {
         Ok(()) => 0,

@@ -16,6 +16,7 @@ pub mod euler;
 pub mod generic;
 pub mod handeye;
 pub mod ipa;
+pub mod matrices;
 pub mod ndi;
 pub mod robot;
 pub mod table;

@@ -542,6 +542,34 @@ pub struct PivotResult {
     pub rms_mm: f64,
     pub max_mm: f64,
     pub frames: usize,
+    /// Per-axis RMS `√(Σ|e|²/3n)` (scikit-surgerycalibration's `residual_error`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rms_axis_mm: Option<f64>,
+    /// 95 % bootstrap intervals `[[lo, hi]; 3]` of the tip (marker frame) and pivot point.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tip_ci95_mm: Option<[[f64; 2]; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pivot_ci95_mm: Option<[[f64; 2]; 3]>,
+}
+
+/// The robust part of `pivot.json`: outlier handling and which estimate to trust.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PivotRobust {
+    /// Frames read / dropped as outliers.
+    pub frames_in: usize,
+    pub dropped: usize,
+    /// Inlier cut on the 3-D tip residual and the robust per-axis σ (mm).
+    pub threshold_mm: f64,
+    pub sigma_mm: f64,
+    /// Largest tilt of the probe axis from its mean (deg).
+    pub spread_deg: f64,
+    /// Bootstrap replicates and block length (frames).
+    pub bootstrap: usize,
+    pub block: usize,
+    /// Whether the methods' tips differ beyond their intervals; which to trust and why.
+    pub disagree: bool,
+    pub trust: String,
+    pub reason: String,
 }
 
 /// `pivot.json`.
@@ -551,6 +579,8 @@ pub struct PivotFile {
     pub format: String,
     pub tool: Option<String>,
     pub results: Vec<PivotResult>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robust: Option<PivotRobust>,
 }
 
 impl SchemaFile for PivotFile {

@@ -305,6 +305,21 @@ pub struct Measured {
     /// and its interval is optimistic.
     #[serde(default)]
     pub hand_eye_heldout_ratio: Option<f64>,
+    /// `verify` stage: commanded-vs-measured RMS (mm) with the nominal IK and the calibrated
+    /// IK, the largest after, seed 001's coincidence error before / after (mm), and verified
+    /// after-RMS / predicted held-out after-RMS.
+    #[serde(default)]
+    pub verified_rms_mm_before: Option<f64>,
+    #[serde(default)]
+    pub verified_rms_mm_after: Option<f64>,
+    #[serde(default)]
+    pub verified_max_mm_after: Option<f64>,
+    #[serde(default)]
+    pub coincidence_mm_before: Option<f64>,
+    #[serde(default)]
+    pub coincidence_mm_after: Option<f64>,
+    #[serde(default)]
+    pub verified_vs_predicted: Option<f64>,
 }
 
 impl Measured {

@@ -19,6 +19,7 @@ pub mod camera;
 pub mod deploy;
 pub mod history;
 pub mod svg;
+pub mod verify;
 
 use std::path::{Path, PathBuf};
 
@@ -47,18 +48,21 @@ pub enum Stage {
     Calibrate,
     Diagnose,
     Validate,
+    /// Command the calibrated robot at held-out targets and measure (issue 30).
+    Verify,
     Report,
 }
 
 impl Stage {
     /// All stages in order.
-    pub const ALL: [Stage; 7] = [
+    pub const ALL: [Stage; 8] = [
         Stage::Plan,
         Stage::AcquireTrain,
         Stage::AcquireValidation,
         Stage::Calibrate,
         Stage::Diagnose,
         Stage::Validate,
+        Stage::Verify,
         Stage::Report,
     ];
 }
@@ -255,6 +259,9 @@ pub struct SessionFile {
     /// uncertainties, every method side by side, held-out pixels before / after diagnosis).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<camera::CameraSummary>,
+    /// The `verify` stage: commanded-vs-measured before / after, coincidence error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verify: Option<verify::VerifySummary>,
 }
 
 impl SessionFile {
@@ -441,6 +448,7 @@ pub fn create(
         deploy: vec![],
         warnings: vec![],
         camera: None,
+        verify: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -545,6 +553,13 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
             validate_stage(dir, &mut s)?;
         }
         step(&mut s, Stage::Validate)?;
+    }
+    if !s.done(Stage::Verify) {
+        if !cam {
+            log("verify: command the calibrated robot at the held-out targets, measure");
+        }
+        verify::verify_stage(dir, &mut s, cell, &mut *log)?;
+        step(&mut s, Stage::Verify)?;
     }
     if !s.done(Stage::Report) {
         step(&mut s, Stage::Report)?;

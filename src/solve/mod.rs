@@ -12,6 +12,7 @@
 pub mod bootstrap;
 pub mod calfile;
 pub mod camera;
+pub mod correct;
 pub mod identifiability;
 pub mod inference;
 pub mod kinematics;
@@ -20,11 +21,13 @@ pub mod lm;
 pub mod metrics;
 pub mod nominal;
 pub mod obs;
+pub mod pivot_robust;
 pub mod predict;
 pub mod rcm;
 pub mod rigid;
 pub mod stats;
 pub mod tool;
+pub mod tool_boot;
 
 pub use obs::PoseObs;
 

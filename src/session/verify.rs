@@ -1,0 +1,360 @@
+//! The session stage `verify` (issue 30 §2, seed 001 §3 / §4.4): judge a calibration by what
+//! the robot *does* when commanded with it.
+//!
+//! Targets are the validation plan's (tool poses in the robot base, inside the cell, every IK
+//! branch the planner found safe and visible). Each target's desired marker pose `T` is
+//! where today's controller believes it sends the marker: the nominal chain (with the
+//! fitted tracker → base and marker) at the planned joints.
+//! - **before**: the planned joints are the nominal IK of `T`: the validation run already
+//!   commanded them, so its measurements are the "before" (no second run);
+//! - **after**: the deployed calibration's inverse kinematics of `T` on the same branch
+//!   (`solve::correct`, geometric), commanded by a third run (`run-verify/`), measured with
+//!   the tracker.
+//!
+//! Error = measured marker − desired marker in the tracker frame (each side's own tracker →
+//! base), position (RMS, p95, max) and orientation when the marker has one. Seed 001's
+//! inverse-solution coincidence error: for each target reached on ≥ 2 branches, the largest
+//! distance between the measured positions; its mean over targets, before → after. The
+//! verified after-RMS is compared with the predicted held-out after-RMS of the validate
+//! stage: more than 20 % worse is flagged.
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use anyhow::{bail, Context as _};
+use nalgebra::{Isometry3, Point3, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+
+use super::{load_ds, Cell, Log, SessionFile, SessionKind};
+use crate::dataset::{CalibrationFile, Dataset};
+use crate::model::KinematicModel;
+use crate::plan::file::{PlanFile, PlanFilePose, PlanPose};
+use crate::solve::nominal::{fit_nominal, NominalOptions};
+use crate::solve::obs::{observations, Split};
+
+/// Largest joint change (deg) from the planned (safety-checked) joints a corrected target may
+/// make; larger ones are not commanded (the planner's checks would no longer cover them).
+pub const MAX_CORRECTION_DEG: f64 = 5.0;
+/// Verified after-RMS more than this ratio above the predicted one is flagged.
+pub const FLAG_RATIO: f64 = 1.2;
+
+/// Commanded-vs-measured error statistics (mm, deg).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ErrorStats {
+    pub poses: usize,
+    pub rms_mm: f64,
+    pub p95_mm: f64,
+    pub max_mm: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rot_rms_deg: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rot_max_deg: Option<f64>,
+}
+
+/// What the `verify` stage found (`session.json` `verify`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VerifySummary {
+    /// Targets (validation points) and poses commanded after correction.
+    pub targets: usize,
+    /// Nominal IK (the validation run) and calibrated IK (`run-verify`).
+    pub before: ErrorStats,
+    pub after: ErrorStats,
+    /// Mean over targets reached on ≥ 2 branches of the largest distance between the
+    /// measured positions (mm), and how many targets had ≥ 2 branches.
+    pub coincidence_mm_before: Option<f64>,
+    pub coincidence_mm_after: Option<f64>,
+    pub coincidence_targets: usize,
+    /// Predicted held-out after-RMS (validate stage) and verified / predicted.
+    pub predicted_after_rms_mm: Option<f64>,
+    pub verified_vs_predicted: Option<f64>,
+    /// Verified worse than predicted by more than 20 %.
+    pub flagged: bool,
+    /// Poses not commanded (IK failure, correction beyond [`MAX_CORRECTION_DEG`]).
+    pub not_commanded: usize,
+    /// Effects of the deployed calibration the geometric IK does not invert.
+    pub effects_not_inverted: usize,
+    /// The plan and run directory (relative).
+    pub plan: String,
+    pub run: String,
+}
+
+fn stats(pos: &[f64], rot: &[f64]) -> ErrorStats {
+    let q = |x: &[f64], p| crate::solve::stats::quantile(x, p);
+    ErrorStats {
+        poses: pos.len(),
+        rms_mm: crate::solve::stats::rms(pos),
+        p95_mm: q(pos, 0.95),
+        max_mm: pos.iter().cloned().fold(0.0, f64::max),
+        rot_rms_deg: (!rot.is_empty()).then(|| crate::solve::stats::rms(rot)),
+        rot_max_deg: (!rot.is_empty()).then(|| rot.iter().cloned().fold(0.0, f64::max)),
+    }
+}
+
+/// One measured pose: its target (point), branch, position and orientation errors.
+struct Hit {
+    point: u64,
+    p: Point3<f64>,
+    pos_err: f64,
+    rot_err: Option<f64>,
+}
+
+/// Errors of every measured pose of `ds` against `desired(id)` (marker pose in the tracker).
+fn hits(
+    ds: &Dataset,
+    dof: usize,
+    desired: &dyn Fn(u64) -> Option<(u64, Isometry3<f64>)>,
+) -> Vec<Hit> {
+    let (obs, _) = observations(ds, dof, Split::All);
+    obs.iter()
+        .filter_map(|o| {
+            let (point, want) = desired(o.id)?;
+            Some(Hit {
+                point,
+                p: o.p,
+                pos_err: (o.p.coords - want.translation.vector).norm(),
+                rot_err: o
+                    .quat
+                    .map(|q: UnitQuaternion<f64>| q.angle_to(&want.rotation).to_degrees()),
+            })
+        })
+        .collect()
+}
+
+/// Mean over targets with ≥ 2 measured branches of the largest pairwise distance.
+fn coincidence(h: &[Hit]) -> (Option<f64>, usize) {
+    let mut by: BTreeMap<u64, Vec<Point3<f64>>> = BTreeMap::new();
+    for x in h {
+        by.entry(x.point).or_default().push(x.p);
+    }
+    let spreads: Vec<f64> = by
+        .values()
+        .filter(|v| v.len() >= 2)
+        .map(|v| {
+            let mut m: f64 = 0.0;
+            for i in 0..v.len() {
+                for j in i + 1..v.len() {
+                    m = m.max((v[i] - v[j]).norm());
+                }
+            }
+            m
+        })
+        .collect();
+    let n = spreads.len();
+    ((n > 0).then(|| crate::solve::stats::mean(&spreads)), n)
+}
+
+fn summarise(h: &[Hit]) -> ErrorStats {
+    let pos: Vec<f64> = h.iter().map(|x| x.pos_err).collect();
+    let rot: Vec<f64> = h.iter().filter_map(|x| x.rot_err).collect();
+    stats(&pos, &rot)
+}
+
+/// Run the `verify` stage (kinematic sessions; a camera session has nothing to command).
+pub fn verify_stage(
+    dir: &Path,
+    s: &mut SessionFile,
+    cell: &mut dyn Cell,
+    log: Log,
+) -> anyhow::Result<()> {
+    if s.setup.kind == SessionKind::Camera {
+        return Ok(());
+    }
+    let (_, train) = load_ds(dir, s, "train")?;
+    let (_, val) = load_ds(dir, s, "validation")?;
+    let nominal = fit_nominal(&train, &NominalOptions { heldout: None })
+        .context("verify: the nominal fit (today's controller)")?
+        .model;
+    let cal_path = dir.join("deploy").join("calibration.json");
+    let cal = CalibrationFile::load(&cal_path)
+        .with_context(|| format!("verify: {}", cal_path.display()))?;
+    let (calibrated, _) = crate::solve::correct::models_of(&cal)
+        .with_context(|| format!("verify: {}", cal_path.display()))?;
+    let vplan_path = dir.join("plan").join("validation.json");
+    let vplan = PlanFile::read(&vplan_path)
+        .map_err(|e| anyhow::anyhow!("verify: {}: {e}", vplan_path.display()))?;
+    let preset = KinematicModel::from_robot_block(&vplan.robot)?;
+    let dof = preset.dof();
+    // Desired marker pose in the base of every planned pose: today's belief at the plan's q.
+    let target_of = |p: &PlanPose| -> Vec<f64> { p.q_deg.iter().map(|d| d.to_radians()).collect() };
+    let before_want: HashMap<u64, (u64, Isometry3<f64>)> = vplan
+        .poses
+        .iter()
+        .map(|p| (p.id, (p.point, nominal.measured_pose(&target_of(p)))))
+        .collect();
+    let before = hits(&val, dof, &|id| before_want.get(&id).copied());
+    // Corrected joints, same branch, within a few degrees of the safety-checked plan.
+    let mut poses = Vec::new();
+    let mut after_want: HashMap<u64, (u64, Isometry3<f64>)> = HashMap::new();
+    let mut not_commanded = 0;
+    for p in &vplan.poses {
+        let q_plan = target_of(p);
+        let t = nominal.tool_pose_in_base(&q_plan);
+        let sol = calibrated.ik_for_tool(&t).ok().and_then(|v| {
+            v.into_iter()
+                .find(|x| x.branch == p.branch && x.within_limits)
+        });
+        let Some(sol) = sol else {
+            not_commanded += 1;
+            continue;
+        };
+        let jump = sol
+            .q
+            .iter()
+            .zip(&q_plan)
+            .map(|(a, b)| (a - b).abs().to_degrees())
+            .fold(0.0, f64::max);
+        if jump > MAX_CORRECTION_DEG {
+            not_commanded += 1;
+            continue;
+        }
+        let id = poses.len() as u64;
+        after_want.insert(id, (p.point, calibrated.base() * t));
+        poses.push(PlanPose {
+            id,
+            q_deg: sol.q.iter().map(|x| x.to_degrees()).collect(),
+            flange: PlanFilePose::from_iso(&preset.flange_pose(&sol.q)),
+            group: "verify".into(),
+            ..p.clone()
+        });
+    }
+    if poses.is_empty() {
+        bail!("verify: no validation target has a corrected IK solution on its planned branch");
+    }
+    let mut plan = vplan.clone();
+    plan.name = format!("{}-verify", vplan.name);
+    plan.summary.feasible = poses.len();
+    plan.poses = poses;
+    let plan_path = dir.join("plan").join("verify.json");
+    super::write_atomic(&plan_path, serde_json::to_string_pretty(&plan)?.as_bytes())?;
+    PlanFile::read(&plan_path)
+        .map_err(|e| anyhow::anyhow!("verify: the written plan does not read back: {e}"))?;
+    log(&format!(
+        "  {} poses commanded with the calibrated IK ({} not commanded)",
+        plan.poses.len(),
+        not_commanded
+    ));
+    let run_dir = dir.join("run-verify");
+    let summary = cell.acquire(&plan_path, &run_dir).with_context(|| {
+        format!(
+            "acquiring the verify poses (continue with `robocal session --resume {}`)",
+            dir.display()
+        )
+    })?;
+    if let Some(reason) = &summary.aborted {
+        bail!("verify acquisition stopped: {reason}");
+    }
+    let ds_path = run_dir.join("dataset.jsonl");
+    let vds = Dataset::load(&ds_path).with_context(|| format!("{}", ds_path.display()))?;
+    let after = hits(&vds, dof, &|id| after_want.get(&id).copied());
+    if after.is_empty() {
+        bail!("verify: no usable measured pose in {}", ds_path.display());
+    }
+    let (cb, nb) = coincidence(&before);
+    let (ca, na) = coincidence(&after);
+    let b = summarise(&before);
+    let a = summarise(&after);
+    let predicted = s.measured.heldout_rms_mm_after;
+    let ratio = predicted.filter(|p| *p > 0.0).map(|p| a.rms_mm / p);
+    let flagged = ratio.is_some_and(|r| r > FLAG_RATIO);
+    let v = VerifySummary {
+        targets: before_want
+            .values()
+            .map(|(p, _)| *p)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len(),
+        before: b,
+        after: a,
+        coincidence_mm_before: cb,
+        coincidence_mm_after: ca,
+        coincidence_targets: nb.min(na),
+        predicted_after_rms_mm: predicted,
+        verified_vs_predicted: ratio,
+        flagged,
+        not_commanded,
+        effects_not_inverted: cal.effects.len(),
+        plan: "plan/verify.json".into(),
+        run: "run-verify".into(),
+    };
+    if flagged {
+        s.warnings.push(format!(
+            "verify: the calibrated robot verifies at {:.4} mm RMS, {:.0} % worse than the \
+             predicted held-out {:.4} mm{}",
+            v.after.rms_mm,
+            (ratio.unwrap_or(0.0) - 1.0) * 100.0,
+            predicted.unwrap_or(f64::NAN),
+            if v.effects_not_inverted > 0 {
+                format!(
+                    " ({} diagnosed effect(s) are predicted but not inverted by the geometric IK)",
+                    v.effects_not_inverted
+                )
+            } else {
+                String::new()
+            }
+        ));
+    }
+    let m = &mut s.measured;
+    m.verified_rms_mm_before = Some(v.before.rms_mm);
+    m.verified_rms_mm_after = Some(v.after.rms_mm);
+    m.verified_max_mm_after = Some(v.after.max_mm);
+    m.coincidence_mm_before = v.coincidence_mm_before;
+    m.coincidence_mm_after = v.coincidence_mm_after;
+    m.verified_vs_predicted = v.verified_vs_predicted;
+    log(&format!("  {}", line(&v)));
+    s.verify = Some(v);
+    Ok(())
+}
+
+/// One line of the closing note: verified before → after, coincidence, predicted.
+pub fn line(v: &VerifySummary) -> String {
+    let f = |x: Option<f64>| x.map_or("–".into(), |x| format!("{x:.4}"));
+    format!(
+        "verified (commanded vs measured) RMS {:.4} → {:.4} mm, p95 {:.4} → {:.4}, max {:.4} → {:.4}; coincidence {} → {} mm ({} targets); predicted held-out after {} mm{}",
+        v.before.rms_mm,
+        v.after.rms_mm,
+        v.before.p95_mm,
+        v.after.p95_mm,
+        v.before.max_mm,
+        v.after.max_mm,
+        f(v.coincidence_mm_before),
+        f(v.coincidence_mm_after),
+        v.coincidence_targets,
+        f(v.predicted_after_rms_mm),
+        if v.flagged {
+            " — FLAGGED: verifies > 20 % worse than predicted"
+        } else {
+            ""
+        }
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coincidence_is_the_mean_largest_branch_spread() {
+        let h = |point, x: f64| Hit {
+            point,
+            p: Point3::new(x, 0.0, 0.0),
+            pos_err: x.abs(),
+            rot_err: None,
+        };
+        let v = vec![
+            h(1, 0.0),
+            h(1, 0.3),
+            h(1, 0.1),
+            h(2, 1.0),
+            h(2, 2.0),
+            h(3, 5.0),
+        ];
+        let (c, n) = coincidence(&v);
+        assert_eq!(n, 2);
+        assert!((c.unwrap() - 0.65).abs() < 1e-12);
+        let s = summarise(&v);
+        assert_eq!(s.poses, 6);
+        assert!((s.max_mm - 5.0).abs() < 1e-12);
+        assert!(s.rot_rms_deg.is_none());
+        assert_eq!(coincidence(&v[5..]).1, 0);
+    }
+}
