@@ -19,6 +19,7 @@ mod perf;
 mod pivot;
 mod plan;
 mod rcm;
+mod rcm_images;
 mod report;
 mod run_integrity;
 mod session;

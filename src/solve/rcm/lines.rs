@@ -518,7 +518,8 @@ pub fn detect(
 }
 
 /// The outermost edges of the family of `long[i]`, `long[j]`: edges coming in from the image
-/// border (`enters`) through their common (vanishing) point within 5 px, overlapping them, added while each lies within three times
+/// border (`enters`), at least half as sharp (contrast) and long (run) as the weaker of the
+/// two, through their common (vanishing) point within 5 px, overlapping them, added while each lies within three times
 /// the family's current width outside it. Returns indices into `long`.
 fn outermost(
     long: &[&FittedLine],
@@ -570,6 +571,8 @@ fn outermost(
             k == i
                 || k == j
                 || (enters(l)
+                    && l.contrast >= 0.5 * a.contrast.min(b.contrast)
+                    && l.run_px >= 0.5 * a.run_px.min(b.run_px)
                     && normal_angle(l.abc[0], l.abc[1], a.abc[0], a.abc[1]) < 12f64.to_radians()
                     && l1.min(a1) - l0.max(a0) > 0.3 * (l1 - l0).min(a1 - a0)
                     && through_v(l))
