@@ -25,6 +25,27 @@ pub struct Args {
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let ds = crate::plausible::load_checked(&args.data)
         .with_context(|| format!("reading {}", args.data.display()))?;
+    if args.tool.is_none() {
+        // Records of two tools solved as one give a tip that belongs to neither.
+        let mut tools: Vec<&str> = ds
+            .records
+            .iter()
+            .filter_map(|r| match r {
+                crate::dataset::Record::Pivot(p) => Some(p.tool.as_deref().unwrap_or("(unnamed)")),
+                _ => None,
+            })
+            .collect();
+        tools.sort_unstable();
+        tools.dedup();
+        anyhow::ensure!(
+            tools.len() <= 1,
+            "{}: `pivot` records of {} tools ({}): a pivot calibration is of one tool; choose it \
+             with --tool NAME",
+            args.data.display(),
+            tools.len(),
+            tools.join(", ")
+        );
+    }
     let frames = pivot_frames(&ds, args.tool.as_deref());
     anyhow::ensure!(
         !frames.is_empty(),
