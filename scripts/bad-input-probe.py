@@ -364,9 +364,20 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
                 b(f"{cmd[0]} {cmd[1] if cmd[0] == 'calibrate' else ''}: {name}".replace("  ", " "), cmd, ["quat"])
     pq = [("pivot quat norm 3", pivot_dataset(k("pq3.jsonl"), bad=lambda rs: rs[3]["marker"].update(quat=[3.0, 0, 0, 0]))),
           ("pivot quat NaN-like 1e308", pivot_dataset(k("pq308.jsonl"), bad=lambda rs: rs[3]["marker"].update(quat=[1e308, 1e308, 0, 0])))]
+    def two_tools(rows):
+        extra = []
+        for r in rows[1:]:
+            r2 = json.loads(json.dumps(r))
+            r2["tool"] = "pointer"
+            r2["t"] += 100.0
+            r2["marker"]["p"][0] += 80.0
+            extra.append(r2)
+        rows.extend(extra)
+    pq.append(("records of two tools", pivot_dataset(k("ptwo.jsonl"), bad=two_tools)))
     for name, path in pq:
-        b(f"calibrate pivot: {name}", ["calibrate", "pivot", "--data", path], ["quat"])
-        b(f"inspect: {name}", ["inspect", path], ["quat"])
+        b(f"calibrate pivot: {name}", ["calibrate", "pivot", "--data", path], ["tools"] if "tools" in name else ["quat"])
+        if "tools" not in name:
+            b(f"inspect: {name}", ["inspect", path], ["quat"])
 
     # ---- chain --joints-deg outside the limits (§3)
     reg = k("reg-ok.json")

@@ -1098,3 +1098,30 @@ fn bad_input_plan_wider_than_the_cell_is_refused() {
         assert!(!out.exists());
     }
 }
+
+#[test]
+fn bad_input_pivot_records_of_two_tools_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let mut rows = pivot_rows(1.0, 40);
+    let other = pivot_rows(1.0, 40);
+    for (i, r) in other.into_iter().skip(1).enumerate() {
+        let mut r = r;
+        r["tool"] = json!("pointer");
+        r["t"] = json!(10.0 + i as f64 * 0.1);
+        // Another tool: its marker 80 mm further from the same pivot.
+        let p = r["marker"]["p"].as_array().unwrap().clone();
+        r["marker"]["p"] = json!([
+            p[0].as_f64().unwrap() + 80.0,
+            p[1].as_f64().unwrap(),
+            p[2].as_f64().unwrap()
+        ]);
+        rows.push(r);
+    }
+    let mixed = write(d.path(), "mixed.jsonl", &rows);
+    refused(
+        &["calibrate", "pivot", "--data", s(&mixed)],
+        &["2 tools", "pointer", "--tool"],
+    );
+    let o = run(&["calibrate", "pivot", "--data", s(&mixed), "--tool", "probe"]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+}

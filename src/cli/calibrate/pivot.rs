@@ -98,6 +98,27 @@ fn load(args: &Args) -> anyhow::Result<Vec<nalgebra::Isometry3<f64>>> {
         .context("give --data D.jsonl or --matrices FRAMES.txt")?;
     let ds = crate::plausible::load_checked(data)
         .with_context(|| format!("reading {}", data.display()))?;
+    if args.tool.is_none() {
+        // Records of two tools solved as one give a tip that belongs to neither.
+        let mut tools: Vec<&str> = ds
+            .records
+            .iter()
+            .filter_map(|r| match r {
+                crate::dataset::Record::Pivot(p) => Some(p.tool.as_deref().unwrap_or("(unnamed)")),
+                _ => None,
+            })
+            .collect();
+        tools.sort_unstable();
+        tools.dedup();
+        anyhow::ensure!(
+            tools.len() <= 1,
+            "{}: `pivot` records of {} tools ({}): a pivot calibration is of one tool; choose it \
+             with --tool NAME",
+            data.display(),
+            tools.len(),
+            tools.join(", ")
+        );
+    }
     let frames = pivot_frames(&ds, args.tool.as_deref());
     anyhow::ensure!(
         !frames.is_empty(),

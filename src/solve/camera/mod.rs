@@ -768,6 +768,19 @@ pub fn calibrate(
     check_joint_fit(train, (&k1, k1_rms), (&kf, rms(&rep.residuals)), || {
         implied_board_scale(&g, &best.x.rotation, &t_list)
     })?;
+    // A square size a little off (31 mm for a 30 mm board) passes the 5 % check above but
+    // shifts the focal length and the hand-eye translation by as much: warn from 1 % on.
+    let s = implied_board_scale(&g, &best.x.rotation, &t_list);
+    if s.is_finite() && s > 0.0 && (s - 1.0).abs() > 0.01 {
+        tracing::warn!(
+            "the robot's motion says the board squares are {:.3} mm, not the declared {:.3} mm \
+             ({:+.1} %): check `--square` / the header's `target.square_mm`; the focal length \
+             and the hand-eye translation scale with it",
+            train.board.square_mm * s,
+            train.board.square_mm,
+            (s - 1.0) * 100.0
+        );
+    }
     let ml = Estimate {
         method: "ml".into(),
         x: xf,
