@@ -16,6 +16,7 @@ mod laser_world;
 mod model;
 mod navchain;
 mod plan;
+mod real_handeye;
 mod rcm;
 mod report;
 mod run_integrity;
