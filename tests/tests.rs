@@ -18,6 +18,7 @@ mod navchain;
 mod perf;
 mod pivot;
 mod plan;
+mod real_handeye;
 mod rcm;
 mod rcm_images;
 mod report;

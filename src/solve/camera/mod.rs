@@ -23,7 +23,10 @@ pub mod data;
 pub mod detect;
 pub mod geom;
 pub mod handeye;
+pub mod posenoise;
 pub mod problem;
+pub mod realeval;
+pub mod select;
 pub mod subpix;
 pub mod zhang;
 
@@ -204,6 +207,13 @@ pub struct CameraResult {
     pub rejected_corners: usize,
     /// Residuals of the final fit: `(view id, corner index, du, dv)`.
     pub residuals: Vec<(u64, usize, f64, f64)>,
+    /// Internal cross-validation RMS (px) of every candidate ([`select`]); the lowest is
+    /// written as `ml`. Empty when the board model was freed or with fewer than 8 views.
+    pub cv_scores: Vec<(String, f64)>,
+    /// The other ML variants on every training view (board-only intrinsics, robot pose noise).
+    pub candidates: Vec<Estimate>,
+    /// The robot's pose noise the data imply: rotation deg, translation mm (1σ per axis).
+    pub pose_noise: Option<(f64, f64)>,
 }
 
 fn obs_of(views: &[View], board: &detect::BoardSpec) -> Vec<Obs> {
@@ -514,6 +524,30 @@ fn ml_fit(
     )
 }
 
+/// X and target fitted to `data` with the intrinsics `k` held, from `x0`, `b0`:
+/// `(X, target, RMS px)` (the held-out floor: what the views' own robot-pose error leaves).
+pub fn fit_fixed_intrinsics(
+    data: &CameraData,
+    k: &Intrinsics,
+    x0: &Isometry3<f64>,
+    b0: &Isometry3<f64>,
+) -> (Isometry3<f64>, Isometry3<f64>, f64) {
+    let obs = obs_of(&data.views, &data.board);
+    let g = motion_poses(&data.views, data.mount);
+    let (_, x, t, _, _, rep) = ml_fit(
+        &obs,
+        &g,
+        k,
+        [false; N_INTR],
+        x0,
+        b0,
+        BoardModel::default(),
+        1.0,
+        [0.0; 2],
+    );
+    (x, t, rms(&rep.residuals))
+}
+
 /// Target pose from X and the per-view board poses: mean of `G_i X T_i`.
 fn target_from(g: &[Isometry3<f64>], x: &Isometry3<f64>, t: &[Isometry3<f64>]) -> Isometry3<f64> {
     let all: Vec<Isometry3<f64>> = g.iter().zip(t).map(|(g, t)| g * x * t).collect();
@@ -781,7 +815,7 @@ pub fn calibrate(
             (s - 1.0) * 100.0
         );
     }
-    let ml = Estimate {
+    let ml_free = Estimate {
         method: "ml".into(),
         x: xf,
         target: tf,
@@ -789,8 +823,79 @@ pub fn calibrate(
         train_rms_px: rms(&rep.residuals),
         heldout_rms_px: heldout.map(|h| heldout_rms(h, &kf, &xf, &tf, sf, cf)),
     };
-    // 6. Uncertainty.
+    // 6. The written estimate, chosen by internal cross-validation on the training views
+    // (with the default board model; a diagnosis freeing the board keeps the joint ML), and
+    // its uncertainty: the larger of the model covariance and the view jackknife.
     let mut unc = covariance(&rep, &model.mask(), bc);
+    let ctx = select::Ctx {
+        data: &kept,
+        t_list: &t_list,
+        g: &g,
+        k1,
+        mask: model.mask(),
+        x0: best.x,
+        b0: best.target,
+    };
+    let all: Vec<usize> = (0..views.len()).collect();
+    let mut cv_scores = vec![];
+    let mut candidates = vec![];
+    let mut pose_noise = None;
+    let mut chosen = select::Candidate::Ml;
+    if !bc.scale && !bc.bend && views.len() >= 8 {
+        let mut best_cv = f64::INFINITY;
+        for c in select::Candidate::all() {
+            let s = ctx.cv_rms(c, 5);
+            if s < best_cv {
+                (best_cv, chosen) = (s, c);
+            }
+            cv_scores.push((c.name(), s));
+        }
+        candidates.push(ml_free.clone());
+        for c in [
+            select::Candidate::MlBoardIntrinsics,
+            select::Candidate::PoseNoise,
+        ] {
+            if let Some(f) = ctx.fit(c, &all) {
+                pose_noise = pose_noise.or(f.pose_noise);
+                candidates.push(Estimate {
+                    method: c.name(),
+                    ..estimate("", &kept, heldout, &f.k, &f.x, &f.target)
+                });
+            }
+        }
+    }
+    let chosen_fit = match chosen {
+        select::Candidate::Ml => None,
+        c => ctx.fit(c, &all),
+    };
+    let (ml, residuals) = match &chosen_fit {
+        None => {
+            let residuals = ids
+                .iter()
+                .enumerate()
+                .map(|(i, (v, c))| (*v, *c, rep.residuals[2 * i], rep.residuals[2 * i + 1]))
+                .collect();
+            (ml_free, residuals)
+        }
+        Some(f) => {
+            (sf, cf) = (1.0, [0.0; 2]);
+            unc.x_mm = f.sd_mm;
+            unc.x_deg = f.sd_deg;
+            (
+                Estimate {
+                    method: chosen.name(),
+                    ..estimate("", &kept, heldout, &f.k, &f.x, &f.target)
+                },
+                predict_residuals(&kept, &f.k, &f.x, &f.target, 1.0, [0.0; 2]),
+            )
+        }
+    };
+    if let Some((jt, jr)) = ctx.jackknife(chosen) {
+        for a in 0..3 {
+            unc.x_mm[a] = unc.x_mm[a].max(jt[a]);
+            unc.x_deg[a] = unc.x_deg[a].max(jr[a]);
+        }
+    }
     if opts.bootstrap > 0 {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
         let mut xs = vec![];
@@ -798,41 +903,27 @@ pub fn calibrate(
             let pick: Vec<usize> = (0..views.len())
                 .map(|_| rng.random_range(0..views.len()))
                 .collect();
-            let bv: Vec<View> = pick.iter().map(|&i| views[i].clone()).collect();
-            let bo = obs_of(&bv, &board);
-            let bg = motion_poses(&bv, train.mount);
-            let (_, bx, _, _, _, _) = ml_fit(&bo, &bg, &kf, model.mask(), &xf, &tf, bc, sf, cf);
-            xs.push(bx);
+            let bx = match chosen {
+                select::Candidate::Ml => {
+                    let bv: Vec<View> = pick.iter().map(|&i| views[i].clone()).collect();
+                    let bo = obs_of(&bv, &board);
+                    let bg = motion_poses(&bv, train.mount);
+                    Some(ml_fit(&bo, &bg, &kf, model.mask(), &xf, &tf, bc, sf, cf).1)
+                }
+                c => ctx.fit(c, &pick).map(|f| f.x),
+            };
+            xs.extend(bx);
         }
-        let (mut st, mut sr) = ([0.0; 3], [0.0; 3]);
-        for x in &xs {
-            let d = xf.inverse() * x;
-            let (t, r) = (
-                x.translation.vector - xf.translation.vector,
-                d.rotation.scaled_axis(),
-            );
-            for a in 0..3 {
-                st[a] += t[a] * t[a];
-                sr[a] += r[a].to_degrees().powi(2);
-            }
-        }
-        let nb = (xs.len().max(2) - 1) as f64;
-        unc.bootstrap = Some((
-            xs.len(),
-            st.map(|v| (v / nb).sqrt()),
-            sr.map(|v| (v / nb).sqrt()),
-        ));
+        let (st, sr) = select::spread(&xs, &ml.x);
+        let nb = xs.len().max(2) as f64;
+        let c = (nb / (nb - 1.0)).sqrt();
+        unc.bootstrap = Some((xs.len(), st.map(|v| v * c), sr.map(|v| v * c)));
     }
     let incremental = if opts.incremental {
         Some(incremental(&kept, heldout, &k1, &t_list, opts.seed))
     } else {
         None
     };
-    let residuals = ids
-        .iter()
-        .enumerate()
-        .map(|(i, (v, c))| (*v, *c, rep.residuals[2 * i], rep.residuals[2 * i + 1]))
-        .collect();
     Ok(CameraResult {
         distortion: model,
         model_scores,
@@ -848,6 +939,9 @@ pub fn calibrate(
         rejected_views,
         rejected_corners,
         residuals,
+        cv_scores,
+        candidates,
+        pose_noise,
     })
 }
 

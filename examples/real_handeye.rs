@@ -1,0 +1,167 @@
+//! Camera hand-eye on real eye-in-hand sets (issue 31 §3): `../shared/data/real-handeye-kuka1`
+//! (RWHE-Calib `kuka_1`) and `../shared/data/real-handeye-ur3e` (probabilisticAXYB), every 4th
+//! view held out, held-out corners predicted from the flange pose against the detected corners;
+//! robocal's closed forms, its ML variants and the written estimate beside OpenCV's
+//! `calibrateCamera` + `calibrateHandEye` on the same detections (`.venv/peers-cv2`, made by
+//! `.ci/peers.sh`); the held-out floor; split-half stability against OpenCV Park; the stated 1σ
+//! against the split half and the bootstrap.
+//!
+//!     cargo run --release --example real_handeye            # every set present
+//!     cargo run --release --example real_handeye -- ur3e    # one set
+//!
+//! `ROBOCAL_SHARED_DATA` overrides `../shared/data`. A set that is absent is reported SKIPPED.
+use std::path::PathBuf;
+use std::time::Instant;
+
+use robocal::solve::camera::realeval::{self, RealSet};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn main() {
+    let filter = std::env::args().nth(1);
+    let data = std::env::var_os("ROBOCAL_SHARED_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root().join("../shared/data"));
+    let py = root().join(".venv/peers-cv2/bin/python");
+    let script = root().join("scripts/peers/camera_handeye_cv2.py");
+    let peer = py.exists().then_some((py.as_path(), script.as_path()));
+    if peer.is_none() {
+        println!("OpenCV peer SKIPPED: no {} (run .ci/peers.sh)", py.display());
+    }
+    type Loader = fn(&std::path::Path) -> Result<RealSet, String>;
+    let sets: [(&str, &str, Loader); 2] = [
+        ("kuka1", "real-handeye-kuka1", realeval::load_kuka1),
+        ("ur3e", "real-handeye-ur3e", |d| realeval::load_ur3e(d, 12.5)),
+    ];
+    let mut summary = vec![];
+    for (key, dir, load) in sets {
+        if filter.as_deref().is_some_and(|f| !key.contains(f)) {
+            continue;
+        }
+        let dir = data.join(dir);
+        if !dir.exists() {
+            println!("\n=== {key}: SKIPPED — {} is absent ===", dir.display());
+            continue;
+        }
+        let set = match load(&dir) {
+            Ok(s) => s,
+            Err(e) => {
+                println!("\n=== {key}: cannot load: {e} ===");
+                continue;
+            }
+        };
+        let t0 = Instant::now();
+        let (cam, failed) = realeval::detect_set(&set);
+        let t_det = t0.elapsed().as_secs_f64();
+        println!(
+            "\n=== {} ({} images, board {}x{} x {} mm): detected {} in {t_det:.1} s ===",
+            set.name,
+            set.images.len(),
+            set.board.cols,
+            set.board.rows,
+            set.board.square_mm,
+            cam.views.len()
+        );
+        for (img, why) in &failed {
+            println!("  not used: {img}: {why}");
+        }
+        let t1 = Instant::now();
+        let r = match realeval::evaluate(&cam, peer, 50) {
+            Ok(r) => r,
+            Err(e) => {
+                println!("  calibration failed: {e}");
+                continue;
+            }
+        };
+        let res = &r.result;
+        println!(
+            "{} train / {} held-out views; board-only RMS {:.3} px; distortion {:?}; rejected views {:?}; {:.1} s",
+            r.n_train,
+            r.n_held,
+            r.board_only_px,
+            res.distortion,
+            res.rejected_views,
+            t1.elapsed().as_secs_f64()
+        );
+        if let Some((d, m)) = res.pose_noise {
+            println!("robot pose noise implied by the data: {d:.4} deg, {m:.3} mm (1σ per axis)");
+        }
+        println!("internal CV (training views, 5 folds by view):");
+        for (name, s) in &res.cv_scores {
+            println!("  {name:<28} {s:.3} px");
+        }
+        println!("{:<30} {:>9} {:>11}", "method", "train px", "held-out px");
+        for row in r.robocal.iter().chain(&r.opencv) {
+            println!(
+                "  {:<28} {:>9.3} {:>11.3}",
+                row.method, row.train_px, row.heldout_px
+            );
+        }
+        let best_cv = r
+            .opencv
+            .iter()
+            .min_by(|a, b| a.heldout_px.total_cmp(&b.heldout_px));
+        println!(
+            "written: {} held-out {:.3} px; held-out floor (X, target fitted to the held-out views) {:.3} px",
+            r.written.method, r.written.heldout_px, r.floor_px
+        );
+        if let Some(b) = best_cv {
+            println!(
+                "best OpenCV ({}, OpenCV {}): {:.3} px -> written / best OpenCV = {:.3}",
+                b.method,
+                r.opencv_version,
+                b.heldout_px,
+                r.written.heldout_px / b.heldout_px
+            );
+        }
+        let s = &r.split;
+        println!(
+            "split half: written X differs {:.2} mm / {:.3} deg; OpenCV Park {}",
+            s.dx_mm,
+            s.dr_deg,
+            s.opencv_park
+                .map_or("-".into(), |(t, d)| format!("{t:.2} mm / {d:.3} deg"))
+        );
+        let ok = s.ratios.iter().filter(|q| **q <= 2.0).count();
+        println!(
+            "  |ΔX| / combined σ (x y z mm, rx ry rz deg): {:?} -> {ok}/6 ≤ 2",
+            s.ratios.map(|q| (q * 100.0).round() / 100.0)
+        );
+        println!(
+            "stated X 1σ {:?} mm, {:?} deg",
+            r.sigma_mm.map(|v| (v * 1000.0).round() / 1000.0),
+            r.sigma_deg.map(|v| (v * 10000.0).round() / 10000.0)
+        );
+        if let Some((bt, br)) = r.bootstrap {
+            let rat: Vec<f64> = (0..3)
+                .map(|a| bt[a] / r.sigma_mm[a])
+                .chain((0..3).map(|a| br[a] / r.sigma_deg[a]))
+                .map(|q| (q * 100.0).round() / 100.0)
+                .collect();
+            println!(
+                "bootstrap (50 view resamples) X 1σ {:?} mm, {:?} deg; bootstrap / stated {rat:?}",
+                bt.map(|v| (v * 1000.0).round() / 1000.0),
+                br.map(|v| (v * 10000.0).round() / 10000.0)
+            );
+        }
+        summary.push((
+            set.name.clone(),
+            r.written.heldout_px,
+            best_cv.map_or(f64::NAN, |b| b.heldout_px),
+            r.floor_px,
+            s.dx_mm,
+            s.opencv_park.map_or(f64::NAN, |p| p.0),
+            ok,
+        ));
+    }
+    println!("\n| set | written held-out px | best OpenCV px | ratio | floor px | split-half X mm (robocal / Park) | σ ratios ≤ 2 |");
+    println!("|---|---|---|---|---|---|---|");
+    for (n, w, o, f, dx, dp, ok) in summary {
+        println!(
+            "| {n} | {w:.3} | {o:.3} | {:.3} | {f:.3} | {dx:.2} / {dp:.2} | {ok}/6 |",
+            w / o
+        );
+    }
+}

@@ -1,0 +1,445 @@
+//! Real eye-in-hand sets (issue 31 §3): the two public layouts kept under
+//! `../shared/data/real-handeye-*`, detection of every image, the every-4th-view split, and
+//! OpenCV's closed forms on the same detections (the python peer), so that
+//! `examples/real_handeye.rs` and the real-data test measure robocal and OpenCV in one run.
+//!
+//! * `kuka1` (RWHE-Calib `kuka_1`): `NN.png` + `RobotPosesVec.txt`, one row-major 4×4 of the
+//!   flange in the base per line, metres.
+//! * `ur3e` (probabilisticAXYB `handEye`): `images/cam0_NNN.jpg` +
+//!   `endeffectors/endeffectorNNN.txt`, the flange rotation column-major then the translation
+//!   in mm.
+//!
+//! Images are read through [`robocal_drivers::camera::read_image_file`]; where the build cannot
+//! read an image format, `ROBOCAL_REAL_PGM_DIR` names a folder holding the same images as
+//! `STEM.pgm` (a development aid; every image that cannot be used is named with its reason).
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use super::detect::{detect_chessboard, BoardSpec};
+use super::geom::{mean_pose, Intrinsics};
+use super::{CameraData, Mount, View};
+
+/// One real set: images, flange poses (base ← flange, mm) and the board.
+#[derive(Debug, Clone)]
+pub struct RealSet {
+    pub name: String,
+    pub board: BoardSpec,
+    pub images: Vec<PathBuf>,
+    pub flange: Vec<Isometry3<f64>>,
+}
+
+fn read_text(p: &Path) -> Result<String, String> {
+    std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))
+}
+
+fn numbers(p: &Path, line_no: usize, line: &str, want: usize) -> Result<Vec<f64>, String> {
+    let v: Vec<f64> = line
+        .split(|c: char| c.is_whitespace() || c == ',')
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("{}: line {line_no}: not a number ({e})", p.display()))?;
+    if v.len() < want || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!(
+            "{}: line {line_no}: expected {want} finite numbers, found {}",
+            p.display(),
+            v.len()
+        ));
+    }
+    Ok(v)
+}
+
+fn pose(r: Matrix3<f64>, t: Vector3<f64>) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r)),
+    )
+}
+
+/// RWHE-Calib `kuka_1`: 28×17 inner corners, 20 mm squares.
+pub fn load_kuka1(dir: &Path) -> Result<RealSet, String> {
+    let pf = dir.join("RobotPosesVec.txt");
+    let text = read_text(&pf)?;
+    let mut images = vec![];
+    let mut flange = vec![];
+    for (i, line) in text.lines().filter(|l| !l.trim().is_empty()).enumerate() {
+        let v = numbers(&pf, i + 1, line, 16)?;
+        let r = Matrix3::from_fn(|a, b| v[4 * a + b]);
+        let t = Vector3::new(v[3], v[7], v[11]) * 1000.0;
+        images.push(dir.join(format!("{:02}.png", i + 1)));
+        flange.push(pose(r, t));
+    }
+    Ok(RealSet {
+        name: "kuka_1".into(),
+        board: BoardSpec {
+            cols: 28,
+            rows: 17,
+            square_mm: 20.0,
+        },
+        images,
+        flange,
+    })
+}
+
+/// probabilisticAXYB `handEye` (UR3e): 6×5 inner corners, square declared `square_mm`
+/// (unpublished; the robot's motion implies 12.54 mm).
+pub fn load_ur3e(dir: &Path, square_mm: f64) -> Result<RealSet, String> {
+    let mut images = vec![];
+    let mut flange = vec![];
+    for k in 1..=999 {
+        let pf = dir.join(format!("endeffectors/endeffector{k:03}.txt"));
+        if !pf.exists() {
+            break;
+        }
+        let v = numbers(&pf, 1, &read_text(&pf)?, 12)?;
+        // Column-major: the first three numbers are the first column.
+        let r = Matrix3::from_fn(|a, b| v[3 * b + a]);
+        images.push(dir.join(format!("images/cam0_{k:03}.jpg")));
+        flange.push(pose(r, Vector3::new(v[9], v[10], v[11])));
+    }
+    if images.is_empty() {
+        return Err(format!(
+            "{}: no endeffectors/endeffector001.txt",
+            dir.display()
+        ));
+    }
+    Ok(RealSet {
+        name: "ur3e".into(),
+        board: BoardSpec {
+            cols: 6,
+            rows: 5,
+            square_mm,
+        },
+        images,
+        flange,
+    })
+}
+
+fn read_grey(p: &Path) -> Result<robocal_drivers::traits::Image, String> {
+    match robocal_drivers::camera::read_image_file(p) {
+        Ok(i) => Ok(i),
+        Err(e) => {
+            let Some(dir) = std::env::var_os("ROBOCAL_REAL_PGM_DIR") else {
+                return Err(e.to_string());
+            };
+            let stem = p.file_stem().unwrap_or_default().to_string_lossy();
+            robocal_drivers::camera::read_image_file(
+                &PathBuf::from(dir).join(format!("{stem}.pgm")),
+            )
+            .map_err(|e2| format!("{e}; and {e2}"))
+        }
+    }
+}
+
+/// Detect the board in every image (view id = image number from 1). Returns the data and every
+/// image that gave no view, with the reason.
+pub fn detect_set(set: &RealSet) -> (CameraData, Vec<(String, String)>) {
+    let det: Vec<Result<(u32, u32, Vec<[f64; 2]>), String>> = set
+        .images
+        .par_iter()
+        .map(|p| {
+            let img = read_grey(p)?;
+            let c = detect_chessboard(&img.data, img.width, img.height, &set.board)
+                .map_err(|e| e.to_string())?;
+            Ok((img.width, img.height, c))
+        })
+        .collect();
+    let (mut w, mut h) = (0, 0);
+    let mut views = vec![];
+    let mut failed = vec![];
+    for (k, d) in det.into_iter().enumerate() {
+        match d {
+            Ok((iw, ih, c)) => {
+                (w, h) = (iw, ih);
+                views.push(View {
+                    id: k as u64 + 1,
+                    flange: set.flange[k],
+                    corners: c.into_iter().map(Some).collect(),
+                });
+            }
+            Err(e) => failed.push((set.images[k].display().to_string(), e)),
+        }
+    }
+    (
+        CameraData {
+            width: w,
+            height: h,
+            board: set.board,
+            mount: Mount::Flange,
+            views,
+        },
+        failed,
+    )
+}
+
+/// Views whose 0-based image index `i` has `i % every == every − 1` held out (every 4th: images
+/// 4, 8, …), the rest training.
+pub fn split_every(data: &CameraData, every: u64) -> (CameraData, CameraData) {
+    let (held, train): (Vec<View>, Vec<View>) = data
+        .views
+        .iter()
+        .cloned()
+        .partition(|v| (v.id - 1) % every == every - 1);
+    (
+        CameraData {
+            views: train,
+            ..data.clone()
+        },
+        CameraData {
+            views: held,
+            ..data.clone()
+        },
+    )
+}
+
+/// Alternate views into two halves (split-half stability).
+pub fn halves(data: &CameraData) -> (CameraData, CameraData) {
+    let (a, b): (Vec<(usize, View)>, Vec<(usize, View)>) = data
+        .views
+        .iter()
+        .cloned()
+        .enumerate()
+        .partition(|(i, _)| i % 2 == 0);
+    let mk = |v: Vec<(usize, View)>| CameraData {
+        views: v.into_iter().map(|(_, v)| v).collect(),
+        ..data.clone()
+    };
+    (mk(a), mk(b))
+}
+
+/// OpenCV on the same corners: `calibrateCamera` intrinsics and every `calibrateHandEye`
+/// method, each with its target (the mean of `F_i X T_i`, as a careful user computes it).
+#[derive(Debug, Clone)]
+pub struct PeerResult {
+    pub version: String,
+    pub rms_px: f64,
+    pub k: Intrinsics,
+    /// `(method, X, target)`.
+    pub methods: Vec<(String, Isometry3<f64>, Isometry3<f64>)>,
+}
+
+/// Run `scripts/peers/camera_handeye_cv2.py` with `python` on the training views of `data`.
+pub fn opencv_peer(python: &Path, script: &Path, data: &CameraData) -> Result<PeerResult, String> {
+    use std::io::Write as _;
+    let corners: Vec<Option<Vec<[f64; 2]>>> = data
+        .views
+        .iter()
+        .map(|v| v.corners.iter().copied().collect::<Option<Vec<_>>>())
+        .collect();
+    let flange: Vec<Vec<f64>> = data
+        .views
+        .iter()
+        .map(|v| {
+            let r = v.flange.rotation.to_rotation_matrix();
+            let t = v.flange.translation.vector;
+            let mut o: Vec<f64> = (0..9).map(|i| r[(i / 3, i % 3)]).collect();
+            o.extend([t.x, t.y, t.z]);
+            o
+        })
+        .collect();
+    let job = serde_json::json!({"pattern": [data.board.cols, data.board.rows],
+        "square_mm": data.board.square_mm, "size": [data.width, data.height],
+        "corners": corners, "flange": flange, "flags": "default"});
+    let mut child = std::process::Command::new(python)
+        .arg(script)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("{}: {e}", python.display()))?;
+    child
+        .stdin
+        .take()
+        .ok_or("no stdin")?
+        .write_all(job.to_string().as_bytes())
+        .map_err(|e| e.to_string())?;
+    let o = child.wait_with_output().map_err(|e| e.to_string())?;
+    if !o.status.success() {
+        return Err(format!(
+            "{} failed: {}",
+            script.display(),
+            String::from_utf8_lossy(&o.stderr)
+        ));
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&o.stdout).map_err(|e| format!("peer output: {e}"))?;
+    let f = |x: &serde_json::Value| x.as_f64().unwrap_or(f64::NAN);
+    let (kk, d) = (&v["K"], &v["dist"]);
+    let k = Intrinsics {
+        fx: f(&kk[0][0]),
+        fy: f(&kk[1][1]),
+        cx: f(&kk[0][2]),
+        cy: f(&kk[1][2]),
+        dist: [f(&d[0]), f(&d[1]), f(&d[2]), f(&d[3]), f(&d[4])],
+    };
+    let used: Vec<usize> = v["used"]
+        .as_array()
+        .ok_or("peer output: no `used`")?
+        .iter()
+        .filter_map(|u| u.as_u64().map(|u| u as usize))
+        .collect();
+    let tcam: Vec<Isometry3<f64>> = (0..used.len())
+        .map(|i| {
+            let (r, t) = (&v["rvecs"][i], &v["tvecs"][i]);
+            Isometry3::from_parts(
+                Translation3::new(f(&t[0]), f(&t[1]), f(&t[2])),
+                UnitQuaternion::from_scaled_axis(Vector3::new(f(&r[0]), f(&r[1]), f(&r[2]))),
+            )
+        })
+        .collect();
+    let mut methods = vec![];
+    for (name, m) in v["hand_eye"].as_object().ok_or("peer output: no hand_eye")? {
+        let r = Matrix3::from_fn(|i, j| f(&m["R"][i][j]));
+        let x = pose(r, Vector3::new(f(&m["t"][0]), f(&m["t"][1]), f(&m["t"][2])));
+        let all: Vec<Isometry3<f64>> = used
+            .iter()
+            .zip(&tcam)
+            .map(|(&i, t)| data.views[i].flange * x * t)
+            .collect();
+        methods.push((name.clone(), x, mean_pose(&all)));
+    }
+    Ok(PeerResult {
+        version: v["opencv"].as_str().unwrap_or("?").to_string(),
+        rms_px: f(&v["rms"]),
+        k,
+        methods,
+    })
+}
+
+/// One method's pixel errors: training and held-out RMS (px).
+#[derive(Debug, Clone)]
+pub struct Row {
+    pub method: String,
+    pub train_px: f64,
+    pub heldout_px: f64,
+}
+
+/// Split-half stability: X from each alternate half of all views.
+#[derive(Debug, Clone)]
+pub struct SplitHalf {
+    /// |Δt| (mm) and rotation angle (deg) between the halves' written X.
+    pub dx_mm: f64,
+    pub dr_deg: f64,
+    /// Per coordinate (x, y, z mm; rx, ry, rz deg): |Δ| / sqrt(σ₁² + σ₂²).
+    pub ratios: [f64; 6],
+    /// The same for OpenCV Park–Martin (mm, deg), when the peer ran.
+    pub opencv_park: Option<(f64, f64)>,
+}
+
+/// Everything measured on one real set.
+#[derive(Debug, Clone)]
+pub struct SetReport {
+    pub n_train: usize,
+    pub n_held: usize,
+    pub board_only_px: f64,
+    /// robocal's closed forms, its ML, then the written estimate (last).
+    pub robocal: Vec<Row>,
+    pub written: Row,
+    pub opencv: Vec<Row>,
+    pub opencv_version: String,
+    /// Held-out floor: X and target fitted to the held-out views themselves (board-only
+    /// intrinsics): what the held-out views' own robot-pose error leaves.
+    pub floor_px: f64,
+    pub split: SplitHalf,
+    /// Stated 1σ of X translation (mm) and the bootstrap's, when run.
+    pub sigma_mm: [f64; 3],
+    pub sigma_deg: [f64; 3],
+    pub bootstrap: Option<([f64; 3], [f64; 3])>,
+    pub result: super::CameraResult,
+}
+
+fn row(e: &super::Estimate) -> Row {
+    Row {
+        method: e.method.clone(),
+        train_px: e.train_rms_px,
+        heldout_px: e.heldout_rms_px.unwrap_or(f64::NAN),
+    }
+}
+
+fn sigmas(r: &super::CameraResult) -> [f64; 6] {
+    let u = &r.uncertainty;
+    [
+        u.x_mm[0], u.x_mm[1], u.x_mm[2], u.x_deg[0], u.x_deg[1], u.x_deg[2],
+    ]
+}
+
+/// Calibrate the every-4th split of `data` with robocal (and OpenCV through `peer` =
+/// `(python, script)` when given), the held-out floor, split-half stability and, with
+/// `bootstrap > 0`, the bootstrap beside the stated covariance.
+pub fn evaluate(
+    data: &CameraData,
+    peer: Option<(&Path, &Path)>,
+    bootstrap: usize,
+) -> Result<SetReport, String> {
+    let (train, held) = split_every(data, 4);
+    let opts = super::Options {
+        bootstrap,
+        ..super::Options::default()
+    };
+    let res = super::calibrate(&train, Some(&held), &opts).map_err(|e| e.to_string())?;
+    let mut robocal: Vec<Row> = res.closed_form.iter().map(row).collect();
+        robocal.extend(res.candidates.iter().map(row));
+    let written = row(&res.ml);
+    let (mut opencv, mut version) = (vec![], String::new());
+    let run_peer = |d: &CameraData| peer.map(|(py, sc)| opencv_peer(py, sc, d)).transpose();
+    if let Some(p) = run_peer(&train)? {
+        for (name, x, t) in &p.methods {
+            opencv.push(Row {
+                method: format!("opencv {name}"),
+                train_px: super::heldout_rms(&train, &p.k, x, t, 1.0, [0.0; 2]),
+                heldout_px: super::heldout_rms(&held, &p.k, x, t, 1.0, [0.0; 2]),
+            });
+        }
+        version = p.version;
+    }
+    let floor_px = super::fit_fixed_intrinsics(&held, &res.intrinsics_only, &res.ml.x, &res.ml.target).2;
+    // Split half.
+    let (a, b) = halves(data);
+    let ra = super::calibrate(&a, None, &super::Options::default()).map_err(|e| e.to_string())?;
+    let rb = super::calibrate(&b, None, &super::Options::default()).map_err(|e| e.to_string())?;
+    let (dx_mm, dr_deg) = super::geom::pose_error(&ra.ml.x, &rb.ml.x);
+    let d = ra.ml.x.inverse() * rb.ml.x;
+    let dt = rb.ml.x.translation.vector - ra.ml.x.translation.vector;
+    let dw = d.rotation.scaled_axis();
+    let (sa, sb) = (sigmas(&ra), sigmas(&rb));
+    let delta = [
+        dt.x,
+        dt.y,
+        dt.z,
+        dw.x.to_degrees(),
+        dw.y.to_degrees(),
+        dw.z.to_degrees(),
+    ];
+    let ratios: [f64; 6] = std::array::from_fn(|i| delta[i].abs() / sa[i].hypot(sb[i]));
+    let park = |p: &PeerResult| p.methods.iter().find(|m| m.0 == "park").map(|m| m.1);
+    let opencv_park = match (run_peer(&a)?, run_peer(&b)?) {
+        (Some(pa), Some(pb)) => match (park(&pa), park(&pb)) {
+            (Some(xa), Some(xb)) => Some(super::geom::pose_error(&xa, &xb)),
+            _ => None,
+        },
+        _ => None,
+    };
+    let u = &res.uncertainty;
+    Ok(SetReport {
+        n_train: train.views.len(),
+        n_held: held.views.len(),
+        board_only_px: res.intrinsics_rms_px,
+        robocal,
+        written,
+        opencv,
+        opencv_version: version,
+        floor_px,
+        split: SplitHalf {
+            dx_mm,
+            dr_deg,
+            ratios,
+            opencv_park,
+        },
+        sigma_mm: u.x_mm,
+        sigma_deg: u.x_deg,
+        bootstrap: u.bootstrap.map(|b| (b.1, b.2)),
+        result: res,
+    })
+}
