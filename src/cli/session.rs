@@ -728,6 +728,9 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
                 f(s.measured.relative_distance_pct_before),
                 f(s.measured.relative_distance_pct_after)
             );
+            if let Some(v) = &s.verify {
+                println!("{}", session::verify::line(v));
+            }
         }
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {
             println!("WORSE: {w}");
