@@ -581,7 +581,8 @@ pub fn exec(a: Args) -> anyhow::Result<i32> {
         worst = worst.max(code);
         done.push(session::SessionFile::load(&sub.join("session.json"))?);
     }
-    let table = fleet_table(&done);
+    let mut table = fleet_table(&done);
+    table.push_str(&session::verify::fleet_table(&done));
     print!("{table}");
     session::write_atomic(&dir.join("fleet.md"), table.as_bytes())?;
     Ok(worst)

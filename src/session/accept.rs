@@ -75,6 +75,13 @@ pub struct AcceptSpec {
     /// Camera sessions: the largest 95 % half-interval of the hand-eye rotation (deg).
     #[serde(default)]
     pub hand_eye_ci95_deg_max: Option<f64>,
+    /// `verify` stage: commanded-vs-measured RMS with the calibrated IK must be ≤ this (mm).
+    #[serde(default)]
+    pub verified_rms_mm_max: Option<f64>,
+    /// `verify` stage: verified after-RMS / predicted held-out after-RMS must be ≤ this
+    /// (1.2: a calibration may verify at most 20 % worse than it predicts).
+    #[serde(default)]
+    pub verified_vs_predicted_max: Option<f64>,
 }
 
 fn yes() -> bool {
@@ -118,6 +125,12 @@ impl AcceptSpec {
         )?;
         check("hand_eye_ci95_mm_max", spec.hand_eye_ci95_mm_max, 1e4)?;
         check("hand_eye_ci95_deg_max", spec.hand_eye_ci95_deg_max, 360.0)?;
+        check("verified_rms_mm_max", spec.verified_rms_mm_max, 1e4)?;
+        check(
+            "verified_vs_predicted_max",
+            spec.verified_vs_predicted_max,
+            100.0,
+        )?;
         Ok(spec)
     }
 
@@ -510,6 +523,20 @@ fn kinematic_criteria(spec: &AcceptSpec, m: &Measured, c: &mut Vec<Criterion>) {
         "%",
         m.relative_distance_pct_after,
         spec.relative_distance_pct_max,
+        c,
+    );
+    le(
+        "verified commanded-vs-measured RMS",
+        "mm",
+        m.verified_rms_mm_after,
+        spec.verified_rms_mm_max,
+        c,
+    );
+    le(
+        "verified / predicted held-out RMS",
+        "×",
+        m.verified_vs_predicted,
+        spec.verified_vs_predicted_max,
         c,
     );
 }

@@ -392,6 +392,35 @@ pub fn line(v: &VerifySummary) -> String {
     )
 }
 
+/// The verify table of a fleet / the closing note (seed 001 §3): per robot, predicted
+/// held-out after, verified before → after, coincidence before → after (mm).
+pub fn fleet_table(sessions: &[SessionFile]) -> String {
+    use std::fmt::Write as _;
+    let f = |x: Option<f64>| x.map_or("—".into(), |x| format!("{x:.4}"));
+    let mut t = String::from(
+        "\n| robot | predicted held-out after (mm) | verified before → after (mm) | coincidence before → after (mm) | flag |\n|---|---|---|---|---|\n",
+    );
+    for s in sessions {
+        let Some(v) = &s.verify else { continue };
+        let _ = writeln!(
+            t,
+            "| {} | {} | {:.4} → {:.4} | {} → {} | {} |",
+            s.cell.robot_serial.as_deref().unwrap_or("?"),
+            f(v.predicted_after_rms_mm),
+            v.before.rms_mm,
+            v.after.rms_mm,
+            f(v.coincidence_mm_before),
+            f(v.coincidence_mm_after),
+            if v.flagged {
+                "verifies > 20 % worse"
+            } else {
+                ""
+            }
+        );
+    }
+    t
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
