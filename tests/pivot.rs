@@ -14,7 +14,8 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn robocal(args: &[&str]) -> String {
+/// Runs the binary: success and its stdout + stderr; a panic fails the test.
+pub(crate) fn robocal_status(args: &[&str]) -> (bool, String) {
     let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
         .args(args)
         .env("ROBOCAL_LOG", "warn")
@@ -25,7 +26,16 @@ fn robocal(args: &[&str]) -> String {
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
     );
-    assert!(o.status.success(), "robocal {args:?} failed:\n{text}");
+    assert!(
+        !text.contains("panicked at"),
+        "PANIC: robocal {args:?}\n{text}"
+    );
+    (o.status.success(), text)
+}
+
+fn robocal(args: &[&str]) -> String {
+    let (ok, text) = robocal_status(args);
+    assert!(ok, "robocal {args:?} failed:\n{text}");
     text
 }
 

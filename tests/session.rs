@@ -696,3 +696,23 @@ fn session_ends_with_a_chain_report_for_ct_targets() {
     assert!(err.contains("chain-registration"), "{err}");
     let _ = std::fs::remove_dir_all(&copy);
 }
+
+/// Issue 30: the `verify` stage commands the calibrated robot at the held-out targets; on the
+/// simulated cell (hidden effects) what it does matches what the calibration predicted.
+#[test]
+fn lab_session_verifies_by_commanding_the_calibrated_robot() {
+    let (dir, _, out) = lab_session();
+    let s = SessionFile::load(&dir.join("session.json")).unwrap();
+    let v = s.verify.as_ref().expect("verify summary in session.json");
+    assert!(out.contains("verified (commanded vs measured)"), "{out}");
+    assert!(v.after.poses >= 20 && v.before.poses >= 20, "{v:?}");
+    assert!(v.after.rms_mm < 0.2 * v.before.rms_mm, "{v:?}");
+    let (cb, ca) = (
+        v.coincidence_mm_before.unwrap(),
+        v.coincidence_mm_after.unwrap(),
+    );
+    assert!(v.coincidence_targets >= 5 && ca < 0.2 * cb, "{v:?}");
+    let r = v.verified_vs_predicted.unwrap();
+    assert!((0.8..=1.2).contains(&r) && !v.flagged, "{v:?}");
+    assert_eq!(s.measured.verified_rms_mm_after, Some(v.after.rms_mm));
+}

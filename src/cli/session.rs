@@ -596,7 +596,8 @@ pub fn exec(a: Args) -> anyhow::Result<i32> {
         worst = worst.max(code);
         done.push(session::SessionFile::load(&sub.join("session.json"))?);
     }
-    let table = fleet_table(&done);
+    let mut table = fleet_table(&done);
+    table.push_str(&session::verify::fleet_table(&done));
     print!("{table}");
     session::write_atomic(&dir.join("fleet.md"), table.as_bytes())?;
     Ok(worst)
@@ -777,6 +778,9 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
                 f(s.measured.relative_distance_pct_before),
                 f(s.measured.relative_distance_pct_after)
             );
+            if let Some(v) = &s.verify {
+                println!("{}", session::verify::line(v));
+            }
         }
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {
             println!("WORSE: {w}");

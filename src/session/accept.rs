@@ -80,6 +80,13 @@ pub struct AcceptSpec {
     /// Camera sessions: the largest 95 % half-interval of the hand-eye rotation (deg).
     #[serde(default)]
     pub hand_eye_ci95_deg_max: Option<f64>,
+    /// `verify` stage: commanded-vs-measured RMS with the calibrated IK must be ≤ this (mm).
+    #[serde(default)]
+    pub verified_rms_mm_max: Option<f64>,
+    /// `verify` stage: verified after-RMS / predicted held-out after-RMS must be ≤ this
+    /// (1.2: a calibration may verify at most 20 % worse than it predicts).
+    #[serde(default)]
+    pub verified_vs_predicted_max: Option<f64>,
 }
 
 fn kind_name(k: super::SessionKind) -> &'static str {
@@ -137,6 +144,12 @@ impl AcceptSpec {
         )?;
         check("hand_eye_ci95_mm_max", spec.hand_eye_ci95_mm_max, 1e4)?;
         check("hand_eye_ci95_deg_max", spec.hand_eye_ci95_deg_max, 360.0)?;
+        check("verified_rms_mm_max", spec.verified_rms_mm_max, 1e4)?;
+        check(
+            "verified_vs_predicted_max",
+            spec.verified_vs_predicted_max,
+            100.0,
+        )?;
         let invalid = |field: &str, message: String| AcceptError::Invalid {
             path: path.into(),
             field: field.into(),
@@ -189,6 +202,8 @@ impl AcceptSpec {
             ("heldout_rms_mm_max", self.heldout_rms_mm_max),
             ("heldout_max_mm_max", self.heldout_max_mm_max),
             ("relative_distance_pct_max", self.relative_distance_pct_max),
+            ("verified_rms_mm_max", self.verified_rms_mm_max),
+            ("verified_vs_predicted_max", self.verified_vs_predicted_max),
             ("param_ci95_mm_max", self.param_ci95_mm_max),
             ("param_ci95_deg_max", self.param_ci95_deg_max),
         ];
@@ -213,7 +228,7 @@ impl AcceptSpec {
                 .collect();
             (acc, all)
         };
-        let (kin_acc, kin_all) = set(&kin, 3);
+        let (kin_acc, kin_all) = set(&kin, 4);
         let (cam_acc, cam_all) = set(&cam, 1);
         match kind {
             super::SessionKind::Kinematic => (kin_acc, cam_all),
@@ -637,6 +652,20 @@ fn kinematic_criteria(spec: &AcceptSpec, m: &Measured, c: &mut Vec<Criterion>) {
         "%",
         m.relative_distance_pct_after,
         spec.relative_distance_pct_max,
+        c,
+    );
+    le(
+        "verified commanded-vs-measured RMS",
+        "mm",
+        m.verified_rms_mm_after,
+        spec.verified_rms_mm_max,
+        c,
+    );
+    le(
+        "verified / predicted held-out RMS",
+        "×",
+        m.verified_vs_predicted,
+        spec.verified_vs_predicted_max,
         c,
     );
 }

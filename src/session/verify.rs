@@ -1,10 +1,12 @@
 //! The session stage `verify` (issue 30 §2, seed 001 §3 / §4.4): judge a calibration by what
 //! the robot *does* when commanded with it.
 //!
-//! Targets are the validation plan's (tool poses in the robot base, inside the cell, every IK
-//! branch the planner found safe and visible). Each target's desired marker pose `T` is
-//! where today's controller believes it sends the marker: the nominal chain (with the
-//! fitted tracker → base and marker) at the planned joints.
+//! Targets are the validation plan's (inside the cell, every IK branch the planner found safe
+//! and visible). Each target's desired marker pose `W` is a place in the cell (tracker
+//! frame): where today's controller believes it sends the marker, the nominal chain (with
+//! the fitted tracker → base and marker) at the planned joints. The calibrated model reaches
+//! `W` through its own tracker → base (two fits' bases are different gauges of one frame, so
+//! a pose "in the base" would not be the same place for both).
 //! - **before**: the planned joints are the nominal IK of `T`: the validation run already
 //!   commanded them, so its measurements are the "before" (no second run);
 //! - **after**: the deployed calibration's inverse kinematics of `T` on the same branch
@@ -72,8 +74,8 @@ pub struct VerifySummary {
     pub flagged: bool,
     /// Poses not commanded (IK failure, correction beyond [`MAX_CORRECTION_DEG`]).
     pub not_commanded: usize,
-    /// Effects of the deployed calibration the geometric IK does not invert.
-    pub effects_not_inverted: usize,
+    /// Effects of the deployed calibration, inverted in the commanded joints (position).
+    pub effects_inverted: usize,
     /// The plan and run directory (relative).
     pub plan: String,
     pub run: String,
@@ -150,6 +152,46 @@ fn summarise(h: &[Hit]) -> ErrorStats {
     stats(&pos, &rot)
 }
 
+/// The calibrated IK of tool pose `t` (robot base) on `branch`, with the deployed effects
+/// inverted when `ctx` (the validation pose's context: time, temperature, approach) is given:
+/// the aim point moves by what the full model misses at the current joints, up to 8 times or
+/// 1e-4 mm. `world` is `t` in the tracker frame.
+fn solve_with_effects(
+    cal: &KinematicModel,
+    effects: &[crate::dataset::CalEffect],
+    ctx: Option<&crate::solve::obs::PoseCtx>,
+    branch: u8,
+    t: &Isometry3<f64>,
+    world: &Isometry3<f64>,
+) -> anyhow::Result<Option<crate::model::ik::IkSolution>> {
+    let mut aim = *t;
+    let mut best = None;
+    for _ in 0..8 {
+        let Some(sol) = cal.ik_for_tool(&aim).ok().and_then(|v| {
+            v.into_iter()
+                .find(|x| x.branch == branch && x.within_limits)
+        }) else {
+            return Ok(best);
+        };
+        let Some(ctx) = ctx.filter(|_| !effects.is_empty()) else {
+            return Ok(Some(sol));
+        };
+        let mut c = ctx.clone();
+        if c.q_cmd.is_some() {
+            c.q_cmd = Some(sol.q.clone());
+        }
+        c.q = sol.q.clone();
+        let pred = crate::diagnose::effects::apply_cal_effects(cal, effects, &c)?;
+        let miss = world.translation.vector - pred.coords;
+        best = Some(sol);
+        if miss.norm() < 1e-4 {
+            break;
+        }
+        aim.translation.vector += cal.base().rotation.inverse() * miss;
+    }
+    Ok(best)
+}
+
 /// Run the `verify` stage (kinematic sessions; a camera session has nothing to command).
 pub fn verify_stage(
     dir: &Path,
@@ -183,17 +225,39 @@ pub fn verify_stage(
         .map(|p| (p.id, (p.point, nominal.measured_pose(&target_of(p)))))
         .collect();
     let before = hits(&val, dof, &|id| before_want.get(&id).copied());
+    // The deployed calibration's effects (joint compliance, backlash, …) are inverted by
+    // aiming the geometric IK off by what they add, in the validation pose's context.
+    let ctxs: HashMap<u64, crate::solve::obs::PoseCtx> = if cal.effects.is_empty() {
+        HashMap::new()
+    } else {
+        let session: Vec<&crate::dataset::PoseRecord> = val.poses().collect();
+        let ids: HashMap<usize, u64> = session
+            .iter()
+            .map(|r| (crate::solve::obs::record_key(r), r.id))
+            .collect();
+        crate::solve::obs::contexts(&session, dof)
+            .into_iter()
+            .filter_map(|(k, c)| Some((*ids.get(&k)?, c)))
+            .collect()
+    };
     // Corrected joints, same branch, within a few degrees of the safety-checked plan.
     let mut poses = Vec::new();
     let mut after_want: HashMap<u64, (u64, Isometry3<f64>)> = HashMap::new();
     let mut not_commanded = 0;
     for p in &vplan.poses {
         let q_plan = target_of(p);
-        let t = nominal.tool_pose_in_base(&q_plan);
-        let sol = calibrated.ik_for_tool(&t).ok().and_then(|v| {
-            v.into_iter()
-                .find(|x| x.branch == p.branch && x.within_limits)
-        });
+        // The target is a place in the cell (tracker frame); each model reaches it through
+        // its own tracker → base (the bases of two fits are different gauges of one frame).
+        let world = nominal.measured_pose(&q_plan);
+        let t = calibrated.base().inverse() * world;
+        let sol = solve_with_effects(
+            &calibrated,
+            &cal.effects,
+            ctxs.get(&p.id),
+            p.branch,
+            &t,
+            &world,
+        )?;
         let Some(sol) = sol else {
             not_commanded += 1;
             continue;
@@ -209,7 +273,7 @@ pub fn verify_stage(
             continue;
         }
         let id = poses.len() as u64;
-        after_want.insert(id, (p.point, calibrated.base() * t));
+        after_want.insert(id, (p.point, world));
         poses.push(PlanPose {
             id,
             q_deg: sol.q.iter().map(|x| x.to_degrees()).collect(),
@@ -272,7 +336,7 @@ pub fn verify_stage(
         verified_vs_predicted: ratio,
         flagged,
         not_commanded,
-        effects_not_inverted: cal.effects.len(),
+        effects_inverted: cal.effects.len(),
         plan: "plan/verify.json".into(),
         run: "run-verify".into(),
     };
@@ -283,10 +347,10 @@ pub fn verify_stage(
             v.after.rms_mm,
             (ratio.unwrap_or(0.0) - 1.0) * 100.0,
             predicted.unwrap_or(f64::NAN),
-            if v.effects_not_inverted > 0 {
+            if v.effects_inverted > 0 {
                 format!(
-                    " ({} diagnosed effect(s) are predicted but not inverted by the geometric IK)",
-                    v.effects_not_inverted
+                    " ({} diagnosed effect(s) inverted in the commanded joints)",
+                    v.effects_inverted
                 )
             } else {
                 String::new()
@@ -326,6 +390,35 @@ pub fn line(v: &VerifySummary) -> String {
             ""
         }
     )
+}
+
+/// The verify table of a fleet / the closing note (seed 001 §3): per robot, predicted
+/// held-out after, verified before → after, coincidence before → after (mm).
+pub fn fleet_table(sessions: &[SessionFile]) -> String {
+    use std::fmt::Write as _;
+    let f = |x: Option<f64>| x.map_or("—".into(), |x| format!("{x:.4}"));
+    let mut t = String::from(
+        "\n| robot | predicted held-out after (mm) | verified before → after (mm) | coincidence before → after (mm) | flag |\n|---|---|---|---|---|\n",
+    );
+    for s in sessions {
+        let Some(v) = &s.verify else { continue };
+        let _ = writeln!(
+            t,
+            "| {} | {} | {:.4} → {:.4} | {} → {} | {} |",
+            s.cell.robot_serial.as_deref().unwrap_or("?"),
+            f(v.predicted_after_rms_mm),
+            v.before.rms_mm,
+            v.after.rms_mm,
+            f(v.coincidence_mm_before),
+            f(v.coincidence_mm_after),
+            if v.flagged {
+                "verifies > 20 % worse"
+            } else {
+                ""
+            }
+        );
+    }
+    t
 }
 
 #[cfg(test)]
