@@ -703,18 +703,18 @@ marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }
         assert!(String::from_utf8_lossy(&o.stderr).contains("nothing moves without --live"));
         assert!(!out.exists());
         // Usage errors.
-        assert_eq!(robocal(&["run"]).status.code(), Some(2));
+        assert_eq!(robocal(&["run"]).status.code(), Some(robocal::cli::EXIT_USAGE));
         assert_eq!(
             robocal(&["run", "--plan", s(&plan), "--live", "--out", s(&out)])
                 .status
                 .code(),
-            Some(2)
+            Some(robocal::cli::EXIT_USAGE)
         );
         assert_eq!(
             robocal(&["run", "--resume", s(&out), "--plan", s(&plan)])
                 .status
                 .code(),
-            Some(2)
+            Some(robocal::cli::EXIT_USAGE)
         );
         // Not a run directory.
         let o = robocal(&["run", "--resume", s(dir.path())]);

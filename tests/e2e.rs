@@ -168,13 +168,13 @@ fn dry_run_chain_small_plan() {
 /// b-CAP arm, DL-RS1A laser on a pty), plus a refused NDI address and an Optotrak entry.
 /// A running `robocal sim serve --scenario SCENARIO` (killed on drop) and the endpoint lines it
 /// printed before `{"ready": true}`.
-struct SimServe {
+pub(crate) struct SimServe {
     child: std::process::Child,
     endpoints: Vec<serde_json::Value>,
 }
 
 impl SimServe {
-    fn start(scenario: &Path) -> SimServe {
+    pub(crate) fn start(scenario: &Path) -> SimServe {
         use std::io::{BufRead as _, BufReader};
         use std::process::Stdio;
         let mut child = Command::new(env!("CARGO_BIN_EXE_robocal"))
@@ -196,7 +196,7 @@ impl SimServe {
     }
 
     /// The `addr` (or `path`) of the first endpoint speaking `protocol`.
-    fn endpoint(&self, protocol: &str, field: &str) -> Option<String> {
+    pub(crate) fn endpoint(&self, protocol: &str, field: &str) -> Option<String> {
         self.endpoints
             .iter()
             .find(|v| v["protocol"] == protocol)
@@ -222,6 +222,8 @@ fn devices_probe_against_sim_serve() {
     let (addr, pty) = (addr.expect("bcap endpoint"), pty.expect("dl-rs1a endpoint"));
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("devices.toml");
+    let rom = root.join("examples/tools/flange-marker.rom");
+    let rom = p(&rom);
     std::fs::write(
         &file,
         format!(
@@ -246,6 +248,7 @@ role = "tracker"
 vendor = "ndi"
 protocol = "ndi-tcp"
 address = "127.0.0.1:1"
+tools = ["{rom}"]
 
 [[device]]
 name = "certus"

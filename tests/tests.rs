@@ -14,6 +14,7 @@ mod e2e;
 mod import;
 mod laser;
 mod laser_world;
+mod live_session;
 mod model;
 mod navchain;
 mod perf;

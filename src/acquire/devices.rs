@@ -16,6 +16,11 @@
 //! # max_speed_deg_s = 90.0       # arms: the cell's speed limit (caps --speed-deg-s)
 //! # max_accel_deg_s2 = 180.0     # arms: the cell's acceleration limit (caps --accel-deg-s2)
 //! # mount = "flange"             # cameras: "flange" (eye-in-hand, default) or "base"
+//! # tools = ["tools/probe.rom"]  # NDI trackers: tool definitions, relative to this file
+//! # Trackers, roughly (a session plans the poses the tracker can see from it):
+//! # tracker_in_base = { xyz_mm = [1700.0, 80.0, 650.0], rpy_deg = [180.0, -80.0, 0.0] }
+//! # marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }
+//! # volume = "polaris-pyramid"   # polaris-pyramid | polaris-extended | optotrak | unbounded
 //!
 //! # A camera cell's calibration board (optional): written into the dataset header's `target`
 //! # block by `robocal run`, and a camera session centres its shell of viewpoints on it.
@@ -183,7 +188,37 @@ pub struct DeviceEntry {
     /// Cameras: `flange` (eye-in-hand, the default) or `base` (eye-to-hand).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mount: Option<String>,
+    /// Trackers: where the tracker stands in the robot base, roughly (its frame: −z looks
+    /// into the measurement volume).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tracker_in_base: Option<PoseEntry>,
+    /// Trackers: the marker's origin in the flange frame, roughly.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_on_flange: Option<PoseEntry>,
+    /// Trackers: the measurement volume (`polaris-pyramid`, `polaris-extended`, `optotrak`,
+    /// `unbounded`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume: Option<String>,
 }
+
+/// A rough placement in a device file: translation (mm) and URDF roll-pitch-yaw (deg).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseEntry {
+    /// Translation (mm).
+    pub xyz_mm: [f64; 3],
+    /// URDF roll-pitch-yaw (deg).
+    #[serde(default)]
+    pub rpy_deg: [f64; 3],
+}
+
+/// The measurement volumes a device file may name.
+pub const VOLUMES: [&str; 4] = [
+    "polaris-pyramid",
+    "polaris-extended",
+    "optotrak",
+    "unbounded",
+];
 
 impl DeviceEntry {
     /// Where the device is reached, for listings.
@@ -350,6 +385,36 @@ impl DevicesFile {
                     return Err(bad(format!(
                         "mount = {m:?}: \"flange\" (eye-in-hand) or \"base\" (eye-to-hand)"
                     )));
+                }
+            }
+            for (f, pose) in [
+                ("tracker_in_base", d.tracker_in_base),
+                ("marker_on_flange", d.marker_on_flange),
+            ] {
+                let Some(pose) = pose else { continue };
+                if d.role != Role::Tracker {
+                    return Err(bad(format!("`{f}` is for trackers only")));
+                }
+                let lim = if f == "tracker_in_base" { 1.0e4 } else { 1.0e3 };
+                if pose.xyz_mm.iter().any(|v| !v.is_finite() || v.abs() > lim) {
+                    return Err(bad(format!(
+                        "{f}.xyz_mm = {:?}: millimetres, |v| ≤ {lim} (metres typed?)",
+                        pose.xyz_mm
+                    )));
+                }
+                if pose.rpy_deg.iter().any(|v| !v.is_finite() || v.abs() > 360.0) {
+                    return Err(bad(format!(
+                        "{f}.rpy_deg = {:?}: degrees, |v| ≤ 360",
+                        pose.rpy_deg
+                    )));
+                }
+            }
+            if let Some(v) = &d.volume {
+                if d.role != Role::Tracker {
+                    return Err(bad("`volume` is for trackers only".into()));
+                }
+                if !VOLUMES.contains(&v.as_str()) {
+                    return Err(bad(format!("volume = {v:?}: one of {VOLUMES:?}")));
                 }
             }
             if d.ports.is_some() && d.protocol != Protocol::Rtde {

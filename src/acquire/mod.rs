@@ -27,6 +27,7 @@
 //! The engine is generic over the device traits of `robocal_drivers` (`Arc<dyn …>`); it
 //! never depends on the simulators. Units inside: rad, mm, s; the journal uses deg, mm, s.
 
+pub mod device_check;
 pub mod devices;
 pub mod engine;
 pub mod sample;

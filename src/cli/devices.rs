@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use robocal_drivers::ErrorKind;
 
-use crate::acquire::devices::{DeviceEntry, DevicesFile, Protocol};
+use crate::acquire::devices::{DeviceEntry, Protocol};
 
 /// Arguments of `robocal devices`.
 #[derive(Debug, clap::Args)]
@@ -161,7 +161,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let timeout = crate::plausible::limits::seconds("--timeout-s", args.timeout_s, 600.0)
         .map_err(anyhow::Error::msg)?
         .max(Duration::from_millis(100));
-    let file = DevicesFile::read(&args.devices)?;
+    // The same validation as `run --live` and `session --live` (addresses, NDI tool files
+    // resolved against the device file's folder): a device with a problem is not probed.
+    let checked = crate::acquire::device_check::check_file(&args.devices)?;
+    let file = &checked.file;
     if file.devices.is_empty() {
         if args.json {
             println!("{}", serde_json::json!({ "devices": [] }));
@@ -205,7 +208,26 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                     .unwrap_or_default()
             );
         }
-        if let Some(rt) = &rt {
+        let problems: Vec<String> = checked
+            .problems_of(&d.name)
+            .map(|p| p.message.clone())
+            .collect();
+        if !problems.is_empty() {
+            // Listed with its problems; not probed, and counted as a probe failure (the
+            // same device file `run --live` / `session --live` refuse before consent).
+            if args.probe {
+                failures += 1;
+            }
+            if !args.json {
+                for m in &problems {
+                    println!("    invalid: {m}");
+                }
+            }
+            entry["problems"] = serde_json::json!(problems);
+            if args.probe {
+                entry["probe"] = serde_json::json!({"ok": false, "kind": "invalid", "message": problems.join("; ")});
+            }
+        } else if let Some(rt) = &rt {
             let r = rt.block_on(async {
                 match tokio::time::timeout(timeout, probe(d)).await {
                     Ok(r) => r,
@@ -241,6 +263,13 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         anyhow::bail!(
             "{failures} of {} devices failed the probe",
             file.devices.len()
+        );
+    }
+    if !checked.problems.is_empty() {
+        eprintln!(
+            "note: {} problem(s) above: `--probe`, `run --live` and `session --live` refuse \
+             this device file until they are fixed",
+            checked.problems.len()
         );
     }
     Ok(())

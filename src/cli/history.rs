@@ -1,4 +1,5 @@
-//! `robocal history --robot SERIAL [--db LOC] [--svg FILE]`: the sessions of one robot from
+//! `robocal history [--robot SERIAL] [--db LOC] [--svg FILE]`: the sessions of one robot (or,
+//! without `--robot`, the robots) from
 //! the fleet history (SQLite file by default, PostgreSQL with a `postgres://` URL; see
 //! [`crate::session::history`]): accuracy before / after and parameter drift per session.
 use std::path::PathBuf;
@@ -10,11 +11,11 @@ use crate::session::history::{self, History};
 /// Arguments of `robocal history`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Robot serial number.
+    /// Robot serial number (without it: the robots in the history).
     #[arg(long)]
-    pub robot: String,
+    pub robot: Option<String>,
     /// History database: a SQLite file or a postgres:// URL (default: $ROBOCAL_DB, else
-    /// robocal-history.sqlite).
+    /// $XDG_DATA_HOME/robocal/history.sqlite, i.e. ~/.local/share/robocal/history.sqlite).
     #[arg(long, value_name = "LOC")]
     pub db: Option<String>,
     /// Also write the accuracy plot as SVG.
@@ -25,14 +26,45 @@ pub struct Args {
 /// Run `robocal history`.
 pub fn exec(a: Args) -> anyhow::Result<()> {
     let loc = history::location(a.db.as_deref());
-    // A query: never creates or alters a database (issue 26 §8).
-    let mut h =
-        History::open_read_only(&loc).with_context(|| format!("opening the history {loc}"))?;
-    let rows = h.robot(&a.robot)?;
+    // A query: never creates or alters a database.
+    let mut h = History::open_read_only(&loc).with_context(|| format!("opening the history {loc}"))?;
+    let robots = h.robots()?;
+    let Some(robot) = a.robot.clone() else {
+        if robots.is_empty() {
+            anyhow::bail!("{loc}: no session recorded yet");
+        }
+        println!("robots in {loc} (show one with --robot SERIAL):");
+        for (serial, model, n) in &robots {
+            println!("  {serial:<20} {model:<14} {n} session(s)");
+        }
+        return Ok(());
+    };
+    let rows = h.robot(&robot)?;
     if rows.is_empty() {
-        anyhow::bail!("{loc}: no session of robot {:?}", a.robot);
+        // Suggest the serials that look alike (same letters ignoring case, or one contains
+        // the other).
+        let want = robot.to_lowercase();
+        let near: Vec<&str> = robots
+            .iter()
+            .map(|r| r.0.as_str())
+            .filter(|s| {
+                let l = s.to_lowercase();
+                l.contains(&want) || want.contains(&l) || common_prefix(&l, &want) >= 4
+            })
+            .collect();
+        let all: Vec<&str> = robots.iter().map(|r| r.0.as_str()).collect();
+        anyhow::bail!(
+            "{loc}: no session of robot {robot:?}{}",
+            if !near.is_empty() {
+                format!("; did you mean {}?", near.join(", "))
+            } else if !all.is_empty() {
+                format!("; robots recorded: {}", all.join(", "))
+            } else {
+                "; the history is empty".into()
+            }
+        );
     }
-    print!("{}", history::table(&a.robot, &rows));
+    print!("{}", history::table(&robot, &rows));
     // Parameter drift: each arm parameter's change from nominal, per session.
     let mut names: Vec<(String, String)> = rows
         .iter()
@@ -57,9 +89,13 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         }
     }
     if let Some(p) = &a.svg {
-        crate::fsio::write(p, history::svg(&a.robot, &rows))
+        crate::fsio::write(p, history::svg(&robot, &rows))
             .with_context(|| format!("writing {}", p.display()))?;
         println!("wrote {}", p.display());
     }
     Ok(())
+}
+
+fn common_prefix(a: &str, b: &str) -> usize {
+    a.chars().zip(b.chars()).take_while(|(x, y)| x == y).count()
 }

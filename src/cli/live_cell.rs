@@ -20,25 +20,10 @@ fn first(file: &DevicesFile, role: Role) -> Option<&DeviceEntry> {
 }
 
 fn tool_roms(d: &DeviceEntry, base: &Path) -> anyhow::Result<Vec<(String, Vec<u8>)>> {
-    if d.tools.is_empty() {
-        bail!(
-            "device {:?}: an NDI tracker needs at least one tool definition (`tools = [\"probe.rom\"]`)",
-            d.name
-        );
-    }
-    d.tools
-        .iter()
-        .map(|t| {
-            let p = base.join(t);
-            let bytes =
-                crate::fsio::read(&p).with_context(|| format!("reading {}", p.display()))?;
-            let name = Path::new(t)
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| t.clone());
-            Ok((name, bytes))
-        })
-        .collect()
+    Ok(crate::acquire::device_check::tool_roms(d, base)?
+        .into_iter()
+        .map(|r| (r.name, r.bytes))
+        .collect())
 }
 
 /// Open the camera of device entry `c`: `pgm-folder` → [`FolderSource`] over `path`
@@ -93,9 +78,12 @@ pub async fn live_cell(
     camera: bool,
     _consent: &crate::cli::run::LiveConsent,
 ) -> anyhow::Result<(Devices, CellInfo)> {
-    let file = DevicesFile::read(path)?;
-    let base = path.parent().unwrap_or(Path::new("."));
-    let Some(a) = first(&file, Role::Arm) else {
+    // The same validation as `robocal devices` and the session (done before consent there;
+    // repeated here because the file may have changed since).
+    let checked = crate::acquire::device_check::check_file(path)?;
+    checked.require_valid()?;
+    let (file, base) = (&checked.file, checked.base.as_path());
+    let Some(a) = first(file, Role::Arm) else {
         bail!("{}: no arm device", path.display());
     };
     let arm: Arc<dyn Arm> = match a.protocol {
@@ -125,7 +113,7 @@ pub async fn live_cell(
         }
         other => bail!("device {:?}: protocol {other:?} is not an arm", a.name),
     };
-    let tracker: Option<Arc<dyn MarkerTracker>> = match first(&file, Role::Tracker) {
+    let tracker: Option<Arc<dyn MarkerTracker>> = match first(file, Role::Tracker) {
         None => None,
         Some(t) => Some(match t.protocol {
             Protocol::NdiTcp => Arc::new(
@@ -168,7 +156,7 @@ pub async fn live_cell(
             other => bail!("device {:?}: protocol {other:?} is not a tracker", t.name),
         }),
     };
-    let range: Option<Arc<dyn RangeSensor>> = match first(&file, Role::Laser) {
+    let range: Option<Arc<dyn RangeSensor>> = match first(file, Role::Laser) {
         None => None,
         Some(l) => match l.protocol {
             Protocol::DlRs1a => {
@@ -180,14 +168,14 @@ pub async fn live_cell(
         },
     };
     let clock: Arc<dyn Clock> = Arc::new(SystemClock::default());
-    let camera = match (camera, first(&file, Role::Camera)) {
+    let camera = match (camera, first(file, Role::Camera)) {
         (false, _) | (true, None) => None,
         (true, Some(c)) => Some(open_camera(c, base, clock.clone())?),
     };
     let info = CellInfo {
         serial: None,
-        tracker_kind: first(&file, Role::Tracker).and_then(|t| t.model.clone()),
-        range_kind: first(&file, Role::Laser).and_then(|l| l.model.clone()),
+        tracker_kind: first(file, Role::Tracker).and_then(|t| t.model.clone()),
+        range_kind: first(file, Role::Laser).and_then(|l| l.model.clone()),
     };
     Ok((
         Devices {

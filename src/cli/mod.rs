@@ -70,6 +70,10 @@ pub enum Command {
     Correct(correct::Args),
 }
 
+/// Exit code of a command line that does not parse (BSD `EX_USAGE`): distinct from 1 (error)
+/// and 2 (a session's FAIL / INCOMPLETE verdict).
+pub const EXIT_USAGE: i32 = 64;
+
 /// Parse `args` and run; returns the process exit code.
 pub fn run<I, T>(args: I) -> i32
 where
@@ -79,7 +83,8 @@ where
     let cli = match Cli::try_parse_from(args) {
         Ok(c) => c,
         Err(e) => {
-            let code = if e.use_stderr() { 2 } else { 0 };
+            // A usage error is not a verdict: 64 (EX_USAGE), never 2 (FAIL / INCOMPLETE).
+            let code = if e.use_stderr() { EXIT_USAGE } else { 0 };
             let _ = e.print();
             return code;
         }
@@ -89,6 +94,11 @@ where
         Command::Session(a) => {
             return match session::exec(a) {
                 Ok(code) => code,
+                // Ctrl-C during an acquisition: the pose is durable, the session resumable.
+                Err(e) if e.chain().any(|c| c.is::<run::Interrupted>()) => {
+                    eprintln!("{e:#}");
+                    130
+                }
                 Err(e) => {
                     eprintln!("error: {e:#}");
                     1

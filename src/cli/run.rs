@@ -80,6 +80,11 @@ pub struct Args {
     /// Stop after this many poses (resume later with --resume).
     #[arg(long)]
     pub max_poses: Option<usize>,
+    /// Stop early when the skipped poses pass this fraction (0–1) of the poses handled
+    /// (from a quarter of the plan on, at least 10), or of the whole plan: the tracker does not see the marker where
+    /// the plan puts it. `robocal session` passes its accept spec's `skipped_fraction_max`.
+    #[arg(long, value_name = "F")]
+    pub max_skipped_fraction: Option<f64>,
     /// Progress as JSON lines on stdout instead of a progress bar.
     #[arg(long)]
     pub json: bool,
@@ -101,6 +106,9 @@ pub struct Args {
     /// `--features opencv`). Sim runs default to the scenario's chessboard.
     #[arg(long, value_name = "COLSxROWS", value_parser = parse_board, conflicts_with_all = ["no_camera", "resume"])]
     pub board: Option<(u32, u32)>,
+    /// The run's summary goes to stderr (a session's stdout starts with its verdict).
+    #[arg(skip)]
+    pub summary_to_stderr: bool,
 }
 
 /// `--board COLSxROWS`: inner corners, each at least 2.
@@ -483,10 +491,14 @@ fn safety_limits(
 struct Reporter {
     json: bool,
     bar: Option<indicatif::ProgressBar>,
+    /// Without a terminal: a line every `every` poses and at each skip.
+    every: usize,
+    /// The devices' clock is simulated (ETAs are labelled so).
+    simulated: bool,
 }
 
 impl Reporter {
-    fn new(json: bool, total: usize, done: usize) -> Reporter {
+    fn new(json: bool, total: usize, done: usize, simulated: bool) -> Reporter {
         let bar = (!json && std::io::stderr().is_terminal()).then(|| {
             let b = indicatif::ProgressBar::new(total as u64);
             b.set_style(
@@ -496,7 +508,12 @@ impl Reporter {
             b.set_position(done as u64);
             b
         });
-        Reporter { json, bar }
+        Reporter {
+            json,
+            bar,
+            every: (total / 10).max(1),
+            simulated,
+        }
     }
 
     fn report(&self, p: &Progress) {
@@ -506,6 +523,22 @@ impl Reporter {
             b.set_position(p.done as u64);
             let eta = p.eta_s.map_or("?".into(), |s| format!("{:.0} s", s));
             b.set_message(format!("{eta}, {:.0} poses/h", p.poses_per_hour));
+        } else if !p.ok || p.done % self.every == 0 || p.done == p.total {
+            // No terminal (a log, CI, a pipe): plain lines, skips as they happen.
+            let clock = if self.simulated {
+                " (simulated clock)"
+            } else {
+                ""
+            };
+            let eta = p
+                .eta_s
+                .filter(|_| p.done < p.total)
+                .map_or(String::new(), |s| format!(", ETA {s:.0} s{clock}"));
+            let what = if p.ok { "" } else { ": skipped" };
+            eprintln!(
+                "  pose {} ({}/{}){what}; {} recorded, {} skipped{eta}",
+                p.id, p.done, p.total, p.recorded, p.skipped
+            );
         }
     }
 
@@ -602,7 +635,7 @@ fn acquire_in(
     }
     let poses: Vec<PlannedPose> = plan.poses.iter().map(PlannedPose::from).collect();
     let done = acquire::done_pose_ids(&existing).len();
-    let reporter = Reporter::new(args.json, poses.len(), done);
+    let reporter = Reporter::new(args.json, poses.len(), done, cfg.virtual_clock);
     let mut opts = options(cfg, args.max_poses);
     opts.transfer = Some(transfer);
     // Ctrl-C: finish the current pose (its record durable), then stop; a second Ctrl-C
@@ -621,13 +654,25 @@ fn acquire_in(
             stop.request();
         }
     });
+    // Early stop: too many poses skipped for the verdict to pass (issue 28 §1).
+    let skip_limit = args.max_skipped_fraction;
+    let early_stop = opts.stop.clone();
+    let mut early: Option<String> = None;
     let summary = rt.block_on(acquire::acquire(
         &devices,
         &poses,
         &mut journal,
         &existing,
         &opts,
-        &mut |p| reporter.report(p),
+        &mut |p| {
+            reporter.report(p);
+            if let (Some(lim), None) = (skip_limit, &early) {
+                if let Some(why) = skipped_too_many(p, lim) {
+                    early = Some(why);
+                    early_stop.request();
+                }
+            }
+        },
     ))?;
     reporter.finish();
     signals.abort();
@@ -639,7 +684,54 @@ fn acquire_in(
         serde_json::to_string_pretty(&crate::schema::RunSummaryFile::from(summary.clone()))?
             .as_bytes(),
     )?;
+    if let Some(why) = early {
+        let mut reasons = std::collections::BTreeMap::<&str, usize>::new();
+        for k in &summary.skipped {
+            *reasons.entry(k.reason.as_str()).or_default() += 1;
+        }
+        let top = reasons
+            .iter()
+            .max_by_key(|(_, n)| **n)
+            .map(|(r, n)| format!("; most often: {r:?} ({n})"))
+            .unwrap_or_default();
+        bail!(
+            "stopped early: {why}{top}. The tracker does not see the marker where the plan puts \
+             it: check where the tracker stands (`tracker_in_base`) and the marker \
+             (`marker_on_flange`) in the device file, then start a new session (its plan is \
+             fitted to them); `{}` continues this one as it is",
+            crate::fsio::resume_command(dir)
+        );
+    }
     Ok(summary)
+}
+
+/// Whether the skipped poses already pass `limit` (a fraction): of the whole plan (the run
+/// cannot end below it), or of the poses handled once a quarter of the plan (at least 10
+/// poses) is.
+fn skipped_too_many(p: &Progress, limit: f64) -> Option<String> {
+    let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+    if p.total > 0 && p.skipped as f64 > limit * p.total as f64 {
+        return Some(format!(
+            "{} of the plan's {} poses skipped ({:.0} %), more than the {:.0} % allowed",
+            p.skipped,
+            p.total,
+            pct(p.skipped, p.total),
+            100.0 * limit
+        ));
+    }
+    // A few early skips are not a trend: a quarter of the plan (at least 10 poses) handled
+    // and at least 3 skipped.
+    let enough = p.done >= (p.total / 4).max(10) && p.skipped >= 3;
+    if enough && p.done < p.total && p.skipped as f64 > limit * p.done as f64 {
+        return Some(format!(
+            "{} of the first {} poses skipped ({:.0} %), more than the {:.0} % allowed",
+            p.skipped,
+            p.done,
+            pct(p.skipped, p.done),
+            100.0 * limit
+        ));
+    }
+    None
 }
 
 fn new_run(args: &Args) -> anyhow::Result<Started> {
@@ -726,6 +818,14 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
              board in them (pure-Rust detector; OpenCV's with `--features opencv`)"
         );
     }
+    // The device file checked as `devices --probe` checks it, before consent.
+    let checked = if mode == "live" {
+        let c = crate::acquire::device_check::check_file(config_src)?;
+        c.require_valid()?;
+        Some(c)
+    } else {
+        None
+    };
     let consent = if mode == "live" {
         Some(confirm_live(
             args,
@@ -762,7 +862,15 @@ fn new_run(args: &Args) -> anyhow::Result<Started> {
         write_atomic(dir.join(name), &bytes)
     };
     copy(plan_path, "plan.json")?;
-    copy(config_src, config_name)?;
+    match &checked {
+        // The copy names the original's tool files by absolute path (they are resolved
+        // against the original device file's folder, not the run directory).
+        Some(c) => write_atomic(
+            dir.join(config_name),
+            crate::acquire::device_check::resolved_toml(&c.file, &c.base)?.as_bytes(),
+        )?,
+        None => copy(config_src, config_name)?,
+    }
     let sample = SampleOptions {
         frames: args.frames.max(1),
         min_frames: (args.frames / 3).max(1),
@@ -828,14 +936,15 @@ pub fn confirm_live(args: &Args, what: &str) -> anyhow::Result<LiveConsent> {
              drive the hardware"
         );
     }
-    println!("{what}");
+    // The question goes to stderr: stdout carries the run's (or session's) result.
+    eprintln!("{what}");
     if !args.yes {
         use std::io::{BufRead as _, IsTerminal as _, Write as _};
         if !std::io::stdin().is_terminal() {
             bail!("confirmation needed: re-run with --yes to move the hardware");
         }
-        print!("type `yes` to move the arm: ");
-        std::io::stdout().flush().ok();
+        eprint!("type `yes` to move the arm: ");
+        std::io::stderr().flush().ok();
         let mut answer = String::new();
         std::io::stdin().lock().read_line(&mut answer)?;
         if answer.trim() != "yes" {
@@ -864,6 +973,7 @@ fn resume_run(args: &Args, dir: &Path) -> anyhow::Result<Started> {
     let cfg = load_run(dir)?;
     let consent = match cfg.mode.as_str() {
         "live" => {
+            crate::acquire::device_check::check_file(&dir.join(&cfg.config))?.require_valid()?;
             let plan_path = dir.join(&cfg.plan);
             let plan =
                 PlanFile::read(&plan_path).with_context(|| format!("{}", plan_path.display()))?;
@@ -909,6 +1019,12 @@ pub struct Interrupted(pub String);
 
 /// Run `robocal run`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
+    if let Some(f) = args.max_skipped_fraction {
+        anyhow::ensure!(
+            f.is_finite() && (0.0..=1.0).contains(&f),
+            "--max-skipped-fraction {f}: a fraction from 0 to 1 (0.1 = 10 % of the poses)"
+        );
+    }
     let started = match &args.resume {
         Some(dir) => resume_run(&args, dir)?,
         None => new_run(&args)?,
@@ -917,6 +1033,9 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let summary = acquire_in(&dir, &cfg, &args, started.consent.as_ref())?;
     if args.json {
         println!("{}", json!({ "summary": summary }));
+    } else if args.summary_to_stderr {
+        eprint!("{summary}");
+        eprintln!("dataset: {}", dir.join(DATASET).display());
     } else {
         print!("{summary}");
         println!("dataset: {}", dir.join(DATASET).display());

@@ -35,6 +35,7 @@ const CAMERA_ACCEPT: &str = include_str!("../../accept/camera.toml");
 
 /// Arguments of `robocal session`.
 #[derive(Debug, Clone, clap::Args)]
+#[command(group(clap::ArgGroup::new("live_target").args(["devices", "resume"])))]
 pub struct Args {
     /// Dry run against the simulated cell of this scenario.
     #[arg(long, value_name = "SCENARIO.toml", conflicts_with_all = ["devices", "live", "resume"])]
@@ -42,10 +43,12 @@ pub struct Args {
     /// Real hardware described by this device file (needs --live).
     #[arg(long, value_name = "CELL.toml", conflicts_with = "resume")]
     pub devices: Option<PathBuf>,
-    /// Allow real motion. Nothing moves on hardware without it.
-    #[arg(long, requires = "devices")]
+    /// Allow real motion. Nothing moves on hardware without it: a live session needs it
+    /// when it starts (with --devices) and again on every --resume that still moves the arm.
+    #[arg(long, requires = "live_target")]
     pub live: bool,
-    /// Do not ask for confirmation before moving real hardware.
+    /// Do not ask for confirmation before moving real hardware (the plan, its warnings and
+    /// the workspace are still printed before the first move).
     #[arg(long)]
     pub yes: bool,
     /// The session directory to create.
@@ -356,9 +359,51 @@ fn describe_devices(path: &Path) -> anyhow::Result<(CellDescription, SessionKind
             .filter(|d| matches!(d.role, Role::Laser | Role::Camera))
             .map(|d| format!("{:?} {}", d.role, d.name))
             .collect(),
+        marker_on_flange: tracker.and_then(|t| t.marker_on_flange).map(pose_frame),
+        geometry: tracker.and_then(device_geometry),
         ..Default::default()
     };
     Ok((cell, kind))
+}
+
+fn pose_frame(p: crate::acquire::devices::PoseEntry) -> FrameSpec {
+    FrameSpec {
+        xyz: p.xyz_mm,
+        rpy: p.rpy_deg,
+    }
+}
+
+/// Where a device file's tracker stands (`tracker_in_base`, rough) and its volume: the
+/// planner keeps the poses it can see, with wider margins than a scenario's exact pose.
+fn device_geometry(t: &crate::acquire::devices::DeviceEntry) -> Option<CellGeometry> {
+    use robocal_mocks::scenario::VolumeKind;
+    let pose = t.tracker_in_base?;
+    let vol = match t.volume.as_deref() {
+        Some("polaris-extended") => VolumeKind::PolarisExtended,
+        Some("optotrak") => VolumeKind::Optotrak,
+        Some("unbounded") => VolumeKind::Unbounded,
+        None if t.protocol == crate::acquire::devices::Protocol::OptotrakOapi => {
+            VolumeKind::Optotrak
+        }
+        _ => VolumeKind::PolarisPyramid,
+    };
+    Some(CellGeometry {
+        tracker_pose: pose_frame(pose),
+        volume: robocal_mocks::world::sensors::volume_frustum(vol).map(
+            |(near_mm, far_mm, tan_x, tan_y)| VolumeFrustum {
+                near_mm,
+                far_mm,
+                tan_x,
+                tan_y,
+            },
+        ),
+        // Passive markers are seen up to about 75° off the tracker's axis.
+        max_view_angle_deg: Some(75.0),
+        occluders: vec![],
+        // A pose measured roughly: keep further from the volume's edges.
+        margin_mm: 50.0,
+        margin_deg: 5.0,
+    })
 }
 
 /// The devices of the session: `robocal run`'s acquisition on the session's cell file copy.
@@ -368,19 +413,69 @@ struct RunCell {
     cell_file: PathBuf,
     setup: SessionSetup,
     in_process: bool,
+    /// `--yes` on this invocation.
     yes: bool,
+    /// The session directory (the briefing reads its plans).
+    dir: PathBuf,
+    /// Live: the operator consented in this invocation (asked once, before the first move).
+    consented: bool,
+    /// The accept spec's limit on skipped poses (the acquisition stops early past it).
+    skipped_fraction_max: Option<f64>,
+}
+
+impl RunCell {
+    /// Live sessions: after the plan, before the first move of this invocation, show what will
+    /// happen (poses left, duration, workspace, lowest flange height, speed cap, every plan
+    /// warning) and ask for a typed `yes` (or take `--yes`).
+    fn consent(&mut self) -> anyhow::Result<()> {
+        if self.mode != Mode::Live || self.consented {
+            return Ok(());
+        }
+        let s = session::SessionFile::load(&self.dir.join("session.json"))?;
+        // The device file copy is checked again (it is a file a user can edit).
+        crate::acquire::device_check::check_file(&self.cell_file)?.require_valid()?;
+        // On stderr, with the progress: stdout starts with the verdict.
+        eprint!("{}", session::briefing::text(&self.dir, &s)?);
+        if !self.yes {
+            use std::io::{BufRead as _, IsTerminal as _, Write as _};
+            if !std::io::stdin().is_terminal() {
+                bail!(
+                    "confirmation needed: re-run with --yes to move the hardware (`{}`)",
+                    resume_hint(&self.dir)
+                );
+            }
+            eprint!("type `yes` to move the arm: ");
+            std::io::stderr().flush().ok();
+            let mut answer = String::new();
+            std::io::stdin().lock().read_line(&mut answer)?;
+            if answer.trim() != "yes" {
+                bail!("not confirmed: nothing moved");
+            }
+        } else {
+            eprintln!("--yes: moving the arm");
+        }
+        self.consented = true;
+        Ok(())
+    }
+}
+
+/// The command that continues a live session.
+fn resume_hint(dir: &Path) -> String {
+    format!("robocal session --resume {} --live --yes", dir.display())
 }
 
 impl session::Cell for RunCell {
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.consent()?;
         let resume = run_dir.join("run.json").is_file();
         let live = self.mode == Mode::Live;
         let args = super::run::Args {
             plan: (!resume).then(|| plan.to_path_buf()),
             sim: (!resume && !live).then(|| self.cell_file.clone()),
             devices: (!resume && live).then(|| self.cell_file.clone()),
-            live: live && !resume,
-            yes: self.yes,
+            // Consent was given above, in this invocation (with --live on its command line).
+            live,
+            yes: true,
             out: (!resume).then(|| run_dir.to_path_buf()),
             resume: resume.then(|| run_dir.to_path_buf()),
             virtual_clock: !live,
@@ -388,6 +483,8 @@ impl session::Cell for RunCell {
             accel_deg_s2: self.setup.accel_deg_s2,
             frames: self.setup.frames,
             max_poses: None,
+            // Stop early once the verdict cannot pass on skipped poses.
+            max_skipped_fraction: self.skipped_fraction_max,
             json: false,
             in_process: self.in_process,
             // Camera sessions plan camera viewpoints (a shell): the run records an image per
@@ -395,6 +492,7 @@ impl session::Cell for RunCell {
             camera: false,
             no_camera: !resume && self.kind != SessionKind::Camera,
             board: None,
+            summary_to_stderr: true,
         };
         super::run::exec(args)?;
         let p = run_dir.join("summary.json");
@@ -441,8 +539,14 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                     d.display()
                 );
             }
+            // The same validation as `robocal devices --probe` and `run --live`, before
+            // anything is created (and long before consent).
+            let checked = crate::acquire::device_check::check_file(d)?;
+            checked.require_valid()?;
             let (cell, kind) = describe_devices(d)?;
-            (Mode::Live, cell, "devices.toml", None, kind)
+            let resolved =
+                crate::acquire::device_check::resolved_toml(&checked.file, &checked.base)?;
+            (Mode::Live, cell, "devices.toml", Some(resolved), kind)
         }
         _ => bail!("give --sim SCENARIO.toml (dry run) or --devices CELL.toml --live"),
     };
@@ -523,9 +627,11 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
     session::create(dir, setup, src, cell, &spec_text, accept)?;
     if let Some(text) = scenario_text {
         // The session runs on the single-arm scenario (the copy keeps the original's content
-        // for the record as scenario-original.toml).
-        std::fs::copy(src, dir.join("scenario-original.toml"))?;
-        session::write_atomic(&dir.join("scenario.toml"), text.as_bytes())?;
+        // for the record as scenario-original.toml); a device file's copy has its tool files
+        // resolved against the original's folder (devices-original.toml as given).
+        let name = cell_file.trim_end_matches(".toml");
+        std::fs::copy(src, dir.join(format!("{name}-original.toml")))?;
+        session::write_atomic(&dir.join(cell_file), text.as_bytes())?;
     }
     Ok((dir.clone(), mode, a.plan_only))
 }
@@ -688,29 +794,21 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         None => start(&a)?.0,
     };
     let s0 = session::SessionFile::load(&dir.join("session.json"))?;
-    if s0.setup.mode == Mode::Live && !s0.setup.plan_only {
-        // The device file was validated above (or when the session began): now confirm.
-        if !a.yes {
-            use std::io::{BufRead as _, IsTerminal as _, Write as _};
-            println!(
-                "will move the arm {} through the session's poses at ≤ {} °/s",
-                s0.cell
-                    .robot_serial
-                    .as_deref()
-                    .unwrap_or(&s0.cell.robot_model),
-                s0.setup.speed_deg_s
-            );
-            if !std::io::stdin().is_terminal() {
-                bail!("confirmation needed: re-run with --yes to move the hardware");
-            }
-            print!("type `yes` to move the arm: ");
-            std::io::stdout().flush().ok();
-            let mut answer = String::new();
-            std::io::stdin().lock().read_line(&mut answer)?;
-            if answer.trim() != "yes" {
-                bail!("not confirmed: nothing moved");
-            }
-        }
+    let moves = !s0.setup.plan_only
+        && !(s0.stages_done.contains(&session::Stage::AcquireTrain)
+            && s0.stages_done.contains(&session::Stage::AcquireValidation));
+    match s0.setup.mode {
+        Mode::Live if moves && !a.live => bail!(
+            "{} is a live session with poses left to acquire: nothing moves without --live \
+             (continue with `{}`)",
+            dir.display(),
+            resume_hint(&dir)
+        ),
+        Mode::Sim if a.live => bail!(
+            "--live: {} is a dry run on the simulated cell; resume it without --live",
+            dir.display()
+        ),
+        _ => {}
     }
     let mut cell = RunCell {
         kind: s0.setup.kind,
@@ -718,7 +816,10 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         cell_file: dir.join(&s0.setup.cell_file),
         setup: s0.setup.clone(),
         in_process: a.in_process,
-        yes: true,
+        yes: a.yes,
+        dir: dir.clone(),
+        consented: false,
+        skipped_fraction_max: s0.accept.skipped_fraction_max,
     };
     let mut log = |m: &str| eprintln!("==> {m}");
     let s = session::run(&dir, &mut cell, &mut log)?;
@@ -737,6 +838,17 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
     };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
+    } else if s.setup.plan_only {
+        // Nothing was to be judged: no verdict line, exit 0.
+        println!(
+            "plan written: {} ({} poses planned; acquisition {:.0} s predicted)",
+            dir.join("plan").display(),
+            s.poses_planned,
+            s.predicted_duration_s
+        );
+        for w in &s.warnings {
+            println!("WARNING: {w}");
+        }
     } else {
         println!("{}", s.verdict_line);
         println!(
@@ -785,11 +897,12 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {
             println!("WORSE: {w}");
         }
-        if s.setup.plan_only {
-            println!("plan only: {}", dir.join("plan").display());
-        } else {
-            println!("report: {}", dir.join("report.html").display());
+        // What to deploy, each file with the accuracy it delivers alone (the verdict is the
+        // diagnosed model's).
+        for l in session::deploy_score::lines(&s) {
+            println!("{l}");
         }
+        println!("report: {}", dir.join("report.html").display());
         if let Some(c) = &chain {
             print!("{c}");
         }

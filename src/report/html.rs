@@ -373,7 +373,30 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
             } else {
                 "the calibration file (robocal-calibration/1: geometry and effects, mm / degrees): `robocal predict --calibration` applies it"
             };
-            let _ = write!(h, "<li><code>{}</code>: {}</li>", esc(d), esc(what));
+            let _ = write!(h, "<li><code>{}</code>: {}", esc(d), esc(what));
+            // The accuracy this file delivers on its own, and a warning when that fails the
+            // spec (the verdict was earned by the diagnosed model).
+            if let Some(a) = s.deploy_accuracy.iter().find(|a| &a.artifact == d) {
+                let rel = a
+                    .relative_distance_pct
+                    .map_or(String::new(), |r| format!(", relative distance {r:.3} %"));
+                let _ = write!(
+                    h,
+                    "<br>alone, on the held-out poses: RMS {:.4} mm, max {:.4} mm{} — {}",
+                    a.heldout_rms_mm,
+                    a.heldout_max_mm,
+                    esc(&rel),
+                    if a.passes {
+                        "<span class=\"ok\">meets the acceptance spec</span>".to_string()
+                    } else {
+                        format!(
+                            "<span class=\"bad\">WARNING: alone it fails the acceptance spec ({})</span>",
+                            esc(&a.fails.join("; "))
+                        )
+                    }
+                );
+            }
+            h.push_str("</li>");
         }
         h.push_str("</ul>");
     }

@@ -344,6 +344,32 @@ impl History {
         Ok(id)
     }
 
+    /// Every robot in the history: serial, model and how many sessions, sorted by serial.
+    pub fn robots(&mut self) -> Result<Vec<(String, String, i64)>, HistoryError> {
+        const Q: &str = "SELECT robot_serial, MAX(robot_model), COUNT(*) FROM robocal_session \
+                         GROUP BY robot_serial ORDER BY robot_serial";
+        match self {
+            History::Sqlite(c, loc) => {
+                let sq = |source| HistoryError::Sqlite {
+                    path: loc.clone(),
+                    source,
+                };
+                let mut st = c.prepare(Q).map_err(sq)?;
+                let rows = st
+                    .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+                    .map_err(sq)?
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(sq)?;
+                Ok(rows)
+            }
+            History::Postgres(c) => Ok(c
+                .query(Q, &[])?
+                .iter()
+                .map(|r| (r.get(0), r.get(1), r.get(2)))
+                .collect()),
+        }
+    }
+
     /// The sessions of one robot, oldest first, with their parameter changes.
     pub fn robot(&mut self, serial: &str) -> Result<Vec<Row>, HistoryError> {
         type Raw = (

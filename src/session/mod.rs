@@ -15,8 +15,10 @@
 //! URDF of the calibrated geometry), `report.html`.
 //! Units: mm, degrees, seconds in every file.
 pub mod accept;
+pub mod briefing;
 pub mod camera;
 pub mod deploy;
+pub mod deploy_score;
 pub mod history;
 pub mod svg;
 pub mod verify;
@@ -253,6 +255,10 @@ pub struct SessionFile {
     pub heldout_errors: Vec<PoseError>,
     /// Files to deploy (relative paths).
     pub deploy: Vec<String>,
+    /// What each deployed file delivers on its own on the held-out poses, judged against the
+    /// same spec (the verdict is the diagnosed model's; a URDF holds the geometry only).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub deploy_accuracy: Vec<deploy_score::ArtifactAccuracy>,
     /// Warnings collected on the way.
     pub warnings: Vec<String>,
     /// Camera sessions: the camera calibration (intrinsics, hand-eye, target pose with their
@@ -446,6 +452,7 @@ pub fn create(
         effects: vec![],
         heldout_errors: vec![],
         deploy: vec![],
+        deploy_accuracy: vec![],
         warnings: vec![],
         camera: None,
         verify: None,
@@ -999,5 +1006,40 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     let urdf = deploy::urdf(&model, &name, &s.dataset_hashes());
     write_atomic(&ddir.join("robot.urdf"), urdf.as_bytes())?;
     s.deploy = vec!["deploy/calibration.json".into(), "deploy/robot.urdf".into()];
+    // Each artifact on its own: the calibration file through `robocal predict` (geometry +
+    // effects: the "after" above) and the URDF (the same geometry, no effects).
+    let urdf_pred: Vec<_> = obs.iter().map(|o| model.measured_point(&o.q)).collect();
+    let effects: Vec<&str> = s.effects.iter().map(|e| e.kind.as_str()).collect();
+    let cal_contains = if effects.is_empty() {
+        "calibrated geometry".to_string()
+    } else {
+        format!("calibrated geometry + {}", effects.join(", "))
+    };
+    s.deploy_accuracy = deploy_score::score(
+        s,
+        &meas,
+        &[
+            deploy_score::Candidate {
+                artifact: "deploy/calibration.json",
+                contains: cal_contains,
+                how: "applied by `robocal predict` / `correct`",
+                predicted: &pred_after,
+            },
+            deploy_score::Candidate {
+                artifact: "deploy/robot.urdf",
+                contains: "calibrated geometry only, no effects".into(),
+                how: "loaded by ROS / the navigation software in place of the nominal model",
+                predicted: &urdf_pred,
+            },
+        ],
+    );
+    for a in s.deploy_accuracy.iter().filter(|a| !a.passes) {
+        s.warnings.push(format!(
+            "{} alone fails the spec: held-out RMS {:.4} mm ({})",
+            a.artifact,
+            a.heldout_rms_mm,
+            a.fails.join("; ")
+        ));
+    }
     Ok(())
 }

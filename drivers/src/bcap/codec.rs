@@ -12,6 +12,9 @@ pub enum CodecError {
     /// First byte is not SOH.
     #[error("packet does not start with SOH (0x{0:02x})")]
     NoSoh(u8),
+    /// The peer speaks another protocol (HTTP, a text banner): the wrong port or service.
+    #[error("the device answered with {0}, not b-CAP: wrong port? (an RC8 serves b-CAP on TCP 5007)")]
+    NotBcap(String),
     /// Length field outside [16, MAX_PACKET].
     #[error("packet length {0} outside [16, {MAX_PACKET}]")]
     BadLength(u32),
@@ -367,13 +370,32 @@ pub fn decode_packet(bytes: &[u8]) -> Result<Packet, CodecError> {
     })
 }
 
+/// The error for bytes that do not start with SOH: another protocol named when it is
+/// recognisable (an HTTP status line, printable text), else the first byte.
+fn not_soh(buf: &[u8]) -> CodecError {
+    if buf.starts_with(b"HTTP/") {
+        return CodecError::NotBcap("HTTP".into());
+    }
+    let head: Vec<u8> = buf.iter().take(24).copied().collect();
+    let text = head.len() >= 4
+        && head
+            .iter()
+            .all(|b| b.is_ascii_graphic() || *b == b' ' || *b == b'\r' || *b == b'\n');
+    if text {
+        let line = String::from_utf8_lossy(&head);
+        let line = line.lines().next().unwrap_or_default();
+        return CodecError::NotBcap(format!("text ({line:?})"));
+    }
+    CodecError::NoSoh(buf[0])
+}
+
 /// Split one complete packet off `buf` (`Ok(None)`: need more bytes).
 pub fn split_packet(buf: &mut BytesMut) -> Result<Option<BytesMut>, CodecError> {
     if buf.is_empty() {
         return Ok(None);
     }
     if buf[0] != SOH {
-        return Err(CodecError::NoSoh(buf[0]));
+        return Err(not_soh(buf));
     }
     if buf.len() < 5 {
         return Ok(None);
