@@ -67,7 +67,10 @@ fn dump(o: &TrialOptions, dir: &std::path::Path) -> anyhow::Result<()> {
         };
         let im = rr.render(&p.instrument, i as u64);
         let f = dir.join(format!("view-{i}.pgm"));
-        std::fs::write(&f, robocal_drivers::camera::pgm::encode(im.width, im.height, &im.data))?;
+        std::fs::write(
+            &f,
+            robocal_drivers::camera::pgm::encode(im.width, im.height, &im.data),
+        )?;
         println!("{}: truth {:?}", f.display(), v.shaft_lines);
         let opts = lines::LineOptions::default();
         let (edges, n) = lines::straight_edges(&im.data, im.width, im.height, &cam, &opts)

@@ -9,6 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use robocal::cli::rcm_images::{self, TrialOptions};
 use robocal::model::KinematicModel;
 use robocal::plan::rcm::{generate, RcmPlanSpec};
+use robocal::solve::rcm::lines;
 use robocal_mocks::rcm::{RcmCell, RcmScenario};
 use robocal_mocks::rcm_render::write_image_dataset;
 
@@ -40,8 +41,14 @@ fn detected_lines_match_the_world_and_the_hand_eye_stays_within_1_5x_of_exact_li
     };
     let (dt, et) = (med(0, |e| e.0), med(1, |e| e.0));
     let (dr, er) = (med(0, |e| e.1), med(1, |e| e.1));
-    assert!(dt <= 1.5 * et, "hand-eye {dt} mm with detected lines vs {et} with exact");
-    assert!(dr <= 1.5 * er, "hand-eye {dr} deg with detected lines vs {er} with exact");
+    assert!(
+        dt <= 1.5 * et,
+        "hand-eye {dt} mm with detected lines vs {et} with exact"
+    );
+    assert!(
+        dr <= 1.5 * er,
+        "hand-eye {dr} deg with detected lines vs {er} with exact"
+    );
 }
 
 #[test]
@@ -66,15 +73,8 @@ fn calibrate_rcm_reads_images_refuses_blank_views_and_needs_no_robot_preset() {
         .map(|p| (p.instrument, cell.reported(&p.instrument, &mut rng)))
         .collect();
     let dir = tempfile::tempdir().unwrap();
-    let (path, views) = write_image_dataset(
-        &cell,
-        &poses,
-        &cell.scenario.render,
-        dir.path(),
-        "rcm",
-        1,
-    )
-    .unwrap();
+    let (path, views) =
+        write_image_dataset(&cell, &poses, &cell.scenario.render, dir.path(), "rcm", 1).unwrap();
     assert!(views.len() >= 10);
     // An instrument holder that is no robocal preset.
     let text = std::fs::read_to_string(&path).unwrap();
@@ -114,7 +114,11 @@ fn calibrate_rcm_reads_images_refuses_blank_views_and_needs_no_robot_preset() {
     assert_eq!(rep["detected"].as_array().unwrap().len(), views.len() - 1);
     assert_eq!(rep["refused"].as_array().unwrap().len(), 1);
     // A missing image is an error naming the file, the line and the field.
-    std::fs::remove_file(dir.path().join(format!("rcm.images/pose-{}.pgm", views[0].0))).unwrap();
+    std::fs::remove_file(
+        dir.path()
+            .join(format!("rcm.images/pose-{}.pgm", views[0].0)),
+    )
+    .unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
         .args(["calibrate", "rcm", "--bootstrap", "0", "--data"])
         .arg(&path)
@@ -128,4 +132,136 @@ fn calibrate_rcm_reads_images_refuses_blank_views_and_needs_no_robot_preset() {
         stderr.contains("rcm.jsonl:2") && stderr.contains("\"image\""),
         "{stderr}"
     );
+}
+
+#[test]
+fn seed002_plan_file_pivots_about_the_trocar_and_is_reachable() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("PLAN.json");
+    let spec = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("plans/seed002-rcm.toml");
+    let code = robocal::cli::run([
+        "robocal".into(),
+        "plan".into(),
+        "--spec".into(),
+        spec.into_os_string(),
+        "--robot".into(),
+        "ur5e".into(),
+        "--out".into(),
+        out.clone().into_os_string(),
+    ]);
+    assert_eq!(code, 0);
+    let f = robocal::plan::file::PlanFile::read(&out).unwrap();
+    assert!(f.poses.len() >= 15, "{} poses", f.poses.len());
+    let tool = f.tool.to_iso().unwrap();
+    let trocar = Vector3::new(450.0, 0.0, 250.0);
+    for p in &f.poses {
+        // The instrument axis (tool z through the tip) passes through the trocar.
+        let inst = p.flange.to_iso().unwrap() * tool;
+        let z = inst.rotation * Vector3::z();
+        let d = (trocar - inst.translation.vector).cross(&z).norm();
+        assert!(d < 0.05, "pose {}: axis {d} mm from the trocar", p.id);
+    }
+}
+
+// ------------------------------------------------------------ the detector on synthetic bands
+
+fn dist(l: &[f64; 3], u: f64, v: f64) -> f64 {
+    l[0] * u + l[1] * v + l[2]
+}
+
+fn line_through(p: [f64; 2], q: [f64; 2]) -> [f64; 3] {
+    let (a, b) = (q[1] - p[1], p[0] - q[0]);
+    let n = (a * a + b * b).sqrt();
+    [a / n, b / n, -(a * p[0] + b * p[1]) / n]
+}
+
+/// The detector with default options on a `w × h` image, camera without distortion.
+fn detect_on(img: &[u8], w: usize, h: usize) -> Result<lines::ShaftLines, String> {
+    let cam = robocal::dataset::endoscope::EndoscopeCamera {
+        kind: "endoscope".into(),
+        width: w as u32,
+        height: h as u32,
+        fx: 500.0,
+        fy: 500.0,
+        cx: w as f64 / 2.0,
+        cy: h as f64 / 2.0,
+        dist: [0.0; 5],
+    };
+    lines::detect(img, w as u32, h as u32, &cam, &Default::default())
+}
+
+#[test]
+fn detector_finds_both_edges_of_a_band_to_a_tenth_of_a_pixel() {
+    let (w, h) = (240, 200);
+    let l1 = line_through([100.3, 0.0], [120.7, 200.0]);
+    let l2 = line_through([130.6, 0.0], [147.2, 200.0]);
+    // A dark band between the two lines on a bright background, area-sampled (8 × 8).
+    let img: Vec<u8> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            let mut acc = 0.0f64;
+            for k in 0..64 {
+                let u = x + ((k % 8) as f64 + 0.5) / 8.0 - 0.5;
+                let v = y + ((k / 8) as f64 + 0.5) / 8.0 - 0.5;
+                let inside = dist(&l1, u, v) > 0.0 && dist(&l2, u, v) < 0.0;
+                acc += if inside { 30.0 } else { 180.0 };
+            }
+            (acc / 64.0).round() as u8
+        })
+        .collect();
+    let r = detect_on(&img, w, h).unwrap();
+    for fl in &r.lines {
+        let truth = if dist(&l1, fl.seg[0], fl.seg[1]).abs() < 2.0 {
+            l1
+        } else {
+            l2
+        };
+        for e in [[fl.seg[0], fl.seg[1]], [fl.seg[2], fl.seg[3]]] {
+            assert!(dist(&truth, e[0], e[1]).abs() < 0.1, "{fl:?}");
+        }
+        assert!(fl.rms_px < 0.2 && fl.length_px > 150.0, "{fl:?}");
+    }
+    assert!(
+        (dist(&l1, r.lines[0].seg[0], r.lines[0].seg[1]).abs() < 2.0)
+            != (dist(&l1, r.lines[1].seg[0], r.lines[1].seg[1]).abs() < 2.0),
+        "both edges, not one twice"
+    );
+    assert!(r.sigma_px() < 0.05);
+}
+
+#[test]
+fn detector_refuses_views_without_a_shaft_and_names_why() {
+    let (w, h) = (120, 100);
+    let e = detect_on(&vec![128u8; w * h], w, h).unwrap_err();
+    assert!(e.contains("edge points"), "{e}");
+    // One edge only (a half plane).
+    let l = line_through([60.0, 0.0], [70.0, 100.0]);
+    let img: Vec<u8> = (0..w * h)
+        .map(|i| {
+            if dist(&l, (i % w) as f64, (i / w) as f64) > 0.0 {
+                40
+            } else {
+                200
+            }
+        })
+        .collect();
+    let e = detect_on(&img, w, h).unwrap_err();
+    assert!(e.contains("no two long straight edges"), "{e}");
+    // An image of another size than the header's camera.
+    let mut cam = robocal::dataset::endoscope::EndoscopeCamera {
+        kind: "endoscope".into(),
+        width: 64,
+        height: 64,
+        fx: 500.0,
+        fy: 500.0,
+        cx: 32.0,
+        cy: 32.0,
+        dist: [0.0; 5],
+    };
+    let e = lines::detect(&img, w as u32, h as u32, &cam, &Default::default()).unwrap_err();
+    assert!(e.contains("header"), "{e}");
+    cam.width = w as u32;
+    let e = lines::detect(&img[..10], w as u32, h as u32, &cam, &Default::default())
+        .unwrap_err();
+    assert!(e.contains("samples"), "{e}");
 }

@@ -506,7 +506,12 @@ impl<'a> RcmRenderer<'a> {
         for j in 0..h {
             for i in 0..w {
                 let k = j * (w + 1) + i;
-                let c = [corner[k], corner[k + 1], corner[k + w + 1], corner[k + w + 2]];
+                let c = [
+                    corner[k],
+                    corner[k + 1],
+                    corner[k + w + 1],
+                    corner[k + w + 2],
+                ];
                 let any_inst = c.iter().any(|x| x.0);
                 if !any_inst {
                     continue; // background only: precomputed

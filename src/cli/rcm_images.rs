@@ -165,7 +165,8 @@ pub fn run(scenario: &RcmScenario, opts: &TrialOptions) -> anyhow::Result<TrialR
             let d = match det {
                 Ok(d) => d,
                 Err(why) => {
-                    out.refused.push(format!("trial {trial} pose {}: {why}", i + 1));
+                    out.refused
+                        .push(format!("trial {trial} pose {}: {why}", i + 1));
                     continue;
                 }
             };
@@ -201,7 +202,8 @@ pub fn run(scenario: &RcmScenario, opts: &TrialOptions) -> anyhow::Result<TrialR
                 Err(e) => {
                     ok = false;
                     let what = ["detected", "exact", "exact + 0.5 px"][k];
-                    out.failed.push(format!("trial {trial} ({what} lines): {e}"));
+                    out.failed
+                        .push(format!("trial {trial} ({what} lines): {e}"));
                 }
             }
         }
@@ -275,7 +277,10 @@ pub fn text(opts: &TrialOptions, r: &TrialResults) -> String {
         "hand-eye error over {} trials (median / max):\n",
         r.hand_eye.len()
     );
-    for (k, name) in ["detected lines", "exact lines", "exact + 0.5 px"].iter().enumerate() {
+    for (k, name) in ["detected lines", "exact lines", "exact + 0.5 px"]
+        .iter()
+        .enumerate()
+    {
         let t = col(k, |e| e.0);
         let a = col(k, |e| e.1);
         s += &format!(

@@ -76,6 +76,23 @@ pub fn generate(spec: &PlanSpec) -> Vec<Candidate> {
     if let Some(p) = &spec.planes {
         planes(p, &spec.group, &mut rng, &mut out);
     }
+    if let Some(r) = &spec.rcm {
+        // Seed 002: the tool is the instrument's tip frame; one branch per pose.
+        let rs = r.to_spec(spec.seed, spec.tool.xyz[2]);
+        for (k, p) in super::rcm::draw(&rs).into_iter().enumerate() {
+            let mut c = Candidate::new(
+                k,
+                p.instrument,
+                &spec.group,
+                format!(
+                    "R{k} pivot {:.1}/{:.1} deg depth {:.0} mm",
+                    p.pivot_deg[0], p.pivot_deg[1], p.insertion_mm
+                ),
+            );
+            c.branches = BranchPolicy::Best;
+            out.push(c);
+        }
+    }
     if let Some(v) = &spec.validation {
         if let Some(f) = &v.five_direction {
             five_direction(f, &spec.group, &mut out);

@@ -88,61 +88,131 @@ pub fn rcm_pose(spec: &RcmPlanSpec, a: f64, b: f64, depth: f64, roll: f64) -> Is
     )
 }
 
+/// The `[rcm]` table of a plan spec (`plans/seed002-rcm.toml`): strict TOML, mm / degrees.
+/// The spec's `[tool]` is the instrument's tip frame in the flange (`xyz = [0, 0, L]`: the
+/// tip `L` mm ahead of the flange on the shaft axis).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RcmSpecTable {
+    /// Number of poses.
+    pub points: usize,
+    /// The trocar (RCM) in the base (mm).
+    pub trocar_mm: [f64; 3],
+    /// Nominal insertion direction (into the body) in the base.
+    pub insertion_dir: [f64; 3],
+    /// Direction the instrument's x axis should face (e.g. towards the endoscope).
+    pub x_hint: [f64; 3],
+    /// Each of the two pivot angles uniform in `±pivot_deg`.
+    pub pivot_deg: f64,
+    /// Tip depth beyond the trocar `[min, max]` (mm).
+    pub insertion_mm: [f64; 2],
+    /// Roll about the shaft uniform in `±roll_deg`.
+    #[serde(default)]
+    pub roll_deg: f64,
+}
+
+impl RcmSpecTable {
+    /// As the generator's spec (`shaft_length_mm`: tip-to-flange distance, for reachability).
+    pub fn to_spec(&self, seed: u64, shaft_length_mm: f64) -> RcmPlanSpec {
+        RcmPlanSpec {
+            trocar_mm: self.trocar_mm,
+            insertion_dir: self.insertion_dir,
+            x_hint: self.x_hint,
+            pivot_deg: self.pivot_deg,
+            insertion_mm: self.insertion_mm,
+            roll_deg: self.roll_deg,
+            count: self.points,
+            seed,
+            shaft_length_mm,
+        }
+    }
+}
+
+impl RcmPlanSpec {
+    /// Checks the ranges; the error says which value and why.
+    pub fn check(&self) -> Result<(), RcmPlanError> {
+        let z0 = v3(self.insertion_dir);
+        if z0.norm().is_nan() || z0.norm() <= 1e-9 {
+            return Err(RcmPlanError::Spec(
+                "insertion_dir must be a non-zero vector".into(),
+            ));
+        }
+        let h = v3(self.x_hint);
+        if h.cross(&z0).norm() < 1e-6 * h.norm() * z0.norm() || h.norm() < 1e-9 {
+            return Err(RcmPlanError::Spec(
+                "x_hint must not be parallel to insertion_dir".into(),
+            ));
+        }
+        if !(self.pivot_deg >= 0.0 && self.pivot_deg < 80.0) {
+            return Err(RcmPlanError::Spec(format!(
+                "pivot_deg must be in [0, 80), got {}",
+                self.pivot_deg
+            )));
+        }
+        let [d0, d1] = self.insertion_mm;
+        if !(d0 > 0.0 && d1 >= d0) {
+            return Err(RcmPlanError::Spec(format!(
+                "insertion_mm must be [min, max] with 0 < min ≤ max, got [{d0}, {d1}]"
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// `spec.count` poses drawn from the ranges without a reachability check (the planner checks
+/// each against the robot); the spec must pass [`RcmPlanSpec::check`].
+pub fn draw(spec: &RcmPlanSpec) -> Vec<RcmPose> {
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+    (0..spec.count)
+        .map(|_| {
+            let (inst, a, b, depth, _) = draw_one(spec, &mut rng);
+            RcmPose {
+                instrument: inst,
+                pivot_deg: [a.to_degrees(), b.to_degrees()],
+                insertion_mm: depth,
+                q: None,
+            }
+        })
+        .collect()
+}
+
+fn draw_one(spec: &RcmPlanSpec, rng: &mut ChaCha8Rng) -> (Isometry3<f64>, f64, f64, f64, f64) {
+    let p = spec.pivot_deg.to_radians();
+    let [d0, d1] = spec.insertion_mm;
+    let u = |rng: &mut ChaCha8Rng, a: f64| {
+        if a > 0.0 {
+            rng.random_range(-a..=a)
+        } else {
+            0.0
+        }
+    };
+    let a = u(rng, p);
+    let b = u(rng, p);
+    let depth = if d1 > d0 {
+        rng.random_range(d0..=d1)
+    } else {
+        d0
+    };
+    let roll = u(rng, spec.roll_deg.to_radians());
+    (rcm_pose(spec, a, b, depth, roll), a, b, depth, roll)
+}
+
 /// Generate `spec.count` poses; with `model`, only poses whose flange is reachable within the
 /// joint limits are kept.
 pub fn generate(
     spec: &RcmPlanSpec,
     model: Option<&KinematicModel>,
 ) -> Result<Vec<RcmPose>, RcmPlanError> {
-    let z0 = v3(spec.insertion_dir);
-    if z0.norm().is_nan() || z0.norm() <= 1e-9 {
-        return Err(RcmPlanError::Spec(
-            "insertion_dir must be a non-zero vector".into(),
-        ));
-    }
-    let h = v3(spec.x_hint);
-    if h.cross(&z0).norm() < 1e-6 * h.norm() * z0.norm() || h.norm() < 1e-9 {
-        return Err(RcmPlanError::Spec(
-            "x_hint must not be parallel to insertion_dir".into(),
-        ));
-    }
-    if !(spec.pivot_deg >= 0.0 && spec.pivot_deg < 80.0) {
-        return Err(RcmPlanError::Spec(format!(
-            "pivot_deg must be in [0, 80), got {}",
-            spec.pivot_deg
-        )));
-    }
-    let [d0, d1] = spec.insertion_mm;
-    if !(d0 > 0.0 && d1 >= d0) {
-        return Err(RcmPlanError::Spec(format!(
-            "insertion_mm must be [min, max] with 0 < min ≤ max, got [{d0}, {d1}]"
-        )));
-    }
+    spec.check()?;
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let mut out = Vec::new();
     let tries = 50 * spec.count.max(1);
     let tool = Isometry3::translation(0.0, 0.0, spec.shaft_length_mm);
-    let p = spec.pivot_deg.to_radians();
     for _ in 0..tries {
         if out.len() == spec.count {
             break;
         }
-        let u = |rng: &mut ChaCha8Rng, a: f64| {
-            if a > 0.0 {
-                rng.random_range(-a..=a)
-            } else {
-                0.0
-            }
-        };
-        let a = u(&mut rng, p);
-        let b = u(&mut rng, p);
-        let depth = if d1 > d0 {
-            rng.random_range(d0..=d1)
-        } else {
-            d0
-        };
-        let roll = u(&mut rng, spec.roll_deg.to_radians());
-        let inst = rcm_pose(spec, a, b, depth, roll);
+        let (inst, a, b, depth, _) = draw_one(spec, &mut rng);
         let q = match model {
             None => None,
             Some(m) => {

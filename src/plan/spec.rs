@@ -1,6 +1,6 @@
 //! Strict TOML plan specifications (`plans/*.toml`). File units: mm, degrees, seconds.
 //!
-//! A spec names exactly one generator table (`[annulus]`, `[shell]`, `[planes]` or
+//! A spec names exactly one generator table (`[annulus]`, `[shell]`, `[planes]`, `[rcm]` or
 //! `[validation]`) plus optional `[tool]`, `[tracker]`, `[laser]`, `[constraints]`,
 //! `[timing]` and `[observability]` tables. Unknown keys are errors.
 use serde::{Deserialize, Serialize};
@@ -30,6 +30,9 @@ pub struct PlanSpec {
     pub shell: Option<ShellSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub planes: Option<PlanesSpec>,
+    /// Seed 002: instrument poses pivoting about a trocar (the tool is the instrument's tip).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm: Option<super::rcm::RcmSpecTable>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validation: Option<ValidationSpec>,
     /// The measured point / sensor in the flange frame (marker, probe tip, laser, camera).
@@ -394,6 +397,7 @@ impl PlanSpec {
             self.annulus.is_some(),
             self.shell.is_some(),
             self.planes.is_some(),
+            self.rcm.is_some(),
             self.validation.is_some(),
         ]
         .iter()
@@ -401,8 +405,15 @@ impl PlanSpec {
         .count();
         if n != 1 {
             return bad(format!(
-                "exactly one of [annulus], [shell], [planes], [validation] is required, got {n}"
+                "exactly one of [annulus], [shell], [planes], [rcm], [validation] is required, got {n}"
             ));
+        }
+        if let Some(r) = &self.rcm {
+            r.to_spec(self.seed, 0.0)
+                .check()
+                .map_err(|e| PlanError::Spec {
+                    message: format!("[rcm]: {e}"),
+                })?;
         }
         // Every number finite and within a plausible magnitude (mm, deg, s): a NaN or 1e308
         // would otherwise loop or allocate without bound further down.
@@ -511,6 +522,9 @@ impl PlanSpec {
         }
         if let Some(p) = &self.planes {
             n = n.saturating_add(prod(&[p.planes.len(), p.blocks[0], p.blocks[1], 10]));
+        }
+        if let Some(r) = &self.rcm {
+            n = n.saturating_add(r.points);
         }
         if let Some(v) = &self.validation {
             if let Some(f) = &v.five_direction {

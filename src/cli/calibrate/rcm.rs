@@ -11,7 +11,8 @@ use crate::solve::rcm;
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Dataset with an endoscope `camera` and an `instrument` header block and pose records
-    /// with `flange` (instrument frame in the base) and `shaft_lines`.
+    /// with `flange` (instrument frame in the base) and `shaft_lines`, or an `image` (the
+    /// shaft's silhouettes are then detected in it; refused views are listed and skipped).
     #[arg(long, value_name = "D.jsonl")]
     pub data: PathBuf,
     /// Output directory (`calibration.json`, `rcm_report.json`).

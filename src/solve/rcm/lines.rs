@@ -535,7 +535,11 @@ fn outermost(
         a.abc[0] * b.abc[1] - a.abc[1] * b.abc[0],
     ];
     let through_v = |l: &FittedLine| {
-        let m = [0.5 * (l.seg[0] + l.seg[2]), 0.5 * (l.seg[1] + l.seg[3]), 1.0];
+        let m = [
+            0.5 * (l.seg[0] + l.seg[2]),
+            0.5 * (l.seg[1] + l.seg[3]),
+            1.0,
+        ];
         // Line through m and v.
         let h = [
             m[1] * v[2] - m[2] * v[1],
@@ -644,85 +648,4 @@ fn pair(a: &FittedLine, b: &FittedLine, opts: &LineOptions) -> Result<f64, Strin
         return Err("the nearly parallel straight edges bound no dark or bright band (one step, not a shaft)".into());
     }
     Ok((a.run_px * a.contrast).min(b.run_px * b.contrast))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn cam(w: u32, h: u32) -> EndoscopeCamera {
-        EndoscopeCamera {
-            kind: "endoscope".into(),
-            width: w,
-            height: h,
-            fx: 500.0,
-            fy: 500.0,
-            cx: w as f64 / 2.0,
-            cy: h as f64 / 2.0,
-            dist: [0.0; 5],
-        }
-    }
-
-    /// A dark band between two lines on a bright background, area-sampled (no blur).
-    fn band(w: usize, h: usize, l1: [f64; 3], l2: [f64; 3]) -> Vec<u8> {
-        let mut img = vec![0u8; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = 0.0;
-                for a in 0..8 {
-                    for b in 0..8 {
-                        let (u, v) = (x as f64 + (a as f64 + 0.5) / 8.0 - 0.5, y as f64 + (b as f64 + 0.5) / 8.0 - 0.5);
-                        let inside = dist(&l1, u, v) > 0.0 && dist(&l2, u, v) < 0.0;
-                        acc += if inside { 30.0 } else { 180.0 };
-                    }
-                }
-                img[y * w + x] = (acc / 64.0).round() as u8;
-            }
-        }
-        img
-    }
-
-    fn line_through(p: [f64; 2], q: [f64; 2]) -> [f64; 3] {
-        let (a, b) = (q[1] - p[1], p[0] - q[0]);
-        let n = (a * a + b * b).sqrt();
-        [a / n, b / n, -(a * p[0] + b * p[1]) / n]
-    }
-
-    #[test]
-    fn finds_both_edges_of_a_band_to_a_tenth_of_a_pixel() {
-        let (w, h) = (240, 200);
-        let l1 = line_through([100.3, 0.0], [120.7, 200.0]);
-        let l2 = line_through([130.6, 0.0], [147.2, 200.0]);
-        let img = band(w, h, l1, l2);
-        let r = detect(&img, w as u32, h as u32, &cam(w as u32, h as u32), &Default::default())
-            .unwrap();
-        for fl in &r.lines {
-            let truth = if dist(&l1, fl.seg[0], fl.seg[1]).abs() < 2.0 { l1 } else { l2 };
-            for e in [[fl.seg[0], fl.seg[1]], [fl.seg[2], fl.seg[3]]] {
-                assert!(dist(&truth, e[0], e[1]).abs() < 0.1, "{fl:?}");
-            }
-            assert!(fl.rms_px < 0.2 && fl.length_px > 150.0, "{fl:?}");
-        }
-        assert!(r.sigma_px() < 0.05);
-    }
-
-    #[test]
-    fn refuses_a_view_without_a_shaft_and_names_why() {
-        let (w, h) = (120, 100);
-        let flat = vec![128u8; w * h];
-        let e = detect(&flat, w as u32, h as u32, &cam(w as u32, h as u32), &Default::default())
-            .unwrap_err();
-        assert!(e.contains("edge points"), "{e}");
-        // One edge only (a half plane).
-        let l = line_through([60.0, 0.0], [70.0, 100.0]);
-        let img: Vec<u8> = (0..w * h)
-            .map(|i| if dist(&l, (i % w) as f64, (i / w) as f64) > 0.0 { 40 } else { 200 })
-            .collect();
-        let e = detect(&img, w as u32, h as u32, &cam(w as u32, h as u32), &Default::default())
-            .unwrap_err();
-        assert!(e.contains("only one long straight edge"), "{e}");
-        // Wrong size for the header.
-        let e = detect(&img, w as u32, h as u32, &cam(64, 64), &Default::default()).unwrap_err();
-        assert!(e.contains("header"), "{e}");
-    }
 }

@@ -167,9 +167,8 @@ impl RcmData {
                 (Some(s), _) => s,
                 (None, Some(img)) => {
                     let path = file.parent().unwrap_or(Path::new(".")).join(img);
-                    let im = robocal_drivers::camera::read_image_file(&path).map_err(|e| {
-                        RcmError::Data(format!("{f}:{line}: field \"image\": {e}"))
-                    })?;
+                    let im = robocal_drivers::camera::read_image_file(&path)
+                        .map_err(|e| RcmError::Data(format!("{f}:{line}: field \"image\": {e}")))?;
                     match lines::detect(
                         &im.data,
                         im.width,
