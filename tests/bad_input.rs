@@ -1125,3 +1125,87 @@ fn bad_input_pivot_records_of_two_tools_are_refused() {
     let o = run(&["calibrate", "pivot", "--data", s(&mixed), "--tool", "probe"]);
     assert_eq!(o.code, Some(0), "{}", o.text);
 }
+
+/// Robot-world records: flange poses `A` and marker poses `B = Y⁻¹ A X` (marker rigid on the
+/// flange), quaternions written `[w, x, y, z]` or, when `xyzw`, in the wrong order.
+fn robot_world_rows(xyzw: bool) -> Vec<Value> {
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+    let x = Isometry3::from_parts(
+        Translation3::new(25.0, -10.0, 110.0),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5),
+    );
+    let y = Isometry3::from_parts(
+        Translation3::new(1700.0, 80.0, 650.0),
+        UnitQuaternion::from_euler_angles(3.0, -1.3, 0.2),
+    );
+    let pose = |m: &Isometry3<f64>| {
+        let q = m.rotation.quaternion();
+        let quat = if xyzw {
+            [q.i, q.j, q.k, q.w]
+        } else {
+            [q.w, q.i, q.j, q.k]
+        };
+        let t = m.translation.vector;
+        (json!([t.x, t.y, t.z]), json!(quat))
+    };
+    let mut rows = vec![geo(0)[0].clone()];
+    for i in 0..24 {
+        let a = i as f64;
+        let fl = Isometry3::from_parts(
+            Translation3::new(
+                400.0 + 60.0 * (0.7 * a).sin(),
+                100.0 * (0.3 * a).cos(),
+                500.0,
+            ),
+            UnitQuaternion::from_scaled_axis(Vector3::new(
+                0.5 * (1.1 * a).sin(),
+                0.4 * (0.9 * a).cos(),
+                0.6 * (0.5 * a).sin(),
+            )),
+        );
+        let b = y.inverse() * fl * x;
+        let (fp, fq) = pose(&fl);
+        let (mp, mq) = pose(&b);
+        // The flange quaternion is always written right; only the marker's is wrong.
+        let fq = if xyzw {
+            let q = fl.rotation.quaternion();
+            json!([q.w, q.i, q.j, q.k])
+        } else {
+            fq
+        };
+        rows.push(json!({"kind": "pose", "id": i, "t": a,
+            "flange": {"p": fp, "quat": fq},
+            "marker": {"p": mp, "quat": mq, "rms": 0.05}}));
+    }
+    rows
+}
+
+#[test]
+fn bad_input_robot_world_wrong_quaternion_order_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let good = write(d.path(), "rw.jsonl", &robot_world_rows(false));
+    let out = d.path().join("rw.json");
+    let o = run(&[
+        "calibrate",
+        "robot-world",
+        "--data",
+        s(&good),
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    let bad = write(d.path(), "xyzw.jsonl", &robot_world_rows(true));
+    let out2 = d.path().join("rw2.json");
+    refused(
+        &[
+            "calibrate",
+            "robot-world",
+            "--data",
+            s(&bad),
+            "--out",
+            s(&out2),
+        ],
+        &["[x, y, z, w]", "nothing written"],
+    );
+    assert!(!out2.exists());
+}

@@ -38,6 +38,11 @@ pub struct Args {
     pub out: PathBuf,
 }
 
+/// Largest residual rotation RMS (deg) of a robot-world fit that is written.
+pub const MAX_RESIDUAL_DEG: f64 = 5.0;
+/// Largest residual position RMS (mm) of a robot-world fit that is written.
+pub const MAX_RESIDUAL_MM: f64 = 10.0;
+
 /// Run it.
 pub fn exec(a: Args) -> anyhow::Result<()> {
     let ds = crate::dataset::Dataset::load(&a.data)?;
@@ -84,6 +89,28 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             "  closed form {name:<5}: Y differs from refined by {:.3} mm, {:.4} deg",
             (y.translation.vector - r.y.translation.vector).norm(),
             y.rotation.angle_to(&r.y.rotation).to_degrees()
+        );
+    }
+    // A marker rigid on the flange leaves a fraction of a degree and of a millimetre: a fit
+    // that leaves degrees or centimetres explains nothing, whatever its covariance says
+    // (issue 26 §3). Refused before anything is written, with the likely cause.
+    if !(r.rms_rot_deg.is_finite() && r.rms_rot_deg <= MAX_RESIDUAL_DEG) {
+        bail!(
+            "{}: the fit leaves {:.2}° RMS between the marker orientations and the flange's \
+             (a rigid marker leaves < {MAX_RESIDUAL_DEG}°): likely quaternions in [x, y, z, w] \
+             order (robocal reads [w, x, y, z]), orientations of another body, or a marker that \
+             moved on the flange; nothing written",
+            a.data.display(),
+            r.rms_rot_deg
+        );
+    }
+    if !(r.rms_pos_mm.is_finite() && r.rms_pos_mm <= MAX_RESIDUAL_MM) {
+        bail!(
+            "{}: the fit leaves {:.2} mm RMS (a rigid marker leaves < {MAX_RESIDUAL_MM} mm): \
+             likely positions in metres or mixed units, or a marker that moved on the flange; \
+             nothing written",
+            a.data.display(),
+            r.rms_pos_mm
         );
     }
     let mut fail = false;

@@ -155,6 +155,17 @@ impl RcmData {
                 inst.shaft_radius_mm
             )));
         }
+        // Plausibility (issue 26 §3): a radius in metres fits just as well at another scale.
+        if !(MIN_SHAFT_RADIUS_MM..=MAX_SHAFT_RADIUS_MM).contains(&inst.shaft_radius_mm) {
+            return Err(RcmError::Data(format!(
+                "{f}:1: header field \"instrument.shaft_radius_mm\": {} mm is not an instrument \
+                 shaft radius ({MIN_SHAFT_RADIUS_MM} to {MAX_SHAFT_RADIUS_MM} mm): likely metres \
+                 (give millimetres) or the diameter of another part",
+                inst.shaft_radius_mm
+            )));
+        }
+        // Pixel coordinates far outside any image (1e308) are corrupt values, not silhouettes.
+        let px_max = MAX_PIXEL_FACTOR * (camera.width.max(camera.height) as f64).max(1.0);
         let mut obs = Vec::new();
         let (mut detected, mut refused) = (Vec::new(), Vec::new());
         for (idx, rec) in ds.records.iter().enumerate() {
@@ -193,6 +204,13 @@ impl RcmData {
                 }
                 (None, None) => continue,
             };
+            if let Some(x) = segs.iter().flatten().find(|x| x.abs() > px_max) {
+                return Err(RcmError::Data(format!(
+                    "{f}:{line}: field \"shaft_lines\": pixel coordinate {x:e} is far outside \
+                     the {}×{} image: a corrupt value",
+                    camera.width, camera.height
+                )));
+            }
             let fl = p.flange.as_ref().ok_or_else(|| {
                 RcmError::Data(format!(
                     "{f}:{line}: field \"flange\": missing (pose {} has shaft_lines but no instrument pose)",
@@ -214,12 +232,42 @@ impl RcmData {
                 segs,
             });
         }
+        // Flange positions in metres: the instrument frames would span millimetres at most.
+        if obs.len() >= 3 {
+            let c = obs
+                .iter()
+                .map(|o| o.flange.translation.vector)
+                .sum::<Vector3<f64>>()
+                / obs.len() as f64;
+            let spread = obs
+                .iter()
+                .map(|o| (o.flange.translation.vector - c).norm())
+                .fold(0.0, f64::max);
+            let far = obs
+                .iter()
+                .map(|o| o.flange.translation.vector.norm())
+                .fold(0.0, f64::max);
+            if spread < 1.0 && far < 5.0 {
+                return Err(RcmError::Data(format!(
+                    "{f}: field \"flange.p\": the instrument positions lie within {spread:.4} mm \
+                     of each other and {far:.4} mm of the robot base: likely metres (robocal \
+                     reads millimetres)"
+                )));
+            }
+        }
         let mut data = RcmData::new(camera, inst.shaft_radius_mm, obs);
         data.detected = detected;
         data.refused = refused;
         Ok(data)
     }
 }
+
+/// Plausible instrument shaft radius (mm): a 0.2 mm radius is thinner than any endoscopic
+/// instrument, 50 mm thicker.
+pub const MIN_SHAFT_RADIUS_MM: f64 = 0.2;
+pub const MAX_SHAFT_RADIUS_MM: f64 = 50.0;
+/// Largest plausible |pixel coordinate| of a silhouette, in image sizes.
+pub const MAX_PIXEL_FACTOR: f64 = 100.0;
 
 /// Tolerance (mm) on the RMS distance of the robot's instrument axes from their common point.
 pub const AXES_MEET_TOL_MM: f64 = 2.0;
