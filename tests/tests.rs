@@ -17,6 +17,7 @@ mod model;
 mod navchain;
 mod plan;
 mod rcm;
+mod realcam_io;
 mod report;
 mod run_integrity;
 mod session;
