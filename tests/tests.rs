@@ -23,6 +23,7 @@ mod plan;
 mod real_handeye;
 mod rcm;
 mod rcm_images;
+mod realcam_io;
 mod report;
 mod run_integrity;
 mod session;

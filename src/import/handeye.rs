@@ -539,11 +539,14 @@ pub fn board_in_camera(
                 && f > 0.1 * f64::from(width)
                 && f < 20.0 * f64::from(width)
                 && (k[(0, 0)] / k[(1, 1)] - 1.0).abs() < 0.2
+                && (k[(0, 2)] - cx).abs() < 0.3 * f64::from(width)
+                && (k[(1, 2)] - cy).abs() < 0.3 * f64::from(height)
         })
         .or_else(|| zhang::focal_centered(&all, cx, cy));
     let Some(k) = k else {
         return vec![None; corners.len()];
     };
+
     hs.iter()
         .map(|h| zhang::pose_from_h(&k, h.as_ref()?))
         .collect()

@@ -244,6 +244,7 @@ pub fn report_json(
         "format": "robocal-camera-report/1",
         "views": train.data.views.len(),
         "views_without_board": unusable_json(train),
+        "detection_notes": train.notes.iter().map(|(id, n)| json!({"id": id, "note": n})).collect::<Vec<_>>(),
         "target_kind": train.target.kind,
         // Views where only part of the board was seen (ChArUco: cut by the image border or
         // occluded; every corner still carries its board id).

@@ -42,6 +42,8 @@ pub struct Loaded {
     pub target: TargetHeader,
     /// Views without a usable board: `(id, reason)`.
     pub no_board: Vec<(u64, String)>,
+    /// What detection noticed in usable views (markers inside a chessboard's squares…).
+    pub notes: Vec<(u64, String)>,
     pub dataset: Dataset,
 }
 
@@ -104,16 +106,23 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
         b
     });
     let mut size: Option<(u32, u32)> = cam.as_ref().map(|c| (c.width, c.height));
-    let detected: Vec<Result<(Vec<Option<[f64; 2]>>, Option<(u32, u32)>), String>> = recs
+    let noted: Vec<(Result<Corners, String>, Option<String>)> = recs
         .par_iter()
         .map(|r| {
-            let out = corners_of(r, &base, &detector);
+            let mut note = None;
+            let out = corners_of(r, &base, &detector, size, &mut note);
             if let Some(b) = &bar {
                 b.inc(1);
             }
-            out
+            (out, note)
         })
         .collect();
+    let notes: Vec<(u64, String)> = recs
+        .iter()
+        .zip(&noted)
+        .filter_map(|(r, (_, n))| Some((r.id, n.clone()?)))
+        .collect();
+    let detected: Vec<Result<Corners, String>> = noted.into_iter().map(|(d, _)| d).collect();
     if let Some(b) = bar {
         b.finish_and_clear();
     }
@@ -185,6 +194,7 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
         camera,
         target,
         no_board,
+        notes,
         dataset: ds,
     })
 }
@@ -206,10 +216,18 @@ fn common_size(sizes: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
 
 /// The console lines naming every image (or record) that gives no view, and why.
 pub fn unusable_lines(l: &Loaded, label: &str) -> Vec<String> {
-    l.no_board
+    let mut v: Vec<String> = l
+        .no_board
         .iter()
         .map(|(id, why)| format!("{label} pose {id}: not used: {why}"))
-        .collect()
+        .collect();
+    if let Some((id, n)) = l.notes.first() {
+        v.push(format!(
+            "{label} pose {id} (and {} more views): {n}",
+            l.notes.len() - 1
+        ));
+    }
+    v
 }
 
 /// What is detected in each image: the header's `target` block, checked.
@@ -302,19 +320,38 @@ pub fn target_of(t: &TargetHeader) -> Result<Target, String> {
     }
 }
 
+/// `expect`: the header's image size (an image of another size is refused before detection).
 fn corners_of(
     r: &crate::dataset::PoseRecord,
     base: &Path,
     target: &Target,
+    expect: Option<(u32, u32)>,
+    note: &mut Option<String>,
 ) -> Result<Corners, String> {
     let board = target.board();
     let n = board.cols * board.rows;
     if let Some(img) = &r.image {
         let p: PathBuf = base.join(img);
-        let im = robocal_drivers::camera::read_image_file(&p).map_err(|e| format!("image {e}"))?;
+        let im = robocal_drivers::camera::read_image_file(&p).map_err(|e| e.to_string())?;
+        if let Some((w, h)) = expect.filter(|s| *s != (im.width, im.height)) {
+            return Err(format!(
+                "image {img}: wrong size {}×{} (the header's camera is {w}×{h}): another camera or a resized copy",
+                im.width, im.height
+            ));
+        }
         let c = target
             .detect(&im.data, im.width, im.height)
             .map_err(|e| format!("image {img}: {e}"))?;
+        if let Target::Chessboard(b) = target {
+            let pts: Vec<[f64; 2]> = c.iter().flatten().copied().collect();
+            let share = super::detect::markers_in_squares(&im.data, im.width, im.height, &pts, b);
+            if share >= super::detect::MARKER_SQUARES_SHARE {
+                *note = Some(format!(
+                    "image {img}: markers printed inside {:.0} % of the light squares: this looks like a ChArUco board declared as a chessboard (declare target kind \"charuco\" with marker_mm and dictionary; the corners were refined in the squares' clean rim only)",
+                    100.0 * share
+                ));
+            }
+        }
         return Ok((c, Some((im.width, im.height))));
     }
     match &r.corners {

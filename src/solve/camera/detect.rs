@@ -102,10 +102,102 @@ pub fn detect_chessboard(
         board,
     )?;
     if refine_enabled() {
-        let radius = super::subpix::grid_radius(&out, board.cols, board.rows);
+        let mut radius = super::subpix::grid_radius(&out, board.cols, board.rows);
+        if markers_in_squares(data, width, height, &out, board) >= MARKER_SQUARES_SHARE {
+            // Printed markers inside the light squares (a ChArUco board declared as a
+            // chessboard): keep the window inside the squares' clean rim.
+            for r in &mut radius {
+                *r *= MARKER_WINDOW / WINDOW;
+            }
+        }
         super::subpix::refine(data, width, height, &mut out, &radius);
     }
     Ok(out)
+}
+
+/// Sub-pixel window radius as a fraction of the corner spacing on a plain chessboard
+/// ([`super::subpix::grid_radius`]).
+pub const WINDOW: f64 = 0.4;
+/// The window's fraction of the corner spacing when the light squares carry markers: a
+/// ChArUco marker of up to 0.8 × the square leaves a clean rim of (1 − 0.8) / 2 × the square
+/// along each edge, which a disc of 0.12 × the spacing about the corner never leaves
+/// (√2 · 0.12 < 0.2).
+pub const MARKER_WINDOW: f64 = 0.12;
+/// Share of the light squares with dark printing in their centre from which a board declared
+/// as a chessboard is taken to carry markers.
+pub const MARKER_SQUARES_SHARE: f64 = 0.5;
+
+/// The share of the board's interior light squares whose central half is more than 15 % dark
+/// (markers printed inside the squares: a ChArUco board), from the labelled `corners` (board
+/// order). A plain chessboard gives ≈ 0, a ChArUco board ≈ 1.
+pub fn markers_in_squares(
+    data: &[u8],
+    width: u32,
+    height: u32,
+    corners: &[[f64; 2]],
+    board: &BoardSpec,
+) -> f64 {
+    let (c, r) = (board.cols, board.rows);
+    if corners.len() != c * r || c < 2 || r < 2 || data.len() != width as usize * height as usize {
+        return 0.0;
+    }
+    let grey = |p: [f64; 2]| -> Option<f64> {
+        let (i, j) = (p[0].round() as i64, p[1].round() as i64);
+        (i >= 0 && j >= 0 && (i as u32) < width && (j as u32) < height)
+            .then(|| f64::from(data[j as usize * width as usize + i as usize]))
+    };
+    // Square (i, j) spans corners (i, j)…(i+1, j+1); point (a, b) ∈ [0, 1]² bilinear.
+    let at = |i: usize, j: usize, a: f64, b: f64| -> [f64; 2] {
+        let p = |ii: usize, jj: usize| corners[jj * c + ii];
+        let (p00, p10, p01, p11) = (p(i, j), p(i + 1, j), p(i, j + 1), p(i + 1, j + 1));
+        [0, 1].map(|d| {
+            (1.0 - a) * (1.0 - b) * p00[d]
+                + a * (1.0 - b) * p10[d]
+                + (1.0 - a) * b * p01[d]
+                + a * b * p11[d]
+        })
+    };
+    // Rim level (near the four corners, inside the square) and centre samples of each square.
+    let mut squares: Vec<(usize, f64, Vec<f64>)> = vec![];
+    for j in 0..r - 1 {
+        for i in 0..c - 1 {
+            let rim: Vec<f64> = [(0.1, 0.1), (0.9, 0.1), (0.1, 0.9), (0.9, 0.9)]
+                .iter()
+                .filter_map(|&(a, b)| grey(at(i, j, a, b)))
+                .collect();
+            let centre: Vec<f64> = (0..6)
+                .flat_map(|y| (0..6).map(move |x| (0.25 + 0.1 * x as f64, 0.25 + 0.1 * y as f64)))
+                .filter_map(|(a, b)| grey(at(i, j, a, b)))
+                .collect();
+            if rim.len() == 4 && centre.len() == 36 {
+                squares.push(((i + j) % 2, rim.iter().sum::<f64>() / 4.0, centre));
+            }
+        }
+    }
+    let level = |parity: usize| {
+        let v: Vec<f64> = squares
+            .iter()
+            .filter(|s| s.0 == parity)
+            .map(|s| s.1)
+            .collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    let (l0, l1) = (level(0), level(1));
+    let (light, lo, hi) = if l0 > l1 { (0, l1, l0) } else { (1, l0, l1) };
+    if hi - lo < 20.0 {
+        return 0.0;
+    }
+    let mid = 0.5 * (lo + hi);
+    let light_squares: Vec<&(usize, f64, Vec<f64>)> =
+        squares.iter().filter(|s| s.0 == light).collect();
+    if light_squares.is_empty() {
+        return 0.0;
+    }
+    let marked = light_squares
+        .iter()
+        .filter(|s| s.2.iter().filter(|&&g| g < mid).count() as f64 > 0.15 * s.2.len() as f64)
+        .count();
+    marked as f64 / light_squares.len() as f64
 }
 
 /// Whether [`detect_chessboard`] refines the detector's corners on the image
@@ -191,4 +283,100 @@ pub fn label(
         }
     }
     best.map(|(_, o)| o).ok_or(DetectError::Orientation)
+}
+
+#[cfg(test)]
+mod marker_tests {
+    use super::*;
+
+    /// An axis-aligned board of `cols × rows` inner corners, squares of `s` px from `(x0, y0)`,
+    /// supersampled 4×4 per pixel; `marker` (largest fraction of the square) prints a
+    /// black-bordered marker with a white centre in every light square.
+    fn render(
+        cols: usize,
+        rows: usize,
+        s: f64,
+        x0: f64,
+        y0: f64,
+        marker: Option<f64>,
+    ) -> (Vec<u8>, u32, u32) {
+        let (w, h) = (
+            (x0 * 2.0 + s * (cols + 1) as f64) as u32,
+            (y0 * 2.0 + s * (rows + 1) as f64) as u32,
+        );
+        let value = |x: f64, y: f64| -> f64 {
+            let (bx, by) = ((x - x0) / s, (y - y0) / s);
+            if bx < 0.0 || by < 0.0 || bx >= (cols + 1) as f64 || by >= (rows + 1) as f64 {
+                return 200.0;
+            }
+            let (a, b) = (bx.floor() as usize, by.floor() as usize);
+            if (a + b) % 2 == 0 {
+                return 30.0;
+            }
+            if let Some(m) = marker {
+                // Markers differ from square to square (as ChArUco's do), so their edges do not
+                // cancel about a corner.
+                let m = m - 0.1 * ((a * 2 + b) % 3) as f64;
+                let (fx, fy) = (bx.fract() - 0.5, by.fract() - 0.5);
+                let half = m / 2.0;
+                if fx.abs() < half && fy.abs() < half {
+                    // Black border one sixth of the marker, a white cell in the middle.
+                    let inner = half * 4.0 / 6.0;
+                    let cell = fx.abs() < inner / 2.0 && fy.abs() < inner / 2.0;
+                    return if cell { 220.0 } else { 30.0 };
+                }
+            }
+            220.0
+        };
+        let mut data = vec![0u8; (w * h) as usize];
+        for j in 0..h {
+            for i in 0..w {
+                let mut acc = 0.0;
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        acc += value(
+                            i as f64 - 0.5 + (sx as f64 + 0.5) / 4.0,
+                            j as f64 - 0.5 + (sy as f64 + 0.5) / 4.0,
+                        );
+                    }
+                }
+                data[(j * w + i) as usize] = (acc / 16.0).round() as u8;
+            }
+        }
+        (data, w, h)
+    }
+
+    #[test]
+    fn markers_inside_squares_are_seen_and_the_window_stays_in_the_clean_rim() {
+        let board = BoardSpec {
+            cols: 7,
+            rows: 6,
+            square_mm: 20.0,
+        };
+        let (s, x0, y0) = (32.0, 24.3, 19.7);
+        let truth: Vec<[f64; 2]> = (0..board.rows)
+            .flat_map(|j| (0..board.cols).map(move |i| (i, j)))
+            .map(|(i, j)| [x0 + s * (i + 1) as f64, y0 + s * (j + 1) as f64])
+            .collect();
+        for (marker, want_markers) in [(None, false), (Some(0.8), true)] {
+            let (data, w, h) = render(board.cols, board.rows, s, x0, y0, marker);
+            let got = detect_chessboard(&data, w, h, &board).expect("board found");
+            let share = markers_in_squares(&data, w, h, &got, &board);
+            assert_eq!(
+                share >= MARKER_SQUARES_SHARE,
+                want_markers,
+                "{marker:?}: share {share}"
+            );
+            // Board order may be the mirror image of `truth`: compare as sets.
+            let worst = truth
+                .iter()
+                .map(|t| {
+                    got.iter()
+                        .map(|g| ((g[0] - t[0]).powi(2) + (g[1] - t[1]).powi(2)).sqrt())
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .fold(0.0f64, f64::max);
+            assert!(worst < 0.1, "{marker:?}: worst corner error {worst:.3} px");
+        }
+    }
 }
