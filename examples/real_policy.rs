@@ -32,7 +32,10 @@ const TARGET_GAIN: f64 = 0.40;
 
 fn load(series: &Path) -> anyhow::Result<(KinematicModel, Vec<PoseObs>, Vec<PoseObs>)> {
     let (main, extra) = if series.is_dir() {
-        (series.join("train.jsonl"), Some(series.join("heldout.jsonl")))
+        (
+            series.join("train.jsonl"),
+            Some(series.join("heldout.jsonl")),
+        )
     } else {
         (series.to_path_buf(), None)
     };
@@ -93,7 +96,9 @@ fn main() -> anyhow::Result<()> {
                     "default" => Options::default(),
                     "physics-first" => Options::physics_first(),
                     "kernel-benchmark" => Options::kernel_benchmark(),
-                    p => anyhow::bail!("unknown policy {p:?} (default, physics-first, kernel-benchmark)"),
+                    p => anyhow::bail!(
+                        "unknown policy {p:?} (default, physics-first, kernel-benchmark)"
+                    ),
                 };
                 i += 1;
             }
@@ -105,7 +110,9 @@ fn main() -> anyhow::Result<()> {
                 i += 1;
             }
             "--no-time-blocked" => time_blocked = false,
-            a if a.starts_with("--") => anyhow::bail!("unknown argument {a:?} (see the file's header)"),
+            a if a.starts_with("--") => {
+                anyhow::bail!("unknown argument {a:?} (see the file's header)")
+            }
             a => series.push(PathBuf::from(a)),
         }
         i += 1;
@@ -117,7 +124,10 @@ fn main() -> anyhow::Result<()> {
                 Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real-ur10-ipa-grid")
             });
         if !p.join("train.jsonl").is_file() {
-            println!("SKIPPED: real data absent ({}): nothing measured", p.display());
+            println!(
+                "SKIPPED: real data absent ({}): nothing measured",
+                p.display()
+            );
             return Ok(());
         }
         series.push(p);
@@ -143,8 +153,16 @@ fn main() -> anyhow::Result<()> {
             let mut ts: Vec<f64> = train.iter().map(|o| o.ctx.t).collect();
             ts.sort_by(f64::total_cmp);
             let t_split = ts[ts.len() * 3 / 4];
-            let early = train.iter().filter(|o| o.ctx.t < t_split).cloned().collect();
-            let late = held.iter().filter(|o| o.ctx.t >= t_split).cloned().collect();
+            let early = train
+                .iter()
+                .filter(|o| o.ctx.t < t_split)
+                .cloned()
+                .collect();
+            let late = held
+                .iter()
+                .filter(|o| o.ctx.t >= t_split)
+                .cloned()
+                .collect();
             splits.push(("time-blocked", early, late));
         }
         for (split, tr, he) in splits {
@@ -155,7 +173,15 @@ fn main() -> anyhow::Result<()> {
             let fin = rms(&d.state, &he);
             let label = format!("{split} {}/{}", tr.len(), he.len());
             n += 1;
-            n_ok += row(&name, &label, geo, fin, rms(&d.state, &tr), secs, &chain(&d)) as usize;
+            n_ok += row(
+                &name,
+                &label,
+                geo,
+                fin,
+                rms(&d.state, &tr),
+                secs,
+                &chain(&d),
+            ) as usize;
             if split == "interleaved" {
                 match &first {
                     None => first = Some(d.state.clone()),
@@ -165,7 +191,15 @@ fn main() -> anyhow::Result<()> {
                         let t = rms(&carried, &train);
                         let h = rms(&carried, &held);
                         n += 1;
-                        n_ok += row(&name, "cross-series", geo, h, t, 0.0, "first series' model, setup re-registered") as usize;
+                        n_ok += row(
+                            &name,
+                            "cross-series",
+                            geo,
+                            h,
+                            t,
+                            0.0,
+                            "first series' model, setup re-registered",
+                        ) as usize;
                     }
                 }
             }

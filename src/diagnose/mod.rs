@@ -764,8 +764,11 @@ fn select_chain(
     cands: Vec<Vec<Block>>,
     np_hp: Option<(f64, f64)>,
     opt: &Options,
+    round0: Option<&[Score]>,
 ) -> Chain {
     let mut state = start.clone();
+    // The scores of the first round when already computed (on `start` with `cands`).
+    let mut round0 = round0.map(<[Score]>::to_vec);
     let mut remaining = cands;
     let mut steps = Vec::new();
     let mut rounds = Vec::new();
@@ -775,8 +778,9 @@ fn select_chain(
     for _ in 0..opt.max_effects {
         let t_round = std::time::Instant::now();
         // The candidate scores and the kernel benchmark are independent: both at once.
+        let first = round0.take();
         let (mut scores, npg) = rayon::join(
-            || score_round(&state, train, &remaining, opt),
+            || first.unwrap_or_else(|| score_round(&state, train, &remaining, opt)),
             || {
                 if use_np {
                     np_gain(&state, train, np_hp, opt)
@@ -885,7 +889,15 @@ fn select_chain(
 
 /// Add the nonparametric correction of what `chain` leaves, only if it predicts held-out
 /// (time-blocked) folds clearly better than zero.
-fn add_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs], opt: &Options) {
+/// `geometric_cv` is the kernel cross-validation of the geometric residual when it was
+/// already run (the kernel benchmark): reused when the chain added no effect.
+fn add_correction(
+    chain: &mut Chain,
+    train: &[PoseObs],
+    heldout: &[PoseObs],
+    opt: &Options,
+    geometric_cv: Option<&nonparam::RbfCv>,
+) {
     if !opt.allow_nonparametric || train.len() < 40 {
         return;
     }
@@ -893,7 +905,11 @@ fn add_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs], opt
     let r = residuals(state, train);
     let (qs, rv) = np_data(state, train);
     let fo = folds(train, opt.n_folds);
-    let Some(cv) = nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds) else {
+    let cv = match geometric_cv {
+        Some(c) if chain.steps.is_empty() => Some(c.clone()),
+        _ => nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds),
+    };
+    let Some(cv) = cv else {
         return;
     };
     if cv.cv_rms_after >= (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
@@ -989,19 +1005,36 @@ pub fn diagnose(
     let (cands, untestable) = candidates_with(&state.model, train, opt);
     // Hyper-parameters of the kernel benchmark, chosen once on the geometric residual (only
     // the kernel-benchmark rule uses them).
-    let np_hp = if train.len() >= 40 && opt.min_np_ratio > 0.0 {
+    let np_cv = if train.len() >= 40 && opt.min_np_ratio > 0.0 {
         let (qs, rv) = np_data(&state, train);
         nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
-            .map(|c| (c.length_scale, c.lambda))
     } else {
         None
     };
+    let np_hp = np_cv.as_ref().map(|c| (c.length_scale, c.lambda));
+    // Both chains of [`Policy::Best`] start with the same round: score it once.
+    let round0 = (opt.policy == Policy::Best && opt.max_effects > 0)
+        .then(|| score_round(&geometric, train, &cands, opt));
     let single = |o: &Options| {
-        let mut c = select_chain(&geometric, train, heldout, cands.clone(), np_hp, o);
-        add_correction(&mut c, train, heldout, o);
+        let mut c = select_chain(
+            &geometric,
+            train,
+            heldout,
+            cands.clone(),
+            np_hp,
+            o,
+            round0.as_deref(),
+        );
+        add_correction(&mut c, train, heldout, o, np_cv.as_ref());
         c
     };
-    let (chain, policy_choice) = match opt.policy {
+    // No effect asked for (a geometric fit only): nothing to choose between.
+    let policy = if opt.max_effects == 0 {
+        Policy::Single
+    } else {
+        opt.policy
+    };
+    let (chain, policy_choice) = match policy {
         Policy::Single => (single(opt), None),
         Policy::Best => {
             let pf = Options {

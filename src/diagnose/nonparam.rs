@@ -26,11 +26,26 @@ fn kern(a: &[f64], b: &[f64], ell: f64) -> f64 {
     (-d2 / (2.0 * ell * ell)).exp()
 }
 
-/// Kernel matrix `K[a, b] = k(q[rows[a]], q[cols[b]])` (dense, faer).
+/// Kernel matrix `K[a, b] = k(q[rows[a]], q[cols[b]])` (dense, faer). A square kernel of
+/// one index set (`rows == cols`) evaluates each pair once (half the `exp` calls).
 fn kernel(q: &[Vec<f64>], rows: &[usize], cols: &[usize], ell: f64) -> Mat<f64> {
-    Mat::from_fn(rows.len(), cols.len(), |a, b| {
-        kern(&q[rows[a]], &q[cols[b]], ell)
-    })
+    if rows != cols {
+        return Mat::from_fn(rows.len(), cols.len(), |a, b| {
+            kern(&q[rows[a]], &q[cols[b]], ell)
+        });
+    }
+    let n = rows.len();
+    let mut k = Mat::<f64>::zeros(n, n);
+    for b in 0..n {
+        let qb = &q[cols[b]];
+        k[(b, b)] = 1.0;
+        for a in b + 1..n {
+            let v = kern(&q[rows[a]], qb, ell);
+            k[(a, b)] = v;
+            k[(b, a)] = v;
+        }
+    }
+    k
 }
 
 /// Residual targets of the samples `idx` as an `n × 3` matrix.
