@@ -63,8 +63,8 @@ fn fast_bootstrap_matches_exact_refits() {
     }
     println!(
         "fast vs exact bootstrap (300 × 200 of 500): mean within {:.2e} σ, σ within {:.2e}, \
-         every fit within {:.2e} σ; {} LM fallbacks, audit {:.2e} σ; {:.3} s vs {:.3} s",
-        worst_mean, worst_std, worst_fit, fast.n_fallback, audit, fast.elapsed_s, exact.elapsed_s
+         every fit within {:.2e} σ; {} LM fallbacks, {} FK passes, audit {:.2e} σ; {:.3} s vs {:.3} s",
+        worst_mean, worst_std, worst_fit, fast.n_fallback, fast.n_chord_passes, audit, fast.elapsed_s, exact.elapsed_s
     );
     assert!(worst_mean <= 0.01, "mean off by {worst_mean} σ");
     assert!(worst_std <= 0.05, "σ off by {worst_std}");

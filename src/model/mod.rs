@@ -28,6 +28,7 @@ use crate::dataset::{CalParam, ChainJoint, FixedOrigin, RobotBlock};
 pub mod chain;
 pub mod error;
 pub mod ik;
+pub mod point_fk;
 pub mod presets;
 
 pub use chain::{origin_iso, ChainSpecJoint, SerialChain};

@@ -44,6 +44,7 @@ use super::lm::{self, LmOptions, LsqProblem};
 use super::obs::PoseObs;
 use super::stats::Summary;
 use super::SolveError;
+use crate::model::point_fk::{joint_trig, JointTrig};
 use crate::model::KinematicModel;
 
 /// Subset size.
@@ -165,6 +166,8 @@ pub struct BootstrapResult {
     pub n_fallback: usize,
     /// Fast path: largest exact-gradient step (in the subset's 1σ) over the audited fits.
     pub audit_max_sigma: Option<f64>,
+    /// Fast path: forward-kinematics passes (chord corrections) over the accepted subsets.
+    pub n_chord_passes: usize,
 }
 
 /// Random subset of `m` distinct indices out of `n` (partial Fisher–Yates).
@@ -236,27 +239,30 @@ pub fn bootstrap_obs(
     let mut method = opts.method;
     let mut n_fallback = 0;
     let mut audit_max_sigma = None;
+    let mut n_chord_passes = 0;
     let mut results: Option<Vec<Option<Vec<f64>>>> = None;
     if method == BootstrapMethod::Fast {
         let mut full_p = KinProblem::new(model.clone(), train, effects);
         full_p.orientation = orientation;
         match NormalBlocks::at(&full_p, x_full) {
             Some(blocks) => {
-                let fits: Vec<(Option<Vec<f64>>, bool, Option<f64>)> = (0..opts.k)
+                type Fit = (Option<Vec<f64>>, bool, Option<f64>, usize);
+                let fits: Vec<Fit> = (0..opts.k)
                     .into_par_iter()
                     .map(|k| {
                         let idx = subset_of(k);
                         match blocks.fit(&full_p, x_full, &idx) {
-                            Some((x, a)) => {
+                            Some((x, a, passes)) => {
                                 let audit = (k % AUDIT_EVERY == 0)
                                     .then(|| blocks.exact_step_sigma(&full_p, &x, &idx, &a));
-                                (Some(x.as_slice().to_vec()), false, audit)
+                                (Some(x.as_slice().to_vec()), false, audit, passes)
                             }
-                            None => (exact(&idx), true, None),
+                            None => (exact(&idx), true, None, 0),
                         }
                     })
                     .collect();
                 n_fallback = fits.iter().filter(|f| f.1).count();
+                n_chord_passes = fits.iter().map(|f| f.3).sum();
                 let worst = fits.iter().filter_map(|f| f.2).fold(0.0, |a: f64, b| {
                     if b.is_nan() {
                         f64::INFINITY
@@ -329,6 +335,7 @@ pub fn bootstrap_obs(
         method,
         n_fallback,
         audit_max_sigma,
+        n_chord_passes,
     })
 }
 
@@ -344,6 +351,9 @@ struct NormalBlocks {
     jac: Vec<f64>,
     /// Residual standard deviation of the full fit (per residual row).
     sigma: f64,
+    /// Per pose: the sines and cosines of its joints, when the residual is the plain marker
+    /// point (no effects, no orientation rows): the check then uses [`PointFk`].
+    trig: Option<Vec<JointTrig>>,
 }
 
 impl NormalBlocks {
@@ -387,6 +397,9 @@ impl NormalBlocks {
                 atr[i * nx + c] = rows.clone().map(|row| j[(row, c)] * r[row]).sum();
             }
         }
+        let plain = p.effects.is_empty() && p.orientation.is_none() && p.weights.is_none();
+        let dof = p.model.dof();
+        let trig = plain.then(|| p.obs.iter().map(|o| joint_trig(&o.q, dof)).collect());
         Some(NormalBlocks {
             nx,
             rpo,
@@ -394,6 +407,7 @@ impl NormalBlocks {
             atr,
             jac,
             sigma,
+            trig,
         })
     }
 
@@ -412,13 +426,14 @@ impl NormalBlocks {
         g
     }
 
-    /// The fast fit of subset `idx`: `(x, A_S)`, or `None` when it must fall back to LM.
+    /// The fast fit of subset `idx`: `(x, A_S, chord passes)`, or `None` when it must fall
+    /// back to LM.
     fn fit(
         &self,
         p: &KinProblem,
         x_full: &DVector<f64>,
         idx: &[usize],
-    ) -> Option<(DVector<f64>, DMatrix<f64>)> {
+    ) -> Option<(DVector<f64>, DMatrix<f64>, usize)> {
         let (nx, pl) = (self.nx, Self::packed_len(self.nx));
         let mut acc = vec![0.0; pl];
         let mut b = DVector::zeros(nx);
@@ -441,8 +456,19 @@ impl NormalBlocks {
         }
         let ch = a.clone().cholesky()?;
         let mut x = x_full - ch.solve(&b);
-        for _ in 0..MAX_CHORD {
-            let r = p.residuals_sel(&x, idx);
+        for pass in 1..=MAX_CHORD {
+            let r = match &self.trig {
+                Some(trig) => {
+                    let fk = p.model_at(&x).point_fk();
+                    let mut r = DVector::zeros(3 * idx.len());
+                    for (k, &i) in idx.iter().enumerate() {
+                        let e = fk.point(&trig[i]) - p.obs[i].p;
+                        r.fixed_rows_mut::<3>(3 * k).copy_from(&e);
+                    }
+                    r
+                }
+                None => p.residuals_sel(&x, idx),
+            };
             if !r.iter().all(|v| v.is_finite()) {
                 return None;
             }
@@ -454,7 +480,7 @@ impl NormalBlocks {
                 return None;
             }
             if step_sigma <= EXACT_TOL_SIGMA {
-                return Some((x, a));
+                return Some((x, a, pass));
             }
         }
         None
