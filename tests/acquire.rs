@@ -703,7 +703,10 @@ marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }
         assert!(String::from_utf8_lossy(&o.stderr).contains("nothing moves without --live"));
         assert!(!out.exists());
         // Usage errors.
-        assert_eq!(robocal(&["run"]).status.code(), Some(robocal::cli::EXIT_USAGE));
+        assert_eq!(
+            robocal(&["run"]).status.code(),
+            Some(robocal::cli::EXIT_USAGE)
+        );
         assert_eq!(
             robocal(&["run", "--plan", s(&plan), "--live", "--out", s(&out)])
                 .status

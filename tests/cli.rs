@@ -137,7 +137,10 @@ fn inspect_exit_codes() {
     let o = robocal(&["inspect", p(&dir.path().join("missing.jsonl"))]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("missing.jsonl"), "{}", stderr(&o));
-    assert_eq!(robocal(&["inspect"]).status.code(), Some(robocal::cli::EXIT_USAGE));
+    assert_eq!(
+        robocal(&["inspect"]).status.code(),
+        Some(robocal::cli::EXIT_USAGE)
+    );
     assert_eq!(
         robocal(&["inspect", "--bogus", p(&f)]).status.code(),
         Some(robocal::cli::EXIT_USAGE)
@@ -259,7 +262,10 @@ fn predict_errors_and_usage() {
     let held = data("kin-geometric/heldout.jsonl");
 
     // Usage errors: exit 2.
-    assert_eq!(robocal(&["predict"]).status.code(), Some(robocal::cli::EXIT_USAGE));
+    assert_eq!(
+        robocal(&["predict"]).status.code(),
+        Some(robocal::cli::EXIT_USAGE)
+    );
     assert_eq!(
         robocal(&["predict", "--calibration", p(&cal_path)])
             .status

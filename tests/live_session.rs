@@ -90,7 +90,7 @@ fn live_session_consent_after_plan_interrupt_and_resume() {
         "--poses",
         "20",
         "--heldout-points",
-        "20",
+        "40",
         "--frames",
         "3",
         "--speed-deg-s",
@@ -158,7 +158,10 @@ fn live_session_consent_after_plan_interrupt_and_resume() {
             t.elapsed() < Duration::from_secs(120),
             "no poses recorded in 120 s"
         );
-        assert!(child.try_wait().unwrap().is_none(), "the session ended early");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the session ended early"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     let ok = Command::new("kill")
@@ -236,14 +239,25 @@ fn live_session_consent_after_plan_interrupt_and_resume() {
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(html.contains("alone, on the held-out poses: RMS"));
     // The history lists the robot, and suggests it for a near miss.
-    let serial = s.cell.robot_serial.clone().expect("the arm's serial");
     let (code, stdout, _) = run(&["history", "--db", p(&db)]);
     assert_eq!(code, Some(0));
-    assert!(stdout.contains(&serial), "{stdout}");
+    assert!(
+        stdout.contains("denso-vs060") && stdout.contains("1 session(s)"),
+        "{stdout}"
+    );
+    let serial = stdout
+        .lines()
+        .nth(1)
+        .and_then(|l| l.split_whitespace().next())
+        .expect("a robot line")
+        .to_string();
     let near = format!("{}9", &serial[..serial.len() - 1]);
     let (code, _, stderr) = run(&["history", "--db", p(&db), "--robot", &near]);
     assert_eq!(code, Some(1));
-    assert!(stderr.contains(&format!("did you mean {serial}")), "{stderr}");
+    assert!(
+        stderr.contains(&format!("did you mean {serial}")),
+        "{stderr}"
+    );
     drop(serve);
     println!(
         "live session ({} poses, real clock) in {:.1} s; {}",
@@ -260,7 +274,12 @@ fn live_device_file_validation_before_consent() {
     let tmp = tempfile::tempdir().unwrap();
     let base = "tools = [\"tools/flange-marker.rom\"]";
     let cases = [
-        ("no-tools", "127.0.0.1:5007", "", "needs the tool definition"),
+        (
+            "no-tools",
+            "127.0.0.1:5007",
+            "",
+            "needs the tool definition",
+        ),
         (
             "missing",
             "127.0.0.1:5007",
@@ -318,7 +337,10 @@ fn live_device_file_validation_before_consent() {
         assert!(!out.exists(), "{name}: the session was created");
         let (code, stdout, stderr) = run(&["devices", "--devices", p(&file), "--probe"]);
         assert_eq!(code, Some(1), "{name}: {stdout}\n{stderr}");
-        assert!(stdout.contains("invalid: ") && stdout.contains(want), "{name}: {stdout}");
+        assert!(
+            stdout.contains("invalid: ") && stdout.contains(want),
+            "{name}: {stdout}"
+        );
     }
 }
 

@@ -402,7 +402,11 @@ impl DevicesFile {
                         pose.xyz_mm
                     )));
                 }
-                if pose.rpy_deg.iter().any(|v| !v.is_finite() || v.abs() > 360.0) {
+                if pose
+                    .rpy_deg
+                    .iter()
+                    .any(|v| !v.is_finite() || v.abs() > 360.0)
+                {
                     return Err(bad(format!(
                         "{f}.rpy_deg = {:?}: degrees, |v| ≤ 360",
                         pose.rpy_deg

@@ -103,7 +103,7 @@ where
                     eprintln!("error: {e:#}");
                     1
                 }
-            }
+            };
         }
         Command::Plan(a) => plan::exec(a),
         Command::Run(a) => run::exec(a),

@@ -72,7 +72,11 @@ pub fn plans(dir: &Path, s: &SessionFile) -> anyhow::Result<Vec<PlanBrief>> {
 pub fn text(dir: &Path, s: &SessionFile) -> anyhow::Result<String> {
     let plans = plans(dir, s)?;
     let mut t = String::new();
-    let arm = s.cell.robot_serial.as_deref().unwrap_or(&s.cell.robot_model);
+    let arm = s
+        .cell
+        .robot_serial
+        .as_deref()
+        .unwrap_or(&s.cell.robot_model);
     let _ = writeln!(
         t,
         "LIVE session {}: the plan is made; before anything moves:",
@@ -134,7 +138,9 @@ pub fn text(dir: &Path, s: &SessionFile) -> anyhow::Result<String> {
             "  workspace (flange, robot base): x {:.0} … {:.0}, y {:.0} … {:.0}, z {:.0} … {:.0} mm",
             lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
         );
-        let table = plans.iter().find_map(|p| p.table_z_mm.map(|z| (z, p.clearance_mm)));
+        let table = plans
+            .iter()
+            .find_map(|p| p.table_z_mm.map(|z| (z, p.clearance_mm)));
         let _ = match table {
             Some((z, c)) => writeln!(
                 t,

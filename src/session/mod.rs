@@ -1009,7 +1009,9 @@ fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     // Each artifact on its own: the calibration file through `robocal predict` (geometry +
     // effects: the "after" above) and the URDF (the same geometry, no effects).
     let urdf_pred: Vec<_> = obs.iter().map(|o| model.measured_point(&o.q)).collect();
-    let effects: Vec<&str> = s.effects.iter().map(|e| e.kind.as_str()).collect();
+    let mut effects: Vec<&str> = s.effects.iter().map(|e| e.kind.as_str()).collect();
+    effects.sort_unstable();
+    effects.dedup();
     let cal_contains = if effects.is_empty() {
         "calibrated geometry".to_string()
     } else {

@@ -13,7 +13,9 @@ pub enum CodecError {
     #[error("packet does not start with SOH (0x{0:02x})")]
     NoSoh(u8),
     /// The peer speaks another protocol (HTTP, a text banner): the wrong port or service.
-    #[error("the device answered with {0}, not b-CAP: wrong port? (an RC8 serves b-CAP on TCP 5007)")]
+    #[error(
+        "the device answered with {0}, not b-CAP: wrong port? (an RC8 serves b-CAP on TCP 5007)"
+    )]
     NotBcap(String),
     /// Length field outside [16, MAX_PACKET].
     #[error("packet length {0} outside [16, {MAX_PACKET}]")]
