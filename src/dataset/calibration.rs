@@ -191,9 +191,14 @@ fn check_calibration(value: Value) -> Result<CalibrationFile, Problem> {
     if obj.contains_key("metrics") {
         check::field(obj, "", "metrics", Ty::Obj, true)?;
     }
+    // An RCM hand-eye (`kind: "rcm"`) holds no joint parameters: its instrument holder need
+    // not be a preset (issue 29).
+    let rcm = obj.get("kind").and_then(Value::as_str) == Some("rcm");
     let cal: CalibrationFile =
         serde_json::from_value(value).map_err(|e| Problem::Invalid(e.to_string()))?;
-    check_robot_semantics(&cal.robot, "robot")?;
+    if !(rcm && cal.robot.chain.is_none()) {
+        check_robot_semantics(&cal.robot, "robot")?;
+    }
     let dof = cal.robot.dof().unwrap_or(0);
     for (i, e) in cal.effects.iter().enumerate() {
         check_effect(e, i, dof)?;
