@@ -131,6 +131,7 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
         heldout: Some(case_dir("kin-compliance-j2").join("heldout.jsonl")),
         no_nonparametric: false,
         physics_first: false,
+        kernel_benchmark: false,
         json: false,
     };
     let summary = robocal::cli::diagnose::run(&args).unwrap();
