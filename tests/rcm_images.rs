@@ -261,7 +261,6 @@ fn detector_refuses_views_without_a_shaft_and_names_why() {
     let e = lines::detect(&img, w as u32, h as u32, &cam, &Default::default()).unwrap_err();
     assert!(e.contains("header"), "{e}");
     cam.width = w as u32;
-    let e = lines::detect(&img[..10], w as u32, h as u32, &cam, &Default::default())
-        .unwrap_err();
+    let e = lines::detect(&img[..10], w as u32, h as u32, &cam, &Default::default()).unwrap_err();
     assert!(e.contains("samples"), "{e}");
 }

@@ -597,7 +597,9 @@ pub fn write_image_dataset(
                 serde_json::from_str(line).map_err(std::io::Error::other)?;
             let (id, _) = views[k - 1];
             rec["id"] = id.into();
-            rec.as_object_mut().map(|o| o.remove("shaft_lines"));
+            if let Some(o) = rec.as_object_mut() {
+                o.remove("shaft_lines");
+            }
             rec["image"] = with_views[k - 1].2.clone().into();
             out.push_str(&rec.to_string());
         }
