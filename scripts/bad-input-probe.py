@@ -224,6 +224,15 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
     dl = k("dangling.out")
     os.symlink(k("missing", "x.out"), dl)
     targets.append(("dangling symlink", dl, ["symbolic link", "missing"]))
+    def md_link(x):
+        """`report` takes only a .md / .html path: a `.md` symbolic link to the target."""
+        if x.endswith(".md"):
+            return x
+        m = x + ".md"
+        if not os.path.lexists(m):
+            os.symlink(x, m)
+        return m
+
     writers = [
         ("predict --out", lambda x: ["predict", "--calibration", cal, "--data", goodheld, "--out", x]),
         ("plan --out", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--out", x]),
@@ -232,7 +241,7 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
         ("plan --summary", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--summary", x]),
         ("import csv --out", lambda x: ["import", "csv", "--input", k("imp.csv"), "--out", x, "--robot", "ur10", "--joints", "a,b,c,d,e,f", "--joint-unit", "deg", "--pos", "x,y,z", "--length-unit", "mm"]),
         ("register --out", lambda x: ["register", "--ct", pts, "--tracker", pts, "--out", x]),
-        ("report --out .md", lambda x: ["report", "--dir", j("o-kin"), "--out", x if x.endswith(".md") else x + ".md"]),
+        ("report --out .md", lambda x: ["report", "--dir", j("o-kin"), "--out", md_link(x)]),
     ]
     open(k("small.toml"), "w").write(open(ANNULUS).read().replace("points = 200", "points = 12"))
     with open(k("imp.csv"), "w") as f:
