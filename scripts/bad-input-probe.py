@@ -150,6 +150,10 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
         for i, (x, y, z) in enumerate([(0, 0, 0), (50, 0, 0), (0, 60, 0), (0, 0, 70), (30, 30, 30)]):
             f.write(f"f{i},{x},{y},{z}\n")
     plan = j("plan.json")
+    b("ctl register paired", ["register", "--ct", pts, "--tracker", pts, "--out", k("reg-ok.json")], good=True)
+    eye = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
+    json.dump({"format": "robocal-robot-world/1", "T_base_tracker": {"matrix": eye}, "T_flange_marker": {"matrix": eye},
+               "n_poses": 20, "rms_pos_mm": 0.05, "rms_rot_deg": 0.02, "chi2_reduced": 1.0, "closed_forms": []}, open(k("rw-ok.json"), "w"))
     readers = [
         ("inspect", lambda x: ["inspect", x], True),
         ("calibrate nominal", lambda x: ["calibrate", "nominal", "--data", x, "--out", k("o")], True),
@@ -177,7 +181,7 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
         ("register --ct-mesh", lambda x: ["register", "--ct-mesh", x, "--tracker", pts, "--out", k("reg.json")], False),
         ("register --tracker-data", lambda x: ["register", "--ct", pts, "--tracker-data", x, "--out", k("reg.json")], True),
         ("chain --registration", lambda x: ["chain", "--registration", x, "--robot-world", x, "--targets", pts, "--robot-sigma-mm", "0.1"], False),
-        ("chain --targets", lambda x: ["chain", "--registration", garbage, "--robot-world", garbage, "--targets", x, "--robot-sigma-mm", "0.1"], False),
+        ("chain --targets", lambda x: ["chain", "--registration", k("reg-ok.json"), "--robot-world", k("rw-ok.json"), "--targets", x, "--robot-sigma-mm", "0.1"], False),
         ("import csv", lambda x: ["import", "csv", "--input", x, "--out", k("imp.jsonl"), "--robot", "ur10", "--joints", "a,b,c,d,e,f", "--joint-unit", "deg", "--pos", "x,y,z", "--length-unit", "mm"], False),
         ("report --dir", lambda x: ["report", "--dir", x], False),
     ]
@@ -220,6 +224,15 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
     dl = k("dangling.out")
     os.symlink(k("missing", "x.out"), dl)
     targets.append(("dangling symlink", dl, ["symbolic link", "missing"]))
+    def md_link(x):
+        """`report` takes only a .md / .html path: a `.md` symbolic link to the target."""
+        if x.endswith(".md"):
+            return x
+        m = x + ".md"
+        if not os.path.lexists(m):
+            os.symlink(x, m)
+        return m
+
     writers = [
         ("predict --out", lambda x: ["predict", "--calibration", cal, "--data", goodheld, "--out", x]),
         ("plan --out", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--out", x]),
@@ -228,7 +241,7 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
         ("plan --summary", lambda x: ["plan", "--spec", k("small.toml"), "--robot", "denso-vs060", "--summary", x]),
         ("import csv --out", lambda x: ["import", "csv", "--input", k("imp.csv"), "--out", x, "--robot", "ur10", "--joints", "a,b,c,d,e,f", "--joint-unit", "deg", "--pos", "x,y,z", "--length-unit", "mm"]),
         ("register --out", lambda x: ["register", "--ct", pts, "--tracker", pts, "--out", x]),
-        ("report --out .md", lambda x: ["report", "--dir", j("o-kin"), "--out", x]),
+        ("report --out .md", lambda x: ["report", "--dir", j("o-kin"), "--out", md_link(x)]),
     ]
     open(k("small.toml"), "w").write(open(ANNULUS).read().replace("points = 200", "points = 12"))
     with open(k("imp.csv"), "w") as f:
@@ -240,7 +253,7 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
             b(f"output {tname}: {wname}", cmd(path), exp, timeout=15)
         # Control: a symbolic link to a regular file is written through and stays a link.
         open(real, "w").write("old")
-        link = k("link.out")
+        link = k("link.md" if "report" in wname else "link.out")
         if os.path.lexists(link):
             os.remove(link)
         os.symlink(real, link)
@@ -380,11 +393,7 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
             b(f"inspect: {name}", ["inspect", path], ["quat"])
 
     # ---- chain --joints-deg outside the limits (§3)
-    reg = k("reg-ok.json")
-    b("ctl register paired", ["register", "--ct", pts, "--tracker", pts, "--out", reg], good=True)
-    rw = k("rw-ok.json")
-    json.dump({"format": "robocal-robot-world/1",
-               "T_base_tracker": {"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}}, open(rw, "w"))
+    reg, rw = k("reg-ok.json"), k("rw-ok.json")
     if os.path.exists(reg) and os.path.exists(cal):
         for q in ("800,0,0,0,0,0", "0,0,0,0,0,1e308", "0,0,0,0,0,-400", "0,200,0,0,0,0"):
             b(f"chain --joints-deg {q}", ["chain", "--registration", reg, "--robot-world", rw, "--targets", pts, "--calibration", cal, "--joints-deg", q], ["limit"])

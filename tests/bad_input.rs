@@ -1049,6 +1049,9 @@ fn bad_input_calibration_claims_are_checked_before_use() {
     );
 }
 
+/// A named edit of a plan file and the refusal it must cause.
+type PlanEdit<'a> = (&'a str, &'a dyn Fn(&mut Value), &'a str);
+
 #[test]
 fn bad_input_plan_wider_than_the_cell_is_refused() {
     // The lab cell states its table and envelope: an edited plan may not relax them.
@@ -1057,7 +1060,7 @@ fn bad_input_plan_wider_than_the_cell_is_refused() {
     let plan = small_plan(dp);
     let lab = lab();
     let base: Value = serde_json::from_str(&std::fs::read_to_string(&plan).unwrap()).unwrap();
-    let edits: [(&str, &dyn Fn(&mut Value), &str); 3] = [
+    let edits: [PlanEdit; 3] = [
         (
             "low",
             &|v| v["spec"]["constraints"]["table_z_mm"] = json!(-1000.0),

@@ -592,7 +592,7 @@ fn cal_text() -> String {
         vec![
             CalParam {
                 name: "a2".into(),
-                value: 305.012,
+                value: 0.012, // a 12 µm correction of the nominal a2 = 0 (a plausible calibration: `save` checks it)
                 std: Some(0.004),
                 unit: "mm".into(),
                 free: true,
@@ -600,7 +600,7 @@ fn cal_text() -> String {
             },
             CalParam {
                 name: "phi3".into(),
-                value: 0.01,
+                value: -89.99,
                 std: None,
                 unit: "deg".into(),
                 free: false,
