@@ -87,6 +87,10 @@ pub struct AcceptSpec {
     /// (1.2: a calibration may verify at most 20 % worse than it predicts).
     #[serde(default)]
     pub verified_vs_predicted_max: Option<f64>,
+    /// `verify` stage: seed 001's inverse-solution coincidence error with the calibrated IK
+    /// (mean over targets of the largest distance between branches) must be ≤ this (mm).
+    #[serde(default)]
+    pub coincidence_mm_max: Option<f64>,
 }
 
 fn kind_name(k: super::SessionKind) -> &'static str {
@@ -150,6 +154,7 @@ impl AcceptSpec {
             spec.verified_vs_predicted_max,
             100.0,
         )?;
+        check("coincidence_mm_max", spec.coincidence_mm_max, 1e4)?;
         let invalid = |field: &str, message: String| AcceptError::Invalid {
             path: path.into(),
             field: field.into(),
@@ -204,6 +209,7 @@ impl AcceptSpec {
             ("relative_distance_pct_max", self.relative_distance_pct_max),
             ("verified_rms_mm_max", self.verified_rms_mm_max),
             ("verified_vs_predicted_max", self.verified_vs_predicted_max),
+            ("coincidence_mm_max", self.coincidence_mm_max),
             ("param_ci95_mm_max", self.param_ci95_mm_max),
             ("param_ci95_deg_max", self.param_ci95_deg_max),
         ];
@@ -668,6 +674,13 @@ fn kinematic_criteria(spec: &AcceptSpec, m: &Measured, c: &mut Vec<Criterion>) {
         spec.verified_vs_predicted_max,
         c,
     );
+    le(
+        "inverse-solution coincidence error",
+        "mm",
+        m.coincidence_mm_after,
+        spec.coincidence_mm_max,
+        c,
+    );
 }
 
 #[cfg(test)]
@@ -687,8 +700,30 @@ mod tests {
             relative_distance_pct_after: Some(0.02),
             param_ci95_mm: Some(0.05),
             param_ci95_deg: Some(0.004),
+            verified_rms_mm_before: Some(0.7),
+            verified_rms_mm_after: Some(0.055),
+            verified_max_mm_after: Some(0.13),
+            coincidence_mm_before: Some(1.2),
+            coincidence_mm_after: Some(0.05),
+            verified_vs_predicted: Some(1.1),
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn verify_thresholds_fail_a_calibration_that_verifies_worse_than_predicted() {
+        let s = AcceptSpec::default_surgical();
+        let mut m = good();
+        m.verified_vs_predicted = Some(1.5);
+        let v = judge(&s, &m, vec![]);
+        assert_eq!(v.verdict, VerdictKind::Fail, "{}", v.line());
+        assert!(v.line().contains("verified / predicted"), "{}", v.line());
+        let mut m = good();
+        m.coincidence_mm_after = Some(0.8);
+        assert_eq!(judge(&s, &m, vec![]).verdict, VerdictKind::Fail);
+        let mut m = good();
+        m.verified_rms_mm_after = None;
+        assert_eq!(judge(&s, &m, vec![]).verdict, VerdictKind::Incomplete);
     }
 
     #[test]

@@ -260,10 +260,7 @@ pub fn pivot_robust(
     let n = frames.len();
     let mut best = (median(&all_res), all.tip_in_marker, all.pivot_point);
     for _ in 0..opt.samples {
-        let mut idx = [0usize; 3];
-        for k in 0..3 {
-            idx[k] = rng.random_range(0..n);
-        }
+        let idx: [usize; 3] = std::array::from_fn(|_| rng.random_range(0..n));
         if idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2] {
             continue;
         }
@@ -320,7 +317,8 @@ pub fn pivot_robust(
     // the estimate whose tip stays stiller on frames it was not fitted to wins. Within their
     // intervals either will do; take the more precise one.
     let alg_wins = if disagree {
-        !(s_cv < a_cv)
+        // A NaN score (a fold that could not be fitted) never wins.
+        s_cv.partial_cmp(&a_cv) != Some(std::cmp::Ordering::Less)
     } else {
         ha.norm() <= hs.norm()
     };
