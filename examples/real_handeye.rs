@@ -28,12 +28,17 @@ fn main() {
     let script = root().join("scripts/peers/camera_handeye_cv2.py");
     let peer = py.exists().then_some((py.as_path(), script.as_path()));
     if peer.is_none() {
-        println!("OpenCV peer SKIPPED: no {} (run .ci/peers.sh)", py.display());
+        println!(
+            "OpenCV peer SKIPPED: no {} (run .ci/peers.sh)",
+            py.display()
+        );
     }
     type Loader = fn(&std::path::Path) -> Result<RealSet, String>;
     let sets: [(&str, &str, Loader); 2] = [
         ("kuka1", "real-handeye-kuka1", realeval::load_kuka1),
-        ("ur3e", "real-handeye-ur3e", |d| realeval::load_ur3e(d, 12.5)),
+        ("ur3e", "real-handeye-ur3e", |d| {
+            realeval::load_ur3e(d, 12.5)
+        }),
     ];
     let mut summary = vec![];
     for (key, dir, load) in sets {

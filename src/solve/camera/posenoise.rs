@@ -182,7 +182,11 @@ mod tests {
             );
             let f_true = cam * x.inverse();
             let xi = Isometry3::from_parts(
-                Translation3::new(nt.sample(&mut rng), nt.sample(&mut rng), nt.sample(&mut rng)),
+                Translation3::new(
+                    nt.sample(&mut rng),
+                    nt.sample(&mut rng),
+                    nt.sample(&mut rng),
+                ),
                 UnitQuaternion::from_scaled_axis(Vector3::new(
                     nr.sample(&mut rng),
                     nr.sample(&mut rng),
@@ -195,7 +199,10 @@ mod tests {
         let x0 = x * Isometry3::translation(3.0, -2.0, 4.0);
         let f = fit(&g, &t, &x0, &b).unwrap();
         let (dt, dr) = super::super::geom::pose_error(&f.x, &x);
-        eprintln!("X {dt:.3} mm {dr:.4} deg; σ {:.4} deg {:.3} mm", f.sigma_deg, f.sigma_mm);
+        eprintln!(
+            "X {dt:.3} mm {dr:.4} deg; σ {:.4} deg {:.3} mm",
+            f.sigma_deg, f.sigma_mm
+        );
         assert!(dt < 1.0 && dr < 0.05, "{dt} mm {dr} deg");
         assert!((f.sigma_deg / 0.03 - 1.0).abs() < 0.3, "{}", f.sigma_deg);
         assert!((f.sigma_mm / 0.4 - 1.0).abs() < 0.3, "{}", f.sigma_mm);

@@ -12,6 +12,7 @@
 //! Images are read through [`robocal_drivers::camera::read_image_file`]; where the build cannot
 //! read an image format, `ROBOCAL_REAL_PGM_DIR` names a folder holding the same images as
 //! `STEM.pgm` (a development aid; every image that cannot be used is named with its reason).
+#![allow(clippy::type_complexity)]
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -267,13 +268,16 @@ pub fn opencv_peer(python: &Path, script: &Path, data: &CameraData) -> Result<Pe
         serde_json::from_slice(&o.stdout).map_err(|e| format!("peer output: {e}"))?;
     let f = |x: &serde_json::Value| x.as_f64().unwrap_or(f64::NAN);
     let (kk, d) = (&v["K"], &v["dist"]);
-    let k = Intrinsics {
-        fx: f(&kk[0][0]),
-        fy: f(&kk[1][1]),
-        cx: f(&kk[0][2]),
-        cy: f(&kk[1][2]),
-        dist: [f(&d[0]), f(&d[1]), f(&d[2]), f(&d[3]), f(&d[4])],
-    };
+    let mut kv = [
+        kk[0][0].clone(),
+        kk[1][1].clone(),
+        kk[0][2].clone(),
+        kk[1][2].clone(),
+    ]
+    .map(|x| f(&x))
+    .to_vec();
+    kv.extend((0..5).map(|i| f(&d[i])));
+    let k = Intrinsics::from_slice(&kv);
     let used: Vec<usize> = v["used"]
         .as_array()
         .ok_or("peer output: no `used`")?
@@ -290,7 +294,10 @@ pub fn opencv_peer(python: &Path, script: &Path, data: &CameraData) -> Result<Pe
         })
         .collect();
     let mut methods = vec![];
-    for (name, m) in v["hand_eye"].as_object().ok_or("peer output: no hand_eye")? {
+    for (name, m) in v["hand_eye"]
+        .as_object()
+        .ok_or("peer output: no hand_eye")?
+    {
         let r = Matrix3::from_fn(|i, j| f(&m["R"][i][j]));
         let x = pose(r, Vector3::new(f(&m["t"][0]), f(&m["t"][1]), f(&m["t"][2])));
         let all: Vec<Isometry3<f64>> = used
@@ -380,7 +387,7 @@ pub fn evaluate(
     };
     let res = super::calibrate(&train, Some(&held), &opts).map_err(|e| e.to_string())?;
     let mut robocal: Vec<Row> = res.closed_form.iter().map(row).collect();
-        robocal.extend(res.candidates.iter().map(row));
+    robocal.extend(res.candidates.iter().map(row));
     let written = row(&res.ml);
     let (mut opencv, mut version) = (vec![], String::new());
     let run_peer = |d: &CameraData| peer.map(|(py, sc)| opencv_peer(py, sc, d)).transpose();
@@ -394,7 +401,8 @@ pub fn evaluate(
         }
         version = p.version;
     }
-    let floor_px = super::fit_fixed_intrinsics(&held, &res.intrinsics_only, &res.ml.x, &res.ml.target).2;
+    let floor_px =
+        super::fit_fixed_intrinsics(&held, &res.intrinsics_only, &res.ml.x, &res.ml.target).2;
     // Split half.
     let (a, b) = halves(data);
     let ra = super::calibrate(&a, None, &super::Options::default()).map_err(|e| e.to_string())?;

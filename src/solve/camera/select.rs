@@ -27,6 +27,9 @@ pub enum Candidate {
     MlBoardIntrinsics,
     /// X and target with the robot's pose noise estimated ([`super::posenoise`]).
     PoseNoise,
+    /// [`Candidate::MlBoardIntrinsics`] refitted without the views whose reprojection RMS is
+    /// beyond 2.5× the median (a flange pose wrong far beyond the arm's usual error).
+    MlTrimmed,
 }
 
 impl Candidate {
@@ -36,6 +39,7 @@ impl Candidate {
             Candidate::Ml,
             Candidate::MlBoardIntrinsics,
             Candidate::PoseNoise,
+            Candidate::MlTrimmed,
         ]);
         v
     }
@@ -45,6 +49,7 @@ impl Candidate {
             Candidate::Ml => "ml".into(),
             Candidate::MlBoardIntrinsics => "ml (board-only intrinsics)".into(),
             Candidate::PoseNoise => "ml (robot pose noise)".into(),
+            Candidate::MlTrimmed => "ml (board-only intrinsics, outlier poses out)".into(),
         }
     }
 }
@@ -124,6 +129,29 @@ impl Ctx<'_> {
                     sd_deg: u.x_deg,
                     ..plain(k, x, target)
                 })
+            }
+            Candidate::MlTrimmed => {
+                let f = self.fit(Candidate::MlBoardIntrinsics, idx)?;
+                let per: Vec<f64> = idx
+                    .iter()
+                    .map(|&i| {
+                        let (s, k) = self.score(&f, &[i]);
+                        (s / k.max(1) as f64).sqrt()
+                    })
+                    .collect();
+                let mut sorted = per.clone();
+                sorted.sort_by(f64::total_cmp);
+                let cut = 2.5 * sorted[sorted.len() / 2];
+                let keep: Vec<usize> = idx
+                    .iter()
+                    .zip(&per)
+                    .filter(|(_, r)| **r <= cut)
+                    .map(|(i, _)| *i)
+                    .collect();
+                if keep.len() == idx.len() || keep.len() < 4 {
+                    return Some(f);
+                }
+                self.fit(Candidate::MlBoardIntrinsics, &keep)
             }
             Candidate::PoseNoise => {
                 let f = posenoise::fit(&g, &t, &self.x0, &self.b0)?;
