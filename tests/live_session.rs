@@ -175,7 +175,7 @@ fn live_session_consent_after_plan_interrupt_and_resume() {
     assert_eq!(o.status.code(), Some(130), "{stderr}");
     assert!(stderr.contains("--resume"), "{stderr}");
     let recorded = pose_lines(&journal);
-    assert!(recorded >= 2 && recorded < 20, "{recorded} poses recorded");
+    assert!((2..20).contains(&recorded), "{recorded} poses recorded");
     let s = robocal::session::SessionFile::load(&out.join("session.json")).unwrap();
     assert!(!s
         .stages_done

@@ -523,7 +523,7 @@ impl Reporter {
             b.set_position(p.done as u64);
             let eta = p.eta_s.map_or("?".into(), |s| format!("{:.0} s", s));
             b.set_message(format!("{eta}, {:.0} poses/h", p.poses_per_hour));
-        } else if !p.ok || p.done % self.every == 0 || p.done == p.total {
+        } else if !p.ok || p.done.is_multiple_of(self.every) || p.done == p.total {
             // No terminal (a log, CI, a pipe): plain lines, skips as they happen.
             let clock = if self.simulated {
                 " (simulated clock)"

@@ -794,9 +794,9 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         None => start(&a)?.0,
     };
     let s0 = session::SessionFile::load(&dir.join("session.json"))?;
-    let moves = !s0.setup.plan_only
-        && !(s0.stages_done.contains(&session::Stage::AcquireTrain)
-            && s0.stages_done.contains(&session::Stage::AcquireValidation));
+    let acquired = s0.stages_done.contains(&session::Stage::AcquireTrain)
+        && s0.stages_done.contains(&session::Stage::AcquireValidation);
+    let moves = !(s0.setup.plan_only || acquired);
     match s0.setup.mode {
         Mode::Live if moves && !a.live => bail!(
             "{} is a live session with poses left to acquire: nothing moves without --live \
