@@ -393,3 +393,60 @@ fn real_ur3e_column_major_accepted_row_major_refused() {
     eprintln!("ur3e row-major: {e}");
     assert!(e.contains("rot9-col"), "{e}");
 }
+
+/// `robocal import ndi` on an NDI Track export of our own (a probe pivoting about its tip, one
+/// frame `Missing`, repeated marker columns) → `robocal calibrate pivot` finds the tip.
+#[test]
+fn ndi_track_export_imports_and_pivot_calibrates() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tip = nalgebra::Vector3::new(10.0, 150.0, -5.0);
+    let pivot = nalgebra::Vector3::new(50.0, -20.0, -1500.0);
+    let mut csv = String::from(
+        "Tools,Probe,Frame,Face,State,Q0,Qx,Qy,Qz,Tx,Ty,Tz,Error,Markers,State,Tx,Ty,Tz,State,Tx,Ty,Tz\n",
+    );
+    for k in 0..40 {
+        let a = k as f64 * 0.37;
+        let r =
+            nalgebra::UnitQuaternion::from_euler_angles(0.5 * a.sin(), 0.4 * (1.7 * a).cos(), a);
+        let p = pivot - r * tip;
+        let q = r.quaternion();
+        if k == 7 {
+            let m = "-3.697314E28";
+            csv += &format!("1,Probe,{},1,Missing,{m},{m},{m},{m},{m},{m},{m},{m},2,Missing,{m},{m},{m},Missing,{m},{m},{m}\n", 1000 + 3 * k);
+            continue;
+        }
+        csv += &format!(
+            "1,Probe,{},1,OK,{:.7},{:.7},{:.7},{:.7},{:.3},{:.3},{:.3},0.12,2,OK,{:.3},{:.3},{:.3},Missing,-3.697314E28,-3.697314E28,-3.697314E28\n",
+            1000 + 3 * k, q.w, q.i, q.j, q.k, p.x, p.y, p.z, p.x + 1.0, p.y, p.z
+        );
+    }
+    let input = tmp.path().join("track.csv");
+    std::fs::write(&input, csv).unwrap();
+    let out = tmp.path().join("pivot.jsonl");
+    assert_eq!(
+        cli(&["import", "ndi", "--input", s(&input), "--out", s(&out)]),
+        0
+    );
+    let d = robocal::dataset::read_dataset(&out).unwrap().dataset;
+    assert_eq!(d.records.len(), 39, "the Missing frame is not imported");
+    let dir = tmp.path().join("cal");
+    assert_eq!(
+        cli(&["calibrate", "pivot", "--data", s(&out), "--out", s(&dir)]),
+        0
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("pivot.json")).unwrap()).unwrap();
+    let t = &v["results"][0]["tip_in_marker_mm"];
+    let got = nalgebra::Vector3::new(
+        t[0].as_f64().unwrap(),
+        t[1].as_f64().unwrap(),
+        t[2].as_f64().unwrap(),
+    );
+    assert!((got - tip).norm() < 0.01, "tip {got:?}");
+    // A malformed export is refused naming the line and the column.
+    std::fs::write(&input, "Tools,Probe,Frame,Face,State,Q0,Qx,Qy,Qz,Tx,Ty,Tz,Error\n1,Probe,5,1,OK,1,0,0,0,1,2,x,0.1\n").unwrap();
+    assert_eq!(
+        cli(&["import", "ndi", "--input", s(&input), "--out", s(&out)]),
+        1
+    );
+}

@@ -236,7 +236,7 @@ impl Reading {
                     ));
                 }
                 (
-                    rotation(Matrix3::from_fn(|r, c| at(r, c)))?,
+                    rotation(Matrix3::from_fn(at))?,
                     Vector3::new(at(0, 3), at(1, 3), at(2, 3)),
                 )
             }
@@ -444,13 +444,13 @@ pub fn list_files(dir: &Path, exts: &[&str]) -> Result<Vec<PathBuf>, ImportError
     Ok(v)
 }
 
+/// Images paired with their poses.
+pub type Pairs = Vec<(PathBuf, PoseValues)>;
+
 /// Pair images with poses: by the number in the file names when every pose has a distinct
 /// one and the images do too; else in order (then the counts must match).
 /// Returns `(image, pose)` pairs and warnings (images or poses left without a partner).
-pub fn pair(
-    images: &[PathBuf],
-    poses: &[PoseValues],
-) -> Result<(Vec<(PathBuf, PoseValues)>, Vec<String>), ImportError> {
+pub fn pair(images: &[PathBuf], poses: &[PoseValues]) -> Result<(Pairs, Vec<String>), ImportError> {
     let inums: Vec<Option<u64>> = images.iter().map(|p| file_number(p)).collect();
     let distinct = |v: &[Option<u64>]| {
         let mut s: Vec<u64> = v.iter().filter_map(|x| *x).collect();
@@ -793,13 +793,14 @@ pub fn import_handeye(o: &HandeyeOptions, progress: bool) -> Result<HandeyeImpor
     let detector = crate::solve::camera::data::target_of(&o.target).map_err(usage)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
     let n = pairs.len();
-    let found: Vec<Result<(u32, u32, Vec<Option<[f64; 2]>>), String>> = pairs
+    type Found = Result<(u32, u32, Vec<Option<[f64; 2]>>), String>;
+    let found: Vec<Found> = pairs
         .par_iter()
         .map(|(img, _)| {
             let im = robocal_drivers::camera::read_image_file(img).map_err(|e| e.to_string())?;
             let c = detector.detect(&im.data, im.width, im.height);
             let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            if progress && (k % 10 == 0 || k == n) {
+            if progress && (k.is_multiple_of(10) || k == n) {
                 eprint!("\rdetecting the board: {k}/{n} images");
                 if k == n {
                     eprintln!();
@@ -808,18 +809,12 @@ pub fn import_handeye(o: &HandeyeOptions, progress: bool) -> Result<HandeyeImpor
             Ok((im.width, im.height, c?))
         })
         .collect();
-    let sizes = found
-        .iter()
-        .filter_map(|r| r.as_ref().ok().map(|(w, h, _)| (*w, *h)));
-    let mut counts: Vec<((u32, u32), usize)> = vec![];
-    for s in sizes {
-        match counts.iter_mut().find(|(k, _)| *k == s) {
-            Some((_, c)) => *c += 1,
-            None => counts.push((s, 1)),
-        }
-    }
-    counts.sort_by(|a, b| b.1.cmp(&a.1));
-    let (width, height) = counts.first().map(|c| c.0).ok_or_else(|| {
+    let (width, height) = crate::solve::camera::data::common_size(
+        found
+            .iter()
+            .filter_map(|r| r.as_ref().ok().map(|(w, h, _)| (*w, *h))),
+    )
+    .ok_or_else(|| {
         let (img, e) = pairs
             .iter()
             .zip(&found)

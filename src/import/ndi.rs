@@ -5,13 +5,13 @@
 //! `State,Tx,Ty,Tz` (the same four names repeated); the header row names the columns that way
 //! (the tool's column is headed by the tool's name). Positions are mm, the quaternion is scalar
 //! first, `Error` is the tool's fit RMS (mm). A tool or marker not seen is written as
-//! `Missing,-3.697314E28,…`: such a frame is imported as `visible: false`. The column layout is
+//! `Missing,-3.697314E28,…`: such a frame is not imported (counted in a warning). The column layout is
 //! taken from the header (each `Q0` starts a tool's pose) and checked on every row; a
 //! malformed value names the line, the column and the cause.
 use serde_json::{json, Map, Value};
 
 use super::ImportError;
-use crate::dataset::{Dataset, Header, MarkerObs, PivotRecord, Record, RobotBlock, DATASET_FORMAT};
+use crate::dataset::{Dataset, Header, PivotRecord, Record, RobotBlock, DATASET_FORMAT};
 
 /// Values at or beyond this magnitude are NDI's "missing" sentinel (`-3.697314E28`).
 pub const MISSING_ABS: f64 = 1e20;
@@ -211,16 +211,12 @@ pub fn parse_ndi(
             if !state.eq_ignore_ascii_case("OK") {
                 extra.insert("state".into(), json!(state));
             }
-            let marker = if missing {
-                MarkerObs {
-                    p: None,
-                    quat: None,
-                    rms: None,
-                    visible: false,
-                    frames: None,
-                    extra: Map::new(),
-                }
-            } else {
+            if missing {
+                // No pose in this frame: nothing to record (counted, and said below).
+                counts[k].1 += 1;
+                continue;
+            }
+            let marker = {
                 let q = [vals[0], vals[1], vals[2], vals[3]];
                 let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if (n - 1.0).abs() > super::QUAT_NORM_TOL {
@@ -296,6 +292,11 @@ pub fn parse_ndi(
             warnings.push(format!(
                 "tool \"{name}\": not seen in any of its {n} frames"
             ));
+        } else if v < n {
+            warnings.push(format!(
+                "tool \"{name}\": {} of its {n} frames Missing (not imported)",
+                n - v
+            ));
         }
     }
     let mut hx = Map::new();
@@ -358,16 +359,20 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(pivots.len(), 4);
+        assert_eq!(pivots.len(), 3, "the Missing frame is not imported");
         assert_eq!(pivots[0].marker.p, Some([10.5, -20.25, -1500.0]));
         assert_eq!(pivots[0].marker.rms, Some(0.12));
         assert_eq!(
             pivots[0].extra["markers"],
             json!([{"i": 0, "p": [1.0, 2.0, -1490.0]}])
         );
-        assert!(!pivots[2].marker.visible, "the missing frame");
-        assert_eq!(pivots[3].extra["state"], json!("Partially Out of Volume"));
-        assert!((pivots[3].t - 0.05).abs() < 1e-12, "{}", pivots[3].t);
+        assert_eq!(pivots[2].extra["state"], json!("Partially Out of Volume"));
+        assert!((pivots[2].t - 0.05).abs() < 1e-12, "{}", pivots[2].t);
+        assert!(
+            r.warnings[0].contains("1 of its 2 frames Missing"),
+            "{:?}",
+            r.warnings
+        );
         let only = parse_ndi(&fixture(), "track.csv", Some("Ref"), 60.0).unwrap();
         assert_eq!(only.dataset.records.len(), 2);
     }

@@ -202,7 +202,7 @@ pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, Camer
 type Corners = (Vec<Option<[f64; 2]>>, Option<(u32, u32)>);
 
 /// The most common image size (the first seen on a tie), `None` without images.
-fn common_size(sizes: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
+pub fn common_size(sizes: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
     let mut counts: Vec<((u32, u32), usize)> = vec![];
     for s in sizes {
         match counts.iter_mut().find(|(k, _)| *k == s) {
