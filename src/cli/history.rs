@@ -27,7 +27,8 @@ pub struct Args {
 pub fn exec(a: Args) -> anyhow::Result<()> {
     let loc = history::location(a.db.as_deref());
     // A query: never creates or alters a database.
-    let mut h = History::open_read_only(&loc).with_context(|| format!("opening the history {loc}"))?;
+    let mut h =
+        History::open_read_only(&loc).with_context(|| format!("opening the history {loc}"))?;
     let robots = h.robots()?;
     let Some(robot) = a.robot.clone() else {
         if robots.is_empty() {
