@@ -50,7 +50,8 @@ fn frame(s: &mut String, title: &str, xlabel: &str, ylabel: &str, ymin: f64, yma
         let _ = write!(
             s,
             "<line x1=\"{L}\" x2=\"{x2}\" y1=\"{y:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/>\
-             <text x=\"{tx}\" y=\"{ty:.1}\" text-anchor=\"end\">{v:.3}</text>",
+             <text x=\"{tx}\" y=\"{ty:.1}\" text-anchor=\"end\">{v}</text>",
+            v = tick(v),
             x2 = W - R,
             tx = L - 4.0,
             ty = y + 4.0
@@ -63,6 +64,17 @@ fn frame(s: &mut String, title: &str, xlabel: &str, ylabel: &str, ymin: f64, yma
         yb = H - B,
         x2 = W - R
     );
+}
+
+/// A tick label without trailing zeros (counts print as integers).
+fn tick(v: f64) -> String {
+    let t = format!("{v:.3}");
+    let t = t.trim_end_matches('0').trim_end_matches('.');
+    if t == "-0" {
+        "0".into()
+    } else {
+        t.into()
+    }
 }
 
 fn legend(s: &mut String, items: &[(&str, &str)]) {
@@ -115,14 +127,11 @@ pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) ->
             ya = y(*a)
         );
     }
-    legend(
-        &mut s,
-        &[
-            ("before (nominal)", "#999"),
-            ("after", "#1f77b4"),
-            ("after, WORSE", "#d62728"),
-        ],
-    );
+    let mut items = vec![("before (nominal)", "#999"), ("after", "#1f77b4")];
+    if before.iter().zip(after).any(|(b, a)| a > b) {
+        items.push(("after, WORSE", "#d62728"));
+    }
+    legend(&mut s, &items);
     s.push_str("</svg>");
     s
 }
@@ -169,10 +178,10 @@ pub fn histogram(before: &[f64], after: &[f64]) -> String {
     for k in [0, bins / 2, bins] {
         let _ = write!(
             s,
-            "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">{:.3}</text>",
+            "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">{}</text>",
             L + bw * k as f64,
             H - B + 14.0,
-            xmax * k as f64 / bins as f64
+            tick(xmax * k as f64 / bins as f64)
         );
     }
     legend(
