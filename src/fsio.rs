@@ -369,17 +369,24 @@ mod tests {
             .contains("missing-dir"));
     }
 
+    /// A FIFO named `fifo` in `dir`.
     #[cfg(unix)]
-    #[test]
-    fn write_atomic_never_replaces_what_is_not_a_regular_file() {
-        let d = tempfile::tempdir().unwrap();
-        // A FIFO and a directory are refused and stay what they are.
-        let fifo = d.path().join("fifo");
+    fn mkfifo(dir: &std::path::Path) -> std::path::PathBuf {
+        let fifo = dir.join("fifo");
         assert!(std::process::Command::new("mkfifo")
             .arg(&fifo)
             .status()
             .unwrap()
             .success());
+        fifo
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn write_atomic_never_replaces_what_is_not_a_regular_file() {
+        let d = tempfile::tempdir().unwrap();
+        // A FIFO and a directory are refused and stay what they are.
+        let fifo = mkfifo(d.path());
         let e = write_atomic(&fifo, b"x").unwrap_err().to_string();
         assert!(
             e.contains("FIFO") && e.contains("not a regular file"),
@@ -436,12 +443,7 @@ mod tests {
     #[test]
     fn read_refuses_fifos_directories_and_devices_without_blocking() {
         let d = tempfile::tempdir().unwrap();
-        let fifo = d.path().join("fifo");
-        assert!(std::process::Command::new("mkfifo")
-            .arg(&fifo)
-            .status()
-            .unwrap()
-            .success());
+        let fifo = mkfifo(d.path());
         let e = read(&fifo).unwrap_err().to_string();
         assert!(e.contains("FIFO"), "{e}");
         let e = read_to_string(d.path()).unwrap_err().to_string();

@@ -7,19 +7,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Isometry3;
 
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn cli(args: &[&str]) -> i32 {
-    let mut v = vec!["robocal".to_string()];
-    v.extend(args.iter().map(|s| s.to_string()));
-    robocal::cli::run(v)
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use crate::common::{cli, root, s};
 
 fn real(name: &str) -> Option<PathBuf> {
     let p = root().join("../shared/data").join(name);
