@@ -98,7 +98,8 @@ struct Hit {
     point: u64,
     p: Point3<f64>,
     pos_err: f64,
-    rot_err: Option<f64>,
+    /// Measured marker orientation relative to the desired one (marker frame).
+    rot_rel: Option<UnitQuaternion<f64>>,
 }
 
 /// Errors of every measured pose of `ds` against `desired(id)` (marker pose in the tracker).
@@ -115,9 +116,9 @@ fn hits(
                 point,
                 p: o.p,
                 pos_err: (o.p.coords - want.translation.vector).norm(),
-                rot_err: o
+                rot_rel: o
                     .quat
-                    .map(|q: UnitQuaternion<f64>| q.angle_to(&want.rotation).to_degrees()),
+                    .map(|q: UnitQuaternion<f64>| want.rotation.inverse() * q),
             })
         })
         .collect()
@@ -148,8 +149,31 @@ fn coincidence(h: &[Hit]) -> (Option<f64>, usize) {
 
 fn summarise(h: &[Hit]) -> ErrorStats {
     let pos: Vec<f64> = h.iter().map(|x| x.pos_err).collect();
-    let rot: Vec<f64> = h.iter().filter_map(|x| x.rot_err).collect();
-    stats(&pos, &rot)
+    stats(&pos, &rotation_errors(h))
+}
+
+/// Orientation errors (deg) about the mean relative rotation: the kinematic model locates
+/// the marker's origin, not how the marker is turned on the flange, so the constant mounting
+/// rotation is removed (a 30° mounting would otherwise read as a 30° error on every pose).
+fn rotation_errors(h: &[Hit]) -> Vec<f64> {
+    let rel: Vec<UnitQuaternion<f64>> = h.iter().filter_map(|x| x.rot_rel).collect();
+    let Some(first) = rel.first() else {
+        return Vec::new();
+    };
+    // Chordal mean: quaternions summed on one hemisphere, normalised.
+    let sum = rel.iter().fold(nalgebra::Vector4::zeros(), |acc, q| {
+        let v = q.as_ref().coords;
+        if v.dot(&first.as_ref().coords) < 0.0 {
+            acc - v
+        } else {
+            acc + v
+        }
+    });
+    if sum.norm() < 1e-12 {
+        return Vec::new();
+    }
+    let mean = UnitQuaternion::from_quaternion(nalgebra::Quaternion::from(sum));
+    rel.iter().map(|q| q.angle_to(&mean).to_degrees()).collect()
 }
 
 /// The calibrated IK of tool pose `t` (robot base) on `branch`, with the deployed effects
@@ -431,7 +455,7 @@ mod tests {
             point,
             p: Point3::new(x, 0.0, 0.0),
             pos_err: x.abs(),
-            rot_err: None,
+            rot_rel: None,
         };
         let v = vec![
             h(1, 0.0),
@@ -449,5 +473,23 @@ mod tests {
         assert!((s.max_mm - 5.0).abs() < 1e-12);
         assert!(s.rot_rms_deg.is_none());
         assert_eq!(coincidence(&v[5..]).1, 0);
+    }
+
+    #[test]
+    fn a_constant_mounting_rotation_is_not_an_orientation_error() {
+        let mount = UnitQuaternion::from_euler_angles(0.0, 0.0, 30f64.to_radians());
+        let h: Vec<Hit> = [0.0, 0.1, -0.1]
+            .iter()
+            .map(|d: &f64| Hit {
+                point: 1,
+                p: Point3::origin(),
+                pos_err: 0.0,
+                rot_rel: Some(mount * UnitQuaternion::from_euler_angles(d.to_radians(), 0.0, 0.0)),
+            })
+            .collect();
+        let s = summarise(&h);
+        let rms = s.rot_rms_deg.unwrap();
+        // errors 0, 0.1, 0.1 deg about the mean: RMS sqrt(2/3)·0.1
+        assert!((rms - (2.0f64 / 3.0).sqrt() * 0.1).abs() < 1e-6, "{rms}");
     }
 }
