@@ -115,6 +115,61 @@ fn icp_converges_from_15_deg_30_mm() {
     assert_eq!(ok, trials);
 }
 
+/// The final surface fit drops only what the data show to be outliers: on a clean surface it
+/// keeps every point and matches an untrimmed fit; gross outliers are dropped and counted.
+#[test]
+fn icp_trims_only_outliers() {
+    use robocal::register::icp::{register_surface_indexed, IcpOptions};
+    let mesh = sim::phantom();
+    let idx = SurfaceIndex::new(&mesh, 1.0).unwrap();
+    let err = |r: &robocal::register::icp::IcpResult, w: &NavWorld| {
+        w.fiducials
+            .iter()
+            .map(|(_, p)| (r.t_tracker_ct * p - w.t_tracker_ct * p).norm())
+            .fold(0.0, f64::max)
+    };
+    let mut w = NavWorld::new(77, NavNoise::default());
+    let pts = w.surface_points(80);
+    let start = w.perturbed_start(12.0, 25.0);
+    let def = register_surface_indexed(&idx, &pts, Some(&start), &IcpOptions::default()).unwrap();
+    let all = IcpOptions {
+        trim_fraction: 1.0,
+        ..IcpOptions::default()
+    };
+    let full = register_surface_indexed(&idx, &pts, Some(&start), &all).unwrap();
+    let (e_def, e_full) = (err(&def, &w), err(&full, &w));
+    println!(
+        "icp clean 80 points: default keeps {} (error {e_def:.3} mm), --trim 1.0 {e_full:.3} mm",
+        def.inliers
+    );
+    assert!(
+        def.inliers >= 78,
+        "a clean surface lost {} points",
+        80 - def.inliers
+    );
+    assert!(e_def <= 1.2 * e_full + 0.01, "{e_def} vs {e_full}");
+    // 8 points 6-12 mm off the surface along the line of sight: dropped, and said.
+    let mut bad = pts.clone();
+    for (k, p) in bad.iter_mut().take(8).enumerate() {
+        p.z += 6.0 + k as f64 * 0.8;
+    }
+    let r = register_surface_indexed(&idx, &bad, Some(&start), &IcpOptions::default()).unwrap();
+    let dropped: Vec<usize> = r
+        .residuals
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| !x.inlier)
+        .map(|(i, _)| i)
+        .collect();
+    println!(
+        "icp 8 outliers: dropped {:?}, error {:.3} mm",
+        dropped,
+        err(&r, &w)
+    );
+    assert!((0..8).all(|i| dropped.contains(&i)), "{dropped:?}");
+    assert!(dropped.len() <= 10, "{dropped:?}");
+}
+
 #[test]
 fn paired_registration_matches_scikit_surgerycore() {
     let Some(py) = python("sksurgery", "scikit-surgerycore paired-registration peer") else {

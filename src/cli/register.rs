@@ -37,7 +37,9 @@ pub struct Args {
     /// `T_tracker_ct.matrix`).
     #[arg(long, value_name = "INIT.json")]
     pub init: Option<PathBuf>,
-    /// ICP: fraction of closest points kept each iteration.
+    /// ICP: fraction of closest points kept in each iteration of the multi-start search; the
+    /// final fit drops only the points the data show to be outliers (beyond 5 robust σ of
+    /// the surface) and says how many; 1.0 keeps every point.
     #[arg(long, default_value_t = 0.9)]
     pub trim: f64,
     /// CT targets (CSV `name,x_mm,y_mm,z_mm`) to predict the TRE at.
@@ -115,9 +117,11 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         };
         let r = icp::register_surface(&m, &xyz, init.as_ref(), &o)?;
         println!(
-            "surface registration: {} points ({} inliers), RMS {:.3} mm, {} starts{}",
+            "surface registration: {} points ({} inliers, {} dropped as outliers beyond {} robust σ), RMS {:.3} mm, {} starts{}",
             xyz.len(),
             r.inliers,
+            xyz.len() - r.inliers,
+            icp::ROBUST_CUT,
             r.rms_mm,
             r.starts,
             match (r.runner_up_rms_mm, r.runner_up_angle_deg) {

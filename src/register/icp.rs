@@ -142,7 +142,8 @@ impl LsqProblem for PointToPlane<'_> {
 /// ICP options.
 #[derive(Debug, Clone, Copy)]
 pub struct IcpOptions {
-    /// Fraction of points kept each iteration (closest first).
+    /// Fraction of points kept each iteration of the multi-start search (closest first); the
+    /// final fit keeps every point within [`ROBUST_CUT`] robust σ of the surface.
     pub trim_fraction: f64,
     pub max_iter: usize,
     /// Mesh sample spacing (mm).
@@ -267,6 +268,33 @@ fn run_icp(idx: &SurfaceIndex, pts: &[Point3<f64>], s0: Isometry3<f64>, o: &IcpO
     Run { s, rms, iters }
 }
 
+/// Outlier cut of the final surface fit, in robust σ (1.4826 · median |distance|). Generous:
+/// a stereo tracker's noise differs with the surface normal's angle to the line of sight, so
+/// the distances are not one Gaussian; a gross outlier (a probe off the skin, a mis-touch) is
+/// tens of σ away.
+pub const ROBUST_CUT: f64 = 5.0;
+
+/// How many points the final fit keeps at `s`: those within [`ROBUST_CUT`] robust σ of the
+/// surface (at least 6, and at least half: a robust scale needs a majority of inliers).
+fn robust_keep(idx: &SurfaceIndex, pts: &[Point3<f64>], s: &Isometry3<f64>) -> usize {
+    let mut d: Vec<f64> = pts
+        .iter()
+        .map(|x| {
+            let q = s * x;
+            let (_, p, n) = idx.nearest(&q);
+            n.dot(&(q - p)).abs()
+        })
+        .collect();
+    d.sort_by(f64::total_cmp);
+    let sigma = 1.4826 * d[d.len() / 2];
+    let cut = ROBUST_CUT * sigma.max(1e-9);
+    d.iter()
+        .filter(|x| **x <= cut)
+        .count()
+        .max(pts.len().div_ceil(2))
+        .clamp(6.min(pts.len()), pts.len())
+}
+
 /// Registers surface points `pts` (tracker frame) onto `mesh` (CT frame). `init` is a guess
 /// of `T_tracker_ct`; without one, 24 axis-aligned orientations about the centroids are
 /// tried (fine for whole-surface scans, a guess is needed for partial ones).
@@ -373,7 +401,29 @@ pub fn register_surface_indexed(
                 || (r.s * c - bs * c).norm() > 2.0
         })
         .min_by(|a, b| a.rms.total_cmp(&b.rms));
-    let keep = ((pts.len() as f64 * o.trim_fraction).ceil() as usize).clamp(6, pts.len());
+    // The trimmed search found the pose; the final fit drops only what the data show to be
+    // outliers (point-to-plane distance beyond ROBUST_CUT robust σ), so a clean surface keeps
+    // every point instead of a fixed fraction.
+    // `trim_fraction = 1` is the user's "keep every point".
+    let robust = |s: &Isometry3<f64>| {
+        if o.trim_fraction >= 1.0 {
+            pts.len()
+        } else {
+            robust_keep(idx, pts, s)
+        }
+    };
+    let keep = robust(&bs);
+    let refined = run_icp(
+        idx,
+        pts,
+        bs,
+        &IcpOptions {
+            trim_fraction: keep as f64 / pts.len() as f64,
+            ..*o
+        },
+    );
+    let bs = refined.s;
+    let keep = robust(&bs).max(keep);
     let (ids, ps, ns, _) = trimmed_correspondences(idx, pts, &bs, keep);
     let xs: Vec<Point3<f64>> = ids.iter().map(|&i| pts[i]).collect();
     let prob = PointToPlane {
@@ -382,8 +432,8 @@ pub fn register_surface_indexed(
         p: &ps,
         n: &ns,
     };
-    let (_, j) = prob.residuals_jacobian(&DVector::zeros(6));
-    let rms = runs[best].rms;
+    let (r_final, j) = prob.residuals_jacobian(&DVector::zeros(6));
+    let rms = (r_final.norm_squared() / keep as f64).sqrt();
     let dof = (keep as f64 - 6.0).max(1.0);
     let s2 = rms * rms * keep as f64 / dof;
     let jtj = j.transpose() * &j;
