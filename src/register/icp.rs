@@ -575,6 +575,49 @@ mod tests {
         assert!((&ja - &jn).norm() / ja.norm() < 1e-7);
     }
 
+    /// A 200 mm cube (12 triangles).
+    fn cube() -> Mesh {
+        let mut vertices = Vec::new();
+        for &x in &[0.0, 200.0] {
+            for &y in &[0.0, 200.0] {
+                for &z in &[0.0, 200.0] {
+                    vertices.push(Point3::new(x, y, z));
+                }
+            }
+        }
+        let v = |x: usize, y: usize, z: usize| x * 4 + y * 2 + z;
+        let quad = |a, b, c, d| [[a, b, c], [a, c, d]];
+        let mut triangles = Vec::new();
+        for t in [
+            quad(v(0, 0, 0), v(0, 1, 0), v(1, 1, 0), v(1, 0, 0)),
+            quad(v(0, 0, 1), v(1, 0, 1), v(1, 1, 1), v(0, 1, 1)),
+            quad(v(0, 0, 0), v(1, 0, 0), v(1, 0, 1), v(0, 0, 1)),
+            quad(v(0, 1, 0), v(0, 1, 1), v(1, 1, 1), v(1, 1, 0)),
+            quad(v(0, 0, 0), v(0, 0, 1), v(0, 1, 1), v(0, 1, 0)),
+            quad(v(1, 0, 0), v(1, 1, 0), v(1, 1, 1), v(1, 0, 1)),
+        ] {
+            triangles.extend(t);
+        }
+        Mesh {
+            vertices,
+            triangles,
+        }
+    }
+
+    #[test]
+    fn points_on_one_face_are_refused_as_sliding() {
+        // 60 points on the top face (z = 200) of a cube: they fix z and two tilts, nothing else.
+        let pts: Vec<Point3<f64>> = (0..60)
+            .map(|i| {
+                let (a, b) = ((i % 8) as f64, (i / 8) as f64);
+                Point3::new(20.0 + 20.0 * a, 15.0 + 22.0 * b, 200.0)
+            })
+            .collect();
+        let init = Isometry3::translation(3.0, -2.0, 1.0);
+        let e = register_surface(&cube(), &pts, Some(&init), &IcpOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("do not constrain"), "{e}");
+    }
+
     #[test]
     fn cube_group_has_24() {
         assert_eq!(cube_rotations().len(), 24);
