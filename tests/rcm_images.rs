@@ -89,13 +89,16 @@ fn calibrate_rcm_reads_images_refuses_blank_views_and_needs_no_robot_preset() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
-        .args(["calibrate", "rcm", "--bootstrap", "0", "--data"])
-        .arg(&path)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let calibrate = || {
+        Command::new(env!("CARGO_BIN_EXE_robocal"))
+            .args(["calibrate", "rcm", "--bootstrap", "0", "--data"])
+            .arg(&path)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let o = calibrate();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
     println!("{}\n{stderr}", String::from_utf8_lossy(&o.stdout));
@@ -119,13 +122,7 @@ fn calibrate_rcm_reads_images_refuses_blank_views_and_needs_no_robot_preset() {
             .join(format!("rcm.images/pose-{}.pgm", views[0].0)),
     )
     .unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
-        .args(["calibrate", "rcm", "--bootstrap", "0", "--data"])
-        .arg(&path)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = calibrate();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(
