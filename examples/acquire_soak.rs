@@ -22,7 +22,7 @@ use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 use robocal::acquire::{acquire, AcquireOptions, PlannedPose};
-use robocal::cli::wire_cell::wire_cell;
+use robocal::cell::wire_cell;
 use robocal::dataset::{read_dataset, Header, Journal, Record};
 use robocal_drivers::safety::{guard, SafetyLimits};
 use robocal_mocks::scenario::ClockMode;

@@ -5,9 +5,10 @@
 //! Files use millimetres and degrees (see `dataset`), conversion happens at the file edge.
 //!
 //! Estimation code (`model`, `solve`, `diagnose`, `plan`) never depends on the simulator crate (`mocks/`);
-//! only the CLI layer wires the simulators in for dry runs.
+//! only `cell` (dry runs) and `trials` (scoring against the simulated truth) wire the simulators in.
 
 pub mod acquire;
+pub mod cell;
 pub mod chain;
 pub mod cli;
 pub mod dataset;
@@ -22,3 +23,4 @@ pub mod report;
 pub mod schema;
 pub mod session;
 pub mod solve;
+pub mod trials;

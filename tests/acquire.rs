@@ -884,7 +884,7 @@ mod sim_devices {
         path: &std::path::Path,
         opts: &AcquireOptions,
     ) -> RunSummary {
-        let (mut devices, _) = robocal::cli::run::sim_cell(world).unwrap();
+        let (mut devices, _) = robocal::cell::sim_cell(world).unwrap();
         let limits = SafetyLimits {
             joint_lower: vec![-170f64.to_radians(); 6],
             joint_upper: vec![170f64.to_radians(); 6],

@@ -222,11 +222,11 @@ fn malformed_board_and_camera_without_camera_are_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let plan = tmp.path().join("missing-plan.json");
     for bad in ["8", "8x", "x5", "1x5", "8x5x2", "-8x5", "eightxfive"] {
-        let e = robocal::cli::run::parse_board(bad).unwrap_err();
+        let e = robocal::cell::parse_board(bad).unwrap_err();
         assert!(e.contains("inner corners"), "{bad}: {e}");
     }
-    assert_eq!(robocal::cli::run::parse_board(" 8X5 "), Ok((8, 5)));
-    assert_eq!(robocal::cli::run::parse_board("7×4"), Ok((7, 4)));
+    assert_eq!(robocal::cell::parse_board(" 8X5 "), Ok((8, 5)));
+    assert_eq!(robocal::cell::parse_board("7×4"), Ok((7, 4)));
     // Through the CLI: a bad --board is a usage error (exit code 2), before anything runs.
     let out = tmp.path().join("run");
     let code = cli(&[
@@ -274,7 +274,7 @@ fn run_poses(
     header: &Header,
     max_poses: usize,
 ) -> RunSummary {
-    let (mut devices, _) = robocal::cli::run::sim_cell(world).unwrap();
+    let (mut devices, _) = robocal::cell::sim_cell(world).unwrap();
     assert!(devices.camera.is_some());
     let limits = SafetyLimits {
         joint_lower: vec![-360f64.to_radians(); 6],

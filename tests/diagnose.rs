@@ -124,7 +124,7 @@ fn geometric_only_world_gets_no_effect() {
 #[test]
 fn cli_writes_a_calibration_that_predict_side_reproduces() {
     let dir = tempfile::tempdir().unwrap();
-    let args = robocal::cli::diagnose::Args {
+    let args = robocal::diagnose::stage::DiagnoseRequest {
         data: case_dir("kin-compliance-j2").join("train.jsonl"),
         out: dir.path().to_path_buf(),
         calibration: None,
@@ -132,9 +132,8 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
         no_nonparametric: false,
         physics_first: false,
         kernel_benchmark: false,
-        json: false,
     };
-    let summary = robocal::cli::diagnose::run(&args).unwrap();
+    let summary = robocal::diagnose::stage::run(&args).unwrap();
     assert!(summary.contains("joint_compliance(j2)"), "{summary}");
     for f in [
         "diagnosis.json",

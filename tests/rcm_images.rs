@@ -6,7 +6,7 @@ use std::process::Command;
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use robocal::cli::rcm_images::{self, TrialOptions};
+use robocal::trials::rcm_images::{self, TrialOptions};
 use robocal::model::KinematicModel;
 use robocal::plan::rcm::{generate, RcmPlanSpec};
 use robocal::solve::rcm::lines;

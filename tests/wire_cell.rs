@@ -1,4 +1,4 @@
-//! The wire-level dry-run cell (`robocal::cli::wire_cell`): the scenario's simulators on
+//! The wire-level dry-run cell (`robocal::cell::wire`): the scenario's simulators on
 //! loopback TCP / ptys, the REAL drivers connected to them. Readings through the wire equal
 //! the world's truth within each protocol's resolution, and the acquisition engine records
 //! every pose of a small seed-001 plan over the wire cell on the virtual clock.
@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nalgebra::Isometry3;
 use robocal::acquire::{acquire, AcquireOptions, Devices, PlannedPose};
-use robocal::cli::wire_cell::wire_cell;
+use robocal::cell::wire_cell;
 use robocal::dataset::{Dataset, Header, Journal, Record, RobotBlock};
 use robocal::model::KinematicModel;
 use robocal::plan::{build_plan, PlanOptions, PlanSpec};

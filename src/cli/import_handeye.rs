@@ -147,7 +147,7 @@ pub fn options(a: &HandeyeArgs) -> anyhow::Result<HandeyeOptions> {
         None => None,
     };
     let layout = Layout::parse(&layout, euler).map_err(anyhow::Error::msg)?;
-    let (cols, rows) = crate::cli::run::parse_board(&need(
+    let (cols, rows) = crate::cell::parse_board(&need(
         a.board.clone().or(m.board),
         "the board's inner corners (--board COLSxROWS)",
     )?)

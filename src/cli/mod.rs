@@ -10,22 +10,17 @@ pub mod chain;
 pub mod correct;
 pub mod devices;
 pub mod diagnose;
-pub mod diagnose_camera;
 pub mod history;
 pub mod import;
 pub mod import_handeye;
 pub mod inspect;
-pub mod live_cell;
 pub mod plan;
 pub mod predict;
-pub mod rcm_images;
 pub mod register;
 pub mod report;
 pub mod run;
-pub mod run_checks;
 pub mod session;
 pub mod sim;
-pub mod wire_cell;
 
 /// robocal: plan, acquire, calibrate and diagnose a robot calibration cell.
 #[derive(Debug, Parser)]
@@ -95,7 +90,7 @@ where
             return match session::exec(a) {
                 Ok(code) => code,
                 // Ctrl-C during an acquisition: the pose is durable, the session resumable.
-                Err(e) if e.chain().any(|c| c.is::<run::Interrupted>()) => {
+                Err(e) if e.chain().any(|c| c.is::<crate::cell::Interrupted>()) => {
                     eprintln!("{e:#}");
                     130
                 }
@@ -123,7 +118,7 @@ where
     match result {
         Ok(()) => 0,
         // `robocal run` stopped by Ctrl-C after a durable record: the shell's 128 + SIGINT.
-        Err(e) if e.downcast_ref::<run::Interrupted>().is_some() => {
+        Err(e) if e.downcast_ref::<crate::cell::Interrupted>().is_some() => {
             eprintln!("{e}");
             130
         }

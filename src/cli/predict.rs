@@ -31,7 +31,7 @@ pub struct Args {
 /// Run `robocal predict`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     if let Some(pts) = &args.points {
-        let rows = crate::cli::register::predict_points(&args.calibration, pts)?;
+        let rows = crate::register::run::predict_points(&args.calibration, pts)?;
         return match &args.out {
             Some(path) => {
                 let mut buf = Vec::new();

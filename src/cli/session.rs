@@ -469,15 +469,20 @@ impl session::Cell for RunCell {
         self.consent()?;
         let resume = run_dir.join("run.json").is_file();
         let live = self.mode == Mode::Live;
-        let args = super::run::Args {
-            plan: (!resume).then(|| plan.to_path_buf()),
-            sim: (!resume && !live).then(|| self.cell_file.clone()),
-            devices: (!resume && live).then(|| self.cell_file.clone()),
+        let req = crate::cell::RunRequest {
+            start: if resume {
+                crate::cell::RunStart::Resume(run_dir.to_path_buf())
+            } else {
+                crate::cell::RunStart::New {
+                    plan: plan.to_path_buf(),
+                    sim: (!live).then(|| self.cell_file.clone()),
+                    devices: live.then(|| self.cell_file.clone()),
+                    out: run_dir.to_path_buf(),
+                }
+            },
             // Consent was given above, in this invocation (with --live on its command line).
             live,
             yes: true,
-            out: (!resume).then(|| run_dir.to_path_buf()),
-            resume: resume.then(|| run_dir.to_path_buf()),
             virtual_clock: !live,
             speed_deg_s: self.setup.speed_deg_s,
             accel_deg_s2: self.setup.accel_deg_s2,
@@ -485,19 +490,21 @@ impl session::Cell for RunCell {
             max_poses: None,
             // Stop early once the verdict cannot pass on skipped poses.
             max_skipped_fraction: self.skipped_fraction_max,
-            json: false,
             in_process: self.in_process,
             // Camera sessions plan camera viewpoints (a shell): the run records an image per
             // pose by default; kinematic sessions never use the camera.
-            camera: false,
-            no_camera: !resume && self.kind != SessionKind::Camera,
+            camera: if !resume && self.kind != SessionKind::Camera {
+                crate::cell::CameraUse::Never
+            } else {
+                crate::cell::CameraUse::Auto
+            },
             board: None,
-            summary_to_stderr: true,
         };
-        super::run::exec(args)?;
-        let p = run_dir.join("summary.json");
-        let text = crate::fsio::read_to_string(&p).with_context(|| format!("{}", p.display()))?;
-        serde_json::from_str(&text).with_context(|| format!("{}", p.display()))
+        let out = crate::cell::run(&req, &mut super::run::Reporter::new(false))?;
+        // The run's summary goes to stderr: the session's stdout starts with its verdict.
+        eprint!("{}", out.summary);
+        eprintln!("dataset: {}", out.dataset().display());
+        out.finished()
     }
 }
 
@@ -567,7 +574,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         .as_ref()
         .or(a.devices.as_ref())
         .expect("checked above");
-    super::run_checks::check_motion_options(
+    crate::cell::checks::check_motion_options(
         if mode == Mode::Sim { "sim" } else { "live" },
         cell_src,
         a.arm.as_deref(),

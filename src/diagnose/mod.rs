@@ -21,10 +21,12 @@ use crate::schema::{self, fin};
 use nalgebra::{DMatrix, DVector, Vector3};
 
 pub mod camera;
+pub mod camera_stage;
 pub mod effects;
 pub mod fit;
 pub mod nonparam;
 pub mod plot;
+pub mod stage;
 pub mod transfer;
 pub use crate::solve::inference as stats;
 

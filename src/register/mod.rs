@@ -14,6 +14,7 @@ pub mod mesh;
 pub mod paired;
 pub mod points;
 pub mod robot_world;
+pub mod run;
 pub mod tracker_model;
 
 pub use file::{RegistrationFile, REGISTRATION_FORMAT};

@@ -778,7 +778,7 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
             .path,
     );
     let out = dir.join("diagnose");
-    let summary = crate::cli::diagnose::run(&crate::cli::diagnose::Args {
+    let summary = crate::diagnose::stage::run(&crate::diagnose::stage::DiagnoseRequest {
         data: train,
         out: out.clone(),
         calibration: None,
@@ -786,7 +786,6 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
         no_nonparametric: false,
         physics_first: false,
         kernel_benchmark: false,
-        json: false,
     })?;
     // Every artifact records the datasets it came from.
     for name in ["diagnosis.json", "calibration.json"] {

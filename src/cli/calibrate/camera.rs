@@ -24,7 +24,7 @@ pub struct Args {
     #[arg(long, value_name = "H.jsonl")]
     pub heldout: Option<PathBuf>,
     /// Board inner corners COLSxROWS (overrides the header's `target`).
-    #[arg(long, value_name = "COLSxROWS", value_parser = crate::cli::run::parse_board)]
+    #[arg(long, value_name = "COLSxROWS", value_parser = crate::cell::parse_board)]
     pub board: Option<(u32, u32)>,
     /// Board square edge (mm; overrides the header's `target.square_mm`).
     #[arg(long, value_name = "MM")]

@@ -60,7 +60,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     let model = a
         .tracker_model
         .as_deref()
-        .map(super::super::register::load_model)
+        .map(crate::register::run::load_model)
         .transpose()?;
     let shah = rw::shah(&obs)?;
     let li = rw::li(&obs)?;

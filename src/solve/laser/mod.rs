@@ -23,6 +23,7 @@
 
 pub mod effects;
 pub mod fit;
+pub mod stage;
 pub mod validate;
 
 use crate::dataset::{CalParam, CalibrationFile, Dataset, PoseRecord};

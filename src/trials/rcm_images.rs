@@ -1,4 +1,4 @@
-//! Trials of the RCM endoscope calibration from rendered images (issue 29 §2), shared by
+//! Trials of the RCM endoscope calibration from rendered images, shared by
 //! `examples/rcm_images.rs` (prints the figures) and `tests/rcm_images.rs` (asserts them).
 //!
 //! Each trial plans RCM poses (seed 002's pivoting about the trocar, reachable by the UR5e),
@@ -7,7 +7,7 @@
 //! the pixels. The world's exact silhouettes (`RcmCell::view`) score the detector, and the same
 //! poses are calibrated three times: with the detected lines, with the exact lines and with the
 //! exact lines plus 0.5 px end-point noise (what the simulator wrote before images). Truth is
-//! read here, in the CLI layer, only to score; the estimators see what a dataset holds.
+//! read here, in an evaluation harness, only to score; the estimators see what a dataset holds.
 use nalgebra::Isometry3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

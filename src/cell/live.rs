@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use crate::acquire::devices::{DeviceEntry, DevicesFile, Protocol, Role};
 use crate::acquire::Devices;
-use crate::cli::run::CellInfo;
+use crate::cell::CellInfo;
 use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
 use robocal_drivers::ndi::{NdiConfig, NdiTracker, ReplyMode};
@@ -70,13 +70,13 @@ fn open_camera(
 /// decorators here (the caller does it).
 ///
 /// `_consent` proves that this invocation has `--live` and the user's confirmation (or
-/// `--yes`): it can only be made by [`crate::cli::run::confirm_live`], so no code path opens
+/// `--yes`): it can only be made by [`crate::cell::confirm_live`], so no code path opens
 /// the hardware for motion without them.
 pub async fn live_cell(
     path: &Path,
     dof: usize,
     camera: bool,
-    _consent: &crate::cli::run::LiveConsent,
+    _consent: &crate::cell::LiveConsent,
 ) -> anyhow::Result<(Devices, CellInfo)> {
     // The same validation as `robocal devices` and the session (done before consent there;
     // repeated here because the file may have changed since).

@@ -32,7 +32,7 @@ use robocal_mocks::sim::{SimArm, SimCamera, SimRange, SimTracker};
 use robocal_mocks::WorldHandle;
 
 use crate::acquire::Devices;
-use crate::cli::run::CellInfo;
+use crate::cell::CellInfo;
 
 /// Size of the synthetic tool definition loaded into a simulated NDI tracker. The simulator
 /// treats a `.rom` as opaque (its `k`-th tool is reported on the `k`-th handle loaded); a
@@ -210,7 +210,7 @@ async fn connect_camera(
 
 /// Serve every device of the world's scenario on loopback TCP (port 0) / ptys and connect
 /// the real drivers to the first arm, tracker and laser, plus the first camera (the same
-/// devices as [`crate::cli::run::sim_cell`]). The clock is the world's (`world.clock()`).
+/// devices as [`crate::cell::sim_cell`]). The clock is the world's (`world.clock()`).
 ///
 /// The arm is NOT wrapped in the safety decorators (`robocal run` does that for every arm).
 /// Keep the returned [`Served`] alive for the whole run: dropping it does not stop the
