@@ -716,3 +716,43 @@ fn lab_session_verifies_by_commanding_the_calibrated_robot() {
     assert!((0.8..=1.2).contains(&r) && !v.flagged, "{v:?}");
     assert_eq!(s.measured.verified_rms_mm_after, Some(v.after.rms_mm));
 }
+
+/// One session, one geometric fit, each dataset read once: the training and held-out sets are
+/// read when they are acquired and handed from stage to stage in memory (calibrate, diagnose,
+/// validate and verify share the one identification); the verify run's dataset is read once.
+/// Counted in this thread (the session runs in it: the library's command-line entry).
+#[test]
+fn a_session_identifies_once_and_reads_each_dataset_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("s");
+    let scen = root().join("mocks/scenarios/lab-vs060-optotrak-il600.toml");
+    let accept = root().join("accept/research.toml");
+    let (fits0, reads0) = (
+        robocal::solve::kinematics::identifications_on_this_thread(),
+        robocal::dataset::dataset_parses_on_this_thread(),
+    );
+    let code = robocal::cli::run([
+        "robocal",
+        "session",
+        "--sim",
+        scen.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--in-process",
+        "--poses",
+        "30",
+        "--heldout-points",
+        "10",
+        "--no-history",
+        "--accept",
+        accept.to_str().unwrap(),
+    ]);
+    assert!(code == 0 || code == 2, "exit {code}");
+    let s = SessionFile::load(&out.join("session.json")).unwrap();
+    assert!(s.stages_done.len() == 8, "{:?}", s.stages_done);
+    let fits = robocal::solve::kinematics::identifications_on_this_thread() - fits0;
+    let reads = robocal::dataset::dataset_parses_on_this_thread() - reads0;
+    // train, validation, verify.
+    assert_eq!(fits, 1, "kinematic identifications in one session");
+    assert_eq!(reads, 3, "dataset reads in one session (train, validation, verify)");
+}

@@ -342,8 +342,19 @@ pub const MAX_LINE_BYTES: usize = 4 << 20;
 /// Most records in one dataset file: 2 million (a 100 Hz stream of 5.5 hours).
 pub const MAX_RECORDS: usize = 2_000_000;
 
+thread_local! {
+    static PARSES: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// How many dataset files this thread has parsed ([`parse_dataset`], which every reader goes
+/// through): a test counts how often a pipeline reads its data.
+pub fn dataset_parses_on_this_thread() -> usize {
+    PARSES.with(|c| c.get())
+}
+
 /// Parses the bytes of a dataset file; `file` names it in errors and warnings.
 pub fn parse_dataset(bytes: &[u8], file: &Path) -> Result<Loaded, DatasetError> {
+    PARSES.with(|c| c.set(c.get() + 1));
     let mut header: Option<Header> = None;
     let mut validator: Option<Validator> = None;
     let mut records = Vec::new();

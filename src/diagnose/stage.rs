@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use serde_json::{json, Map, Value};
 
-use crate::dataset::{CalibrationFile, PoseRecord};
+use crate::dataset::{CalibrationFile, Loaded, PoseRecord};
 use crate::diagnose::effects::EffectModel;
 use crate::diagnose::{self, effects, plot, Options};
 use crate::model::KinematicModel;
@@ -37,26 +37,47 @@ pub struct DiagnoseRequest {
     pub kernel_benchmark: bool,
 }
 
-/// Run the diagnosis `args` into its directory and return the short console summary.
+/// Run the diagnosis `args` into its directory and return the short console summary. Each
+/// file is read once; [`run_loaded`] does the rest.
 pub fn run(args: &DiagnoseRequest) -> anyhow::Result<String> {
-    if super::camera_stage::is_camera_dataset(&args.data) {
+    let main = crate::dataset::read_dataset(&args.data)?;
+    let extra = match &args.heldout {
+        Some(p) => Some(crate::dataset::read_dataset(p)?),
+        None => None,
+    };
+    run_loaded(args, &main, extra.as_ref())
+}
+
+/// [`run`] on datasets already read: `main` is `args.data`, `extra` is `args.heldout`.
+pub fn run_loaded(
+    args: &DiagnoseRequest,
+    main: &Loaded,
+    extra: Option<&Loaded>,
+) -> anyhow::Result<String> {
+    if main.dataset.header.camera().ok().flatten().is_some() {
         return super::camera_stage::run(&args.data, args.heldout.as_deref(), &args.out);
     }
-    // Bad input is refused at the boundary: strict reader + plausibility (issue 14 §5).
-    let (ds, _) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
-    // Laser (range sensor) datasets have their own effect library (seed 000 geometry).
-    if crate::solve::laser::stage::is_laser_dataset(&ds) {
+    // Bad input is refused at the boundary: strict reader + plausibility.
+    let ds = &main.dataset;
+    crate::plausible::check_dataset(ds, &args.data)?;
+    if let (Some(x), Some(h)) = (extra, &args.heldout) {
+        crate::plausible::check_same_robot(
+            &ds.header.robot,
+            &args.data,
+            &x.dataset.header.robot,
+            h,
+            "held-out file",
+        )?;
+        crate::plausible::check_dataset(&x.dataset, h)?;
+    }
+    // Laser (range sensor) datasets have their own effect library (the laser geometry).
+    if crate::solve::laser::stage::is_laser_dataset(ds) {
         return crate::solve::laser::stage::diagnose_laser(
             &args.data,
             args.heldout.as_deref(),
             &args.out,
         );
     }
-    let main = crate::dataset::read_dataset(&args.data)?;
-    let extra = match &args.heldout {
-        Some(p) => Some(crate::dataset::read_dataset(p)?),
-        None => None,
-    };
     let mut model = KinematicModel::from_robot_block(&main.dataset.header.robot)
         .with_context(|| format!("{}: robot block", args.data.display()))?;
     if let Some(c) = &args.calibration {
@@ -75,12 +96,12 @@ pub fn run(args: &DiagnoseRequest) -> anyhow::Result<String> {
     }
     let dof = model.dof();
     let (train, held, skipped) =
-        obs::split_observations(&main.dataset, extra.as_ref().map(|x| &x.dataset), dof);
+        obs::split_observations(&main.dataset, extra.map(|x| &x.dataset), dof);
     let mut session: Vec<&PoseRecord> = main.dataset.poses().collect();
-    if let Some(x) = &extra {
+    if let Some(x) = extra {
         session.extend(x.dataset.poses());
     }
-    if let (Some(x), Some(h)) = (&extra, &args.heldout) {
+    if let (Some(x), Some(h)) = (extra, &args.heldout) {
         let recs: Vec<&PoseRecord> = x.dataset.poses().collect();
         anyhow::ensure!(
             !obs::session_observations(&recs, &session, dof).0.is_empty(),

@@ -464,10 +464,73 @@ pub fn create(
 /// What a stage prints (the CLI shows it).
 pub type Log<'a> = &'a mut dyn FnMut(&str);
 
+/// What the stages of one invocation hand each other in memory: each dataset read once (and
+/// checked against the SHA-256 the session recorded), the kinematic identification run once.
+/// A resumed session fills it on first use.
+#[derive(Default)]
+pub struct Work {
+    datasets: std::collections::BTreeMap<String, (PathBuf, crate::dataset::Loaded)>,
+    ident: Option<crate::solve::kinematics::IdentResult>,
+}
+
+impl Work {
+    /// The session's `role` dataset (`train`, `validation`): read on first use, its SHA-256
+    /// checked against `session.json`.
+    pub fn dataset(
+        &mut self,
+        dir: &Path,
+        s: &SessionFile,
+        role: &str,
+    ) -> anyhow::Result<&(PathBuf, crate::dataset::Loaded)> {
+        if !self.datasets.contains_key(role) {
+            let d = s
+                .datasets
+                .iter()
+                .find(|d| d.role == role)
+                .with_context(|| format!("no {role} dataset in the session"))?;
+            let p = dir.join(&d.path);
+            let bytes = crate::fsio::read(&p).with_context(|| format!("reading {}", p.display()))?;
+            let sha = sha256_hex(&bytes);
+            if sha != d.sha256 {
+                bail!(
+                    "{}: SHA-256 {sha} is not the {} recorded in session.json: the dataset changed since it was acquired",
+                    p.display(),
+                    d.sha256
+                );
+            }
+            let loaded = crate::dataset::parse_dataset(&bytes, &p)
+                .with_context(|| format!("{}", p.display()))?;
+            self.datasets.insert(role.to_string(), (p, loaded));
+        }
+        Ok(&self.datasets[role])
+    }
+
+    /// The kinematic identification of the training set (held out: the validation set), run
+    /// once per invocation.
+    pub fn identification(
+        &mut self,
+        dir: &Path,
+        s: &SessionFile,
+    ) -> anyhow::Result<&crate::solve::kinematics::IdentResult> {
+        if self.ident.is_none() {
+            let val = self.dataset(dir, s, "validation")?.1.dataset.clone();
+            let train = &self.dataset(dir, s, "train")?.1.dataset;
+            let opts = IdentOptions {
+                heldout: Some(val),
+                ..Default::default()
+            };
+            let res = identify(train, &opts).context("kinematic identification")?;
+            self.ident = Some(res);
+        }
+        Ok(self.ident.as_ref().expect("set above"))
+    }
+}
+
 /// Runs (or continues) the session in `dir` up to the end (or the plan, with `plan_only`).
 pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionFile> {
     let path = dir.join("session.json");
     let mut s = SessionFile::load(&path)?;
+    let mut work = Work::default();
     let step = |s: &mut SessionFile, st: Stage| -> anyhow::Result<()> {
         if !s.stages_done.contains(&st) {
             s.stages_done.push(st);
@@ -516,7 +579,12 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         }));
         s.poses_skipped = s.skipped.len();
         let ds_path = run_dir.join("dataset.jsonl");
-        let ds = Dataset::load(&ds_path).with_context(|| format!("{}", ds_path.display()))?;
+        // Read once: hashed and parsed from the same bytes, kept for the later stages.
+        let bytes = crate::fsio::read(&ds_path)
+            .with_context(|| format!("reading {}", ds_path.display()))?;
+        let loaded = crate::dataset::parse_dataset(&bytes, &ds_path)
+            .with_context(|| format!("{}", ds_path.display()))?;
+        let ds = &loaded.dataset;
         if s.cell.robot_serial.is_none() {
             s.cell.robot_serial = ds.header.robot.serial.clone();
         }
@@ -524,9 +592,10 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         s.datasets.push(DatasetRef {
             role: set.into(),
             path: rel(dir, &ds_path),
-            sha256: sha256_file(&ds_path)?,
+            sha256: sha256_hex(&bytes),
             records: ds.poses().count(),
         });
+        work.datasets.insert(set.to_string(), (ds_path.clone(), loaded));
         log(&format!(
             "  {} recorded, {} skipped, {:.0} s",
             summary.recorded,
@@ -542,13 +611,13 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
             camera::calibrate_stage(dir, &mut s, &mut *log)?;
         } else {
             log("calibrate: kinematic identification on the training poses");
-            calibrate_stage(dir, &mut s)?;
+            calibrate_stage(dir, &mut s, &mut work)?;
         }
         step(&mut s, Stage::Calibrate)?;
     }
     if !s.done(Stage::Diagnose) {
         log("diagnose: residual → physical effect → add it");
-        diagnose_stage(dir, &mut s, &mut *log)?;
+        diagnose_stage(dir, &mut s, &mut work, &mut *log)?;
         step(&mut s, Stage::Diagnose)?;
     }
     if !s.done(Stage::Validate) {
@@ -557,7 +626,7 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
             camera::validate_stage(dir, &mut s)?;
         } else {
             log("validate: held-out poses, before / after");
-            validate_stage(dir, &mut s)?;
+            validate_stage(dir, &mut s, &mut work)?;
         }
         step(&mut s, Stage::Validate)?;
     }
@@ -565,7 +634,7 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         if !cam {
             log("verify: command the calibrated robot at the held-out targets, measure");
         }
-        verify::verify_stage(dir, &mut s, cell, &mut *log)?;
+        verify::verify_stage(dir, &mut s, &mut work, cell, &mut *log)?;
         step(&mut s, Stage::Verify)?;
     }
     if !s.done(Stage::Report) {
@@ -714,15 +783,11 @@ pub(crate) fn load_ds(
     Ok((p, ds))
 }
 
-fn calibrate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
-    let (_, train) = load_ds(dir, s, "train")?;
-    let (_, val) = load_ds(dir, s, "validation")?;
-    let opts = IdentOptions {
-        heldout: Some(val),
-        ..Default::default()
-    };
-    let res = identify(&train, &opts).context("kinematic identification")?;
-    let mut file = calfile::ident_file(&train.header.robot, &res);
+fn calibrate_stage(dir: &Path, s: &mut SessionFile, work: &mut Work) -> anyhow::Result<()> {
+    work.identification(dir, s)?;
+    let res = work.ident.as_ref().expect("identified above");
+    let robot = &work.datasets["train"].1.dataset.header.robot;
+    let mut file = calfile::ident_file(robot, res);
     file.extra.insert("datasets".into(), s.dataset_hashes());
     std::fs::create_dir_all(dir.join("calibrate"))?;
     file.save(dir.join("calibrate").join("calibration.json"))
@@ -762,31 +827,26 @@ fn calibrate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
-    let train = dir.join(
-        &s.datasets
-            .iter()
-            .find(|d| d.role == "train")
-            .context("no train dataset")?
-            .path,
-    );
-    let val = dir.join(
-        &s.datasets
-            .iter()
-            .find(|d| d.role == "validation")
-            .context("no validation dataset")?
-            .path,
-    );
+fn diagnose_stage(
+    dir: &Path,
+    s: &mut SessionFile,
+    work: &mut Work,
+    log: Log,
+) -> anyhow::Result<()> {
+    work.dataset(dir, s, "train")?;
+    work.dataset(dir, s, "validation")?;
+    let (train, val) = (&work.datasets["train"], &work.datasets["validation"]);
     let out = dir.join("diagnose");
-    let summary = crate::diagnose::stage::run(&crate::diagnose::stage::DiagnoseRequest {
-        data: train,
-        out: out.clone(),
-        calibration: None,
-        heldout: Some(val),
-        no_nonparametric: false,
-        physics_first: false,
-        kernel_benchmark: false,
-    })?;
+    let summary = crate::diagnose::stage::run_loaded(
+        &crate::diagnose::stage::DiagnoseRequest {
+            data: train.0.clone(),
+            out: out.clone(),
+            heldout: Some(val.0.clone()),
+            ..Default::default()
+        },
+        &train.1,
+        Some(&val.1),
+    )?;
     // Every artifact records the datasets it came from.
     for name in ["diagnosis.json", "calibration.json"] {
         let p = out.join(name);
@@ -910,17 +970,11 @@ pub fn effects_in_words(
         .collect()
 }
 
-fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
-    let (_, train) = load_ds(dir, s, "train")?;
-    let (_, val) = load_ds(dir, s, "validation")?;
+fn validate_stage(dir: &Path, s: &mut SessionFile, work: &mut Work) -> anyhow::Result<()> {
     // "Before": the nominal chain with the tracker → base and flange → marker transforms
     // fitted (what the robot does today); "after": the diagnosed model (geometry + effects),
     // whose held-out predictions the diagnosis wrote.
-    let opts = IdentOptions {
-        heldout: Some(val),
-        ..Default::default()
-    };
-    let res = identify(&train, &opts).context("kinematic identification")?;
+    let res = work.identification(dir, s)?;
     let obs = &res.heldout_obs;
     if obs.is_empty() {
         bail!("no usable held-out pose in the validation dataset");

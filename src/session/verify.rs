@@ -26,11 +26,10 @@ use anyhow::{bail, Context as _};
 use nalgebra::{Isometry3, Point3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
-use super::{load_ds, Cell, Log, SessionFile, SessionKind};
+use super::{Cell, Log, SessionFile, SessionKind, Work};
 use crate::dataset::{CalibrationFile, Dataset};
 use crate::model::KinematicModel;
 use crate::plan::file::{PlanFile, PlanFilePose, PlanPose};
-use crate::solve::nominal::{fit_nominal, NominalOptions};
 use crate::solve::obs::{observations, Split};
 
 /// Largest joint change (deg) from the planned (safety-checked) joints a corrected target may
@@ -220,17 +219,21 @@ fn solve_with_effects(
 pub fn verify_stage(
     dir: &Path,
     s: &mut SessionFile,
+    work: &mut Work,
     cell: &mut dyn Cell,
     log: Log,
 ) -> anyhow::Result<()> {
     if s.setup.kind == SessionKind::Camera {
         return Ok(());
     }
-    let (_, train) = load_ds(dir, s, "train")?;
-    let (_, val) = load_ds(dir, s, "validation")?;
-    let nominal = fit_nominal(&train, &NominalOptions { heldout: None })
+    // Today's controller: the nominal chain with tracker → base and the marker fitted (the
+    // identification's "before").
+    let nominal = work
+        .identification(dir, s)
         .context("verify: the nominal fit (today's controller)")?
-        .model;
+        .nominal
+        .clone();
+    let val = &work.dataset(dir, s, "validation")?.1.dataset;
     let cal_path = dir.join("deploy").join("calibration.json");
     let cal = CalibrationFile::load(&cal_path)
         .with_context(|| format!("verify: {}", cal_path.display()))?;

@@ -601,6 +601,16 @@ pub fn identify(ds: &Dataset, opts: &IdentOptions) -> Result<IdentResult, SolveE
     identify_obs(&chain, train, heldout, source, skipped, opts)
 }
 
+thread_local! {
+    static IDENTIFICATIONS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// How many kinematic identifications ([`identify`] / [`identify_obs`]) this thread has run:
+/// a test counts the geometric fits of a pipeline.
+pub fn identifications_on_this_thread() -> usize {
+    IDENTIFICATIONS.with(|c| c.get())
+}
+
 /// As [`identify`], on already extracted observations.
 pub fn identify_obs(
     chain: &KinematicModel,
@@ -610,6 +620,7 @@ pub fn identify_obs(
     skipped: Vec<Skipped>,
     opts: &IdentOptions,
 ) -> Result<IdentResult, SolveError> {
+    IDENTIFICATIONS.with(|c| c.set(c.get() + 1));
     check_enough_poses(chain, &train, opts)?;
     let fit = core_fit(chain, &train, opts)?;
     let mut prob = KinProblem::new(fit.model.clone(), &train, &opts.effects);
