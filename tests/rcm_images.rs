@@ -6,10 +6,10 @@ use std::process::Command;
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use robocal::trials::rcm_images::{self, TrialOptions};
 use robocal::model::KinematicModel;
 use robocal::plan::rcm::{generate, RcmPlanSpec};
 use robocal::solve::rcm::lines;
+use robocal::trials::rcm_images::{self, TrialOptions};
 use robocal_mocks::rcm::{RcmCell, RcmScenario};
 use robocal_mocks::rcm_render::write_image_dataset;
 

@@ -754,5 +754,8 @@ fn a_session_identifies_once_and_reads_each_dataset_once() {
     let reads = robocal::dataset::dataset_parses_on_this_thread() - reads0;
     // train, validation, verify.
     assert_eq!(fits, 1, "kinematic identifications in one session");
-    assert_eq!(reads, 3, "dataset reads in one session (train, validation, verify)");
+    assert_eq!(
+        reads, 3,
+        "dataset reads in one session (train, validation, verify)"
+    );
 }

@@ -78,4 +78,3 @@ pub fn sim_world(scenario_path: &Path, virtual_clock: bool) -> anyhow::Result<Wo
     WorldHandle::from_scenario(&scenario)
         .with_context(|| format!("building the world of {}", scenario_path.display()))
 }
-

@@ -136,4 +136,3 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     println!("wrote {}", a.out.display());
     Ok(())
 }
-

@@ -160,7 +160,6 @@ impl RunProgress for Reporter {
     }
 }
 
-
 impl Args {
     /// The run this command line asks for.
     pub fn request(&self) -> anyhow::Result<RunRequest> {

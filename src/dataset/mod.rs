@@ -30,8 +30,7 @@ pub use check::QUAT_NORM_TOL;
 pub use error::{DatasetError, LoadWarning, Location};
 pub use io::{
     dataset_parses_on_this_thread, parse_dataset, preset_dof, q_rad, read_dataset, write_dataset,
-    Loaded, DATASET_FORMAT,
-    EVENT_KINDS, NO_ROBOT_MODEL,
+    Loaded, DATASET_FORMAT, EVENT_KINDS, NO_ROBOT_MODEL,
 };
 pub use journal::Journal;
 pub use summary::Summary;

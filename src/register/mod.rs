@@ -57,20 +57,4 @@ pub(crate) fn io_err(path: &std::path::Path, source: std::io::Error) -> Register
     }
 }
 
-use nalgebra::{Matrix3, Vector3};
-
-/// `[v]×`.
-pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
-/// Left Jacobian of SO(3): `d Exp(ω + δ) ≈ Exp(J_l(ω) δ) Exp(ω)`.
-pub fn so3_left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
-    let th = w.norm();
-    let k = skew(w);
-    if th < 1e-8 {
-        return Matrix3::identity() + 0.5 * k + k * k / 6.0;
-    }
-    let th2 = th * th;
-    Matrix3::identity() + (1.0 - th.cos()) / th2 * k + (th - th.sin()) / (th2 * th) * k * k
-}
+pub use crate::solve::so3::{left_jacobian as so3_left_jacobian, skew};

@@ -160,36 +160,18 @@ pub fn li(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterErr
 }
 
 fn lstsq(a: &DMatrix<f64>, b: &DVector<f64>) -> Result<DVector<f64>, RegisterError> {
-    let svd = a.clone().svd(true, true);
-    let smax = svd.singular_values.max();
-    let rank = svd
-        .singular_values
-        .iter()
-        .filter(|s| **s > smax * 1e-12)
-        .count();
-    if rank < a.ncols() {
-        return Err(RegisterError::Degenerate(format!(
+    crate::solve::so3::lstsq_full_rank(a, b).map_err(|rank| {
+        RegisterError::Degenerate(format!(
             "robot-world: the poses determine only {rank} of {} unknowns (rotate about at least two different axes)",
             a.ncols()
-        )));
-    }
-    svd.solve(b, smax * 1e-14)
-        .map_err(|e| RegisterError::Solver(e.to_string()))
+        ))
+    })
 }
 
-/// `2 sin(θ/2)·axis` of a rotation (OpenCV's `2·rot2quatMinimal`), sign with `w ≥ 0`.
-fn quat_minimal2(r: &Matrix3<f64>) -> Vector3<f64> {
-    let q = UnitQuaternion::from_matrix(r);
-    let q = if q.w < 0.0 {
-        -q.into_inner()
-    } else {
-        q.into_inner()
-    };
-    2.0 * Vector3::new(q.i, q.j, q.k)
-}
+pub use crate::solve::axxb::OPENCV_TSAI_MIN_MOTION;
 
 /// Tsai & Lenz (1989) `A X = X B` for `X` from absolute poses `hg` (as OpenCV's
-/// `gripper2base`) and `hc` (`target2cam`), over all pairs.
+/// `gripper2base`) and `hc` (`target2cam`), over all pairs ([`crate::solve::axxb`]).
 pub fn tsai_lenz(
     hg: &[Isometry3<f64>],
     hc: &[Isometry3<f64>],
@@ -197,72 +179,20 @@ pub fn tsai_lenz(
     tsai_lenz_min_motion(hg, hc, 0.0)
 }
 
-/// OpenCV ≥ 4.10's pair filter for Tsai (PR opencv#24897): motions whose rotation
-/// `|2 sin(θ/2)|` is below this (θ ≈ 17.25°) are dropped as uninformative.
-pub const OPENCV_TSAI_MIN_MOTION: f64 = 0.3;
-
 /// [`tsai_lenz`] over only the pairs whose gripper motion `|2 sin(θ/2)| ≥ min_motion`
-/// (`0.0`: all pairs, the 1989 paper and OpenCV < 4.10; [`OPENCV_TSAI_MIN_MOTION`]:
-/// OpenCV ≥ 4.10). On noise-free poses both give the same `X`; on noisy poses they are
-/// different estimators (the dropped pairs carry little rotation information but still
-/// weigh in the least squares).
+/// ([`crate::solve::axxb::tsai_lenz_min_motion`]).
 pub fn tsai_lenz_min_motion(
     hg: &[Isometry3<f64>],
     hc: &[Isometry3<f64>],
     min_motion: f64,
 ) -> Result<Isometry3<f64>, RegisterError> {
-    let n = hg.len();
-    if n < 3 || hc.len() != n {
-        return Err(RegisterError::Degenerate(format!(
-            "Tsai: {n} poses, need ≥ 3"
-        )));
-    }
-    let mut motions = Vec::with_capacity(n * (n - 1) / 2);
-    for i in 0..n {
-        for j in i + 1..n {
-            let hgij = hg[j].inverse() * hg[i];
-            let pg = quat_minimal2(&rot(&hgij));
-            if pg.norm() >= min_motion {
-                motions.push((hgij, hc[j] * hc[i].inverse(), pg));
-            }
-        }
-    }
-    let k = motions.len();
-    if k < 2 {
-        return Err(RegisterError::Degenerate(format!(
-            "Tsai: {k} pose pairs rotate by |2 sin(θ/2)| ≥ {min_motion}, need ≥ 2"
-        )));
-    }
-    let mut a = DMatrix::zeros(3 * k, 3);
-    let mut b = DVector::zeros(3 * k);
-    let mut pairs = Vec::with_capacity(k);
-    for (idx, (hgij, hcij, pg)) in motions.into_iter().enumerate() {
-        let pc = quat_minimal2(&rot(&hcij));
-        a.fixed_view_mut::<3, 3>(3 * idx, 0)
-            .copy_from(&skew(&(pg + pc)));
-        b.fixed_rows_mut::<3>(3 * idx).copy_from(&(pc - pg));
-        pairs.push((hgij, hcij));
-    }
-    let p_ = lstsq(&a, &b)?;
-    let p_ = Vector3::new(p_[0], p_[1], p_[2]);
-    let pcg = 2.0 * p_ / (1.0 + p_.norm_squared()).sqrt();
-    let q = pcg / 2.0;
-    let w = (1.0 - q.norm_squared()).max(0.0).sqrt();
-    let rcg = 2.0 * q * q.transpose()
-        + 2.0 * w * skew(&q)
-        + Matrix3::identity() * (1.0 - 2.0 * q.norm_squared());
-    for (idx, (hgij, hcij)) in pairs.iter().enumerate() {
-        a.fixed_view_mut::<3, 3>(3 * idx, 0)
-            .copy_from(&(rot(hgij) - Matrix3::identity()));
-        b.fixed_rows_mut::<3>(3 * idx)
-            .copy_from(&(rcg * hcij.translation.vector - hgij.translation.vector));
-    }
-    let t = lstsq(&a, &b)?;
-    Ok(iso(&rcg, &Vector3::new(t[0], t[1], t[2])))
+    crate::solve::axxb::tsai_lenz_min_motion(hg, hc, min_motion).map_err(|e| match e {
+        crate::solve::axxb::AxxbError::Degenerate(m) => RegisterError::Degenerate(m),
+    })
 }
 
-/// Seed 003's route: Tsai–Lenz on `(A_i⁻¹, B_i)` gives `Y = T_base_tracker`; `X` is the
-/// mean of `A_i⁻¹ Y B_i`. Returns `(X, Y)`.
+/// The navigation chain's route: Tsai–Lenz on `(A_i⁻¹, B_i)` gives `Y = T_base_tracker`; `X`
+/// is the mean of `A_i⁻¹ Y B_i`. Returns `(X, Y)`.
 pub fn tsai_route(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
     tsai_route_min_motion(obs, 0.0)
 }

@@ -489,7 +489,8 @@ impl Work {
                 .find(|d| d.role == role)
                 .with_context(|| format!("no {role} dataset in the session"))?;
             let p = dir.join(&d.path);
-            let bytes = crate::fsio::read(&p).with_context(|| format!("reading {}", p.display()))?;
+            let bytes =
+                crate::fsio::read(&p).with_context(|| format!("reading {}", p.display()))?;
             let sha = sha256_hex(&bytes);
             if sha != d.sha256 {
                 bail!(
@@ -595,7 +596,8 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
             sha256: sha256_hex(&bytes),
             records: ds.poses().count(),
         });
-        work.datasets.insert(set.to_string(), (ds_path.clone(), loaded));
+        work.datasets
+            .insert(set.to_string(), (ds_path.clone(), loaded));
         log(&format!(
             "  {} recorded, {} skipped, {:.0} s",
             summary.recorded,

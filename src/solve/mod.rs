@@ -9,6 +9,7 @@
 //! Every calibration is a pure problem object ([`lm::LsqProblem`]: parameters, residuals,
 //! analytic Jacobian) whose Jacobian is tested against finite differences.
 
+pub mod axxb;
 pub mod bootstrap;
 pub mod calfile;
 pub mod camera;
@@ -25,6 +26,7 @@ pub mod pivot_robust;
 pub mod predict;
 pub mod rcm;
 pub mod rigid;
+pub mod so3;
 pub mod stats;
 pub mod tool;
 pub mod tool_boot;

@@ -118,4 +118,3 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     Ok(())
 }
-

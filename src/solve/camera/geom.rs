@@ -2,8 +2,7 @@
 //! 6-vectors (rotation vector rad, translation mm), the OpenCV pinhole + Brown–Conrady
 //! projection (k1, k2, p1, p2, k3) and the analytic derivatives the solvers need.
 use nalgebra::{
-    Isometry3, Matrix2x3, Matrix3, Point3, Rotation3, SMatrix, Translation3, UnitQuaternion,
-    Vector3,
+    Isometry3, Matrix2x3, Matrix3, Point3, SMatrix, Translation3, UnitQuaternion, Vector3,
 };
 
 /// Number of intrinsic parameters: fx, fy, cx, cy, k1, k2, p1, p2, k3.
@@ -39,31 +38,7 @@ impl Intrinsics {
     }
 }
 
-/// `[v]×`.
-pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
-/// Rotation of a rotation vector (rad).
-pub fn exp_so3(w: &Vector3<f64>) -> Rotation3<f64> {
-    Rotation3::new(*w)
-}
-
-/// Rotation vector (rad) of a rotation.
-pub fn log_so3(r: &Rotation3<f64>) -> Vector3<f64> {
-    r.scaled_axis()
-}
-
-/// Left Jacobian of SO(3): `Exp(w + δ) ≈ Exp(J_l(w) δ) Exp(w)`.
-pub fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
-    let th = w.norm();
-    let k = skew(w);
-    if th < 1e-6 {
-        return Matrix3::identity() + 0.5 * k + k * k / 6.0;
-    }
-    let (s, c) = th.sin_cos();
-    Matrix3::identity() + (1.0 - c) / (th * th) * k + (th - s) / (th * th * th) * (k * k)
-}
+pub use crate::solve::so3::{exp_so3, left_jacobian, log_so3, skew};
 
 /// A pose as `[ωx, ωy, ωz, tx, ty, tz]` (rotation vector rad, translation mm).
 pub fn pose_to_vec(p: &Isometry3<f64>) -> [f64; 6] {

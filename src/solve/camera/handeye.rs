@@ -74,7 +74,7 @@ pub fn solve(method: Method, pairs: &[(Isometry3<f64>, Isometry3<f64>)]) -> Opti
         return None;
     }
     let x = match method {
-        Method::TsaiLenz => with_translation(pairs, tsai_rotation(pairs)?)?,
+        Method::TsaiLenz => crate::solve::axxb::tsai_lenz_pairs(pairs).ok()?,
         Method::ParkMartin => with_translation(pairs, park_rotation(pairs)?)?,
         Method::Horaud => with_translation(pairs, horaud_rotation(pairs)?)?,
         Method::Andreff => andreff(pairs)?,
@@ -103,33 +103,6 @@ fn with_translation(
         Translation3::from(t),
         UnitQuaternion::from_rotation_matrix(&r),
     ))
-}
-
-fn tsai_rotation(pairs: &[(Isometry3<f64>, Isometry3<f64>)]) -> Option<Rotation3<f64>> {
-    // Modified Rodrigues vector P = 2 sin(θ/2) n.
-    let pr = |q: &UnitQuaternion<f64>| {
-        let q = if q.w < 0.0 {
-            -q.into_inner()
-        } else {
-            q.into_inner()
-        };
-        2.0 * q.imag()
-    };
-    let mut ata = Matrix3::zeros();
-    let mut atb = Vector3::zeros();
-    for (a, b) in pairs {
-        let (pa, pb) = (pr(&a.rotation), pr(&b.rotation));
-        let m = skew(&(pa + pb));
-        let rhs = pb - pa;
-        ata += m.transpose() * m;
-        atb += m.transpose() * rhs;
-    }
-    let pc1 = ata.try_inverse()? * atb;
-    let pc = 2.0 * pc1 / (1.0 + pc1.norm_squared()).sqrt();
-    let n2 = pc.norm_squared();
-    let r = (1.0 - n2 / 2.0) * Matrix3::identity()
-        + 0.5 * (pc * pc.transpose() + (4.0 - n2).max(0.0).sqrt() * skew(&pc));
-    Some(orthonormal(&r))
 }
 
 fn orthonormal(m: &Matrix3<f64>) -> Rotation3<f64> {
