@@ -158,7 +158,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         validation.extend(hd);
     }
     let truth = match &args.truth {
-        Some(p) => Some(crate::schema::points_csv::read(p)?),
+        Some(p) => {
+            let t = crate::schema::points_csv::read(p)?;
+            laser::validate::check_truth_units(&t, &validation, p)?;
+            Some(t)
+        }
         None => None,
     };
     let cmp = laser::compare(&train, &validation, truth.as_ref(), args.huber)

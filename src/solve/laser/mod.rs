@@ -27,7 +27,7 @@ pub mod validate;
 
 use crate::dataset::{CalParam, CalibrationFile, Dataset, PoseRecord};
 use crate::model::KinematicModel;
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Unit, Vector3};
 use std::collections::BTreeMap;
 
 pub use fit::{
@@ -132,15 +132,7 @@ pub enum LaserError {
 
 /// Parse a file quaternion `[w, x, y, z]` and position into an isometry.
 pub fn file_pose(p: &[f64; 3], quat: &[f64; 4]) -> Option<Isometry3<f64>> {
-    let q = Quaternion::new(quat[0], quat[1], quat[2], quat[3]);
-    let norm = q.norm();
-    if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3 && p.iter().all(|x| x.is_finite())) {
-        return None;
-    }
-    Some(Isometry3::from_parts(
-        Translation3::new(p[0], p[1], p[2]),
-        UnitQuaternion::from_quaternion(q),
-    ))
+    crate::plausible::quat::pose(p, quat).ok()
 }
 
 /// The flange pose of a record: its `flange` block, else the model's FK of `q`.

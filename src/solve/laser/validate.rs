@@ -494,3 +494,49 @@ pub fn ply(points: &[Point3<f64>], comment: &str) -> String {
     }
     s
 }
+
+/// Refuses true points (`--truth`, mm in the robot base) that are in metres: every point
+/// within 10 mm of the base origin while the flanges of the same poses are hundreds of mm
+/// away, or several distinct points spreading over less than 1 % of what those flanges
+/// spread over (the spots are a sensor's range from the flange).
+pub fn check_truth_units(
+    truth: &HashMap<u64, Point3<f64>>,
+    obs: &[LaserObs],
+    file: &std::path::Path,
+) -> Result<(), LaserError> {
+    let flanges: Vec<Point3<f64>> = obs
+        .iter()
+        .filter(|o| truth.contains_key(&o.id))
+        .map(|o| Point3::from(o.flange.translation.vector))
+        .collect();
+    let pts: Vec<Point3<f64>> = obs
+        .iter()
+        .filter_map(|o| truth.get(&o.id))
+        .copied()
+        .collect();
+    if pts.is_empty() {
+        return Ok(());
+    }
+    let far = |v: &[Point3<f64>]| {
+        let mut n: Vec<f64> = v.iter().map(|p| p.coords.norm()).collect();
+        n.sort_by(f64::total_cmp);
+        n[n.len() / 2]
+    };
+    let (st, sf) = (
+        crate::plausible::dataset::spread(&pts),
+        crate::plausible::dataset::spread(&flanges),
+    );
+    let metres = (pts.iter().all(|p| p.coords.norm() < 10.0) && far(&flanges) > 100.0)
+        || (st > 1e-9 && sf > 20.0 && st < 0.01 * sf);
+    if metres {
+        return Err(LaserError::Calibration(format!(
+            "{}: the true points look like metres: they lie {:.4} from the base origin \
+             (median) and spread over {st:.4} while the flanges of the same poses are {:.0} mm \
+             away and spread over {sf:.1} mm; files use mm",
+            file.display(),
+            far(&pts),
+            far(&flanges)
+        )));
+    }
+    Ok(())
+}
