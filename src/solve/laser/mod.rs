@@ -289,6 +289,7 @@ pub fn predict_spot(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
 
     #[test]
     fn spot_follows_eq_19() {
