@@ -299,9 +299,10 @@ fn robust_keep(idx: &SurfaceIndex, pts: &[Point3<f64>], s: &Isometry3<f64>) -> u
 /// largest, below which a registration is refused as sliding.
 pub const MIN_CONSTRAINT_RATIO: f64 = 1e-3;
 
-/// The weakest direction of the normalised normal matrix `g` (columns scaled by `d`; rows
-/// 0..3 rotation about the points' centroid, 3..6 translation, in the CT frame mapped by
-/// `r_ct_tracker`): its eigenvalue relative to the largest, and the direction in words.
+/// The weakest direction of the normal matrix `g` (columns scaled by `d`: rotations as
+/// displacements at the lever arm; rows 0..3 rotation about the points' centroid, 3..6
+/// translation, in the CT frame mapped by `r_ct_tracker`): its eigenvalue relative to the
+/// largest, and the direction in words.
 fn weakest_direction(
     g: &DMatrix<f64>,
     d: &[f64],
@@ -532,6 +533,18 @@ pub fn register_surface_indexed(
             jc[(i, 3 + k)] = ns[i][k];
         }
     }
+    // Rotations as displacements at the points' RMS lever arm `l` (mm), so a weak direction
+    // is one that moves the points little against the surface, rotation or translation.
+    let l = (xs.iter().map(|x| (bs * x - sc).norm_squared()).sum::<f64>() / xs.len() as f64)
+        .sqrt()
+        .max(1e-9);
+    let lever = [l, l, l, 1.0, 1.0, 1.0];
+    let mut gl = jc.transpose() * &jc;
+    for a in 0..6 {
+        for b in 0..6 {
+            gl[(a, b)] /= lever[a] * lever[b];
+        }
+    }
     let mut g = jc.transpose() * &jc;
     let d: Vec<f64> = (0..6).map(|k| g[(k, k)].max(1e-300).sqrt()).collect();
     for a in 0..6 {
@@ -542,8 +555,8 @@ pub fn register_surface_indexed(
     // The weakest direction relative to the strongest (in the normalised frame): a surface
     // that slides exactly gives 0, one that nearly slides (a shallow feature on a plane, a
     // nearly cylindrical patch) a small ratio: its fit along that direction is noise.
-    let (ratio, weakest) = weakest_direction(&g, &d, &bs.rotation);
-    let well_posed = ratio >= MIN_CONSTRAINT_RATIO;
+    let (ratio, weakest) = weakest_direction(&gl, &lever, &bs.rotation);
+    let well_posed = ratio >= MIN_CONSTRAINT_RATIO && g.symmetric_eigenvalues().min() > 1e-8;
     let cov_s = jtj
         .clone()
         .try_inverse()
