@@ -14,6 +14,7 @@ mod diagnose;
 mod e2e;
 mod import;
 mod laser;
+mod laser_session;
 mod laser_world;
 mod live_session;
 mod model;
