@@ -16,6 +16,7 @@ mod diagnose_predict;
 mod e2e;
 mod import;
 mod laser;
+mod laser_session;
 mod laser_world;
 mod live_session;
 mod model;

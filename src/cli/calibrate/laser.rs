@@ -35,6 +35,11 @@ pub struct Args {
     /// per-face flatness are printed and written to `scan_report.json`.
     #[arg(long, value_name = "SCAN.jsonl")]
     pub scan: Option<PathBuf>,
+    /// The arm's kinematic calibration (`robocal calibrate kinematics` / a kinematic session's
+    /// `deploy/calibration.json`): every flange pose is computed from the recorded joints
+    /// through the identified arm (geometry) instead of the controller's nominal flange.
+    #[arg(long, value_name = "CAL.json")]
+    pub calibration: Option<PathBuf>,
     /// Write the reconstructed scan as a PLY point cloud (needs `--scan`).
     #[arg(long, value_name = "OUT.ply", requires = "scan")]
     pub ply: Option<PathBuf>,
@@ -122,7 +127,12 @@ pub fn scan_report(
 /// The validation (target) poses of a `--heldout` file: read strictly, checked for
 /// plausibility and for the robot of `ds`; an error when it has none (never silently
 /// dropped).
-fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<laser::LaserObs>> {
+fn load_heldout(
+    h: &Path,
+    ds: &Dataset,
+    data: &Path,
+    arm: Option<&laser::IdentifiedArm>,
+) -> anyhow::Result<Vec<laser::LaserObs>> {
     let hd = Dataset::load(h)?;
     crate::plausible::check_same_robot(
         &ds.header.robot,
@@ -132,7 +142,7 @@ fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<laser
         "held-out file",
     )?;
     crate::plausible::check_dataset(&hd, h)?;
-    let v: Vec<laser::LaserObs> = laser::observations(&hd)
+    let v: Vec<laser::LaserObs> = laser::observations_through(&hd, arm)
         .with_context(|| format!("reading laser poses of {}", h.display()))?
         .into_iter()
         .filter(|o| o.target.is_some())
@@ -148,13 +158,17 @@ fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<laser
 /// Run `robocal calibrate laser`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let ds = crate::plausible::load_checked(&args.data)?;
-    let obs = laser::observations(&ds)
+    let arm = match &args.calibration {
+        Some(c) => Some(laser::identified_arm(c, &ds, &args.data)?),
+        None => None,
+    };
+    let obs = laser::observations_through(&ds, arm.as_ref())
         .with_context(|| format!("reading laser poses of {}", args.data.display()))?;
     let mut validation: Vec<laser::LaserObs> =
         obs.iter().filter(|o| o.target.is_some()).cloned().collect();
     let train: Vec<laser::LaserObs> = obs.iter().filter(|o| o.plane.is_some()).cloned().collect();
     if let Some(h) = &args.heldout {
-        let hd = load_heldout(h, &ds, &args.data)?;
+        let hd = load_heldout(h, &ds, &args.data, arm.as_ref())?;
         validation.extend(hd);
     }
     let truth = match &args.truth {
@@ -168,37 +182,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let cmp = laser::compare(&train, &validation, truth.as_ref(), args.huber)
         .context("laser hand-eye calibration")?;
     let beam = cmp.final_beam.context("no final beam")?;
-    let mut cal = CalibrationFile::new(
-        ds.header.robot.clone(),
-        laser::beam_params(&beam, cmp.final_std),
-    );
-    cal.set_kind("laser");
-    let final_row = cmp.rows.last().context("no rows")?;
-    let m = &mut cal.metrics;
-    m.insert("plane_rms_mm".into(), cmp.final_plane_rms_mm.into());
-    if final_row.spread_mean_mm.is_finite() {
-        m.insert("spread_mean_mm".into(), final_row.spread_mean_mm.into());
-    }
-    if let Some(x) = final_row.spot_rms_vs_truth_mm {
-        m.insert("heldout_rms_mm_after".into(), x.into());
-    }
-    if let Some(x) = final_row.tre_mm {
-        m.insert("tre_mm".into(), x.into());
-    }
+    let mut cal = laser::calibration_file(ds.header.robot.clone(), &cmp)?;
     cal.extra.insert(
-        "planes".into(),
-        serde_json::Value::Array(
-            cmp.final_planes
-                .iter()
-                .map(|(l, p)| {
-                    serde_json::json!({"label": l, "normal": [p.n.x, p.n.y, p.n.z], "offset_mm": p.c})
-                })
-                .collect(),
-        ),
-    );
-    cal.extra.insert(
-        "method".into(),
-        "direct point-to-plane ML (seed 000 methods compared in laser_report.json)".into(),
+        "flange_poses".into(),
+        match &args.calibration {
+            Some(c) => format!("joints through the identified arm of {}", c.display()),
+            None => "as recorded (the controller's nominal kinematics)".into(),
+        }
+        .into(),
     );
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -253,7 +244,7 @@ pub fn diagnose_laser(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow
     let mut validation: Vec<laser::LaserObs> =
         obs.iter().filter(|o| o.target.is_some()).cloned().collect();
     if let Some(h) = heldout {
-        validation.extend(load_heldout(h, &ds, data)?);
+        validation.extend(load_heldout(h, &ds, data, None)?);
     }
     let cmp = laser::compare(&train, &validation, None, None).context("laser base fit")?;
     let beam = cmp.final_beam.context("no beam")?;

@@ -276,6 +276,19 @@ pub fn compare(
     truth: Option<&HashMap<u64, Point3<f64>>>,
     huber_mm: Option<f64>,
 ) -> Result<Comparison, LaserError> {
+    compare_split(train, validation, validation, truth, huber_mm)
+}
+
+/// [`compare`] with the single-plane data selection (§1.4 / §2.2) scored on the
+/// `selection_obs` targets and every method reported on `validation` targets: with separate target sets the
+/// reported spreads are not the ones the selection was tuned on.
+pub fn compare_split(
+    train: &[LaserObs],
+    selection_obs: &[LaserObs],
+    validation: &[LaserObs],
+    truth: Option<&HashMap<u64, Point3<f64>>>,
+    huber_mm: Option<f64>,
+) -> Result<Comparison, LaserError> {
     let planes = by_plane(train);
     if planes.is_empty() {
         return Err(LaserError::TooFewData {
@@ -285,6 +298,7 @@ pub fn compare(
         });
     }
     let targets = by_target(validation);
+    let sel_targets = by_target(selection_obs);
     let mut rows = Vec::new();
     let mut singles: Vec<(String, Beam, Plane)> = Vec::new();
     for (label, obs) in &planes {
@@ -327,7 +341,7 @@ pub fn compare(
     for (label, obs) in &planes {
         let all = obs.clone();
         let score = |b: &Beam| -> f64 {
-            if targets.is_empty() {
+            if sel_targets.is_empty() {
                 let pts: Vec<Point3<f64>> = all.iter().map(|o| b.spot(&o.flange, o.d)).collect();
                 super::fit::pca_plane(&pts)
                     .map(|pl| {
@@ -336,7 +350,7 @@ pub fn compare(
                     })
                     .unwrap_or(f64::INFINITY)
             } else {
-                mean_spread(b, &targets)
+                mean_spread(b, &sel_targets)
             }
         };
         let max_drop = obs.len().saturating_sub(20).min(40);
