@@ -6,6 +6,7 @@ mod camera_calib;
 mod camera_charuco;
 mod camera_run;
 mod camera_session;
+mod capture;
 mod cli;
 mod common;
 mod correct_tool;
