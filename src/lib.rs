@@ -8,6 +8,7 @@
 //! only the CLI layer wires the simulators in for dry runs.
 
 pub mod acquire;
+pub mod capture;
 pub mod chain;
 pub mod cli;
 pub mod dataset;

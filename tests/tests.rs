@@ -7,6 +7,7 @@ mod camera_charuco;
 mod camera_predict;
 mod camera_run;
 mod camera_session;
+mod capture;
 mod cli;
 mod common;
 mod correct_tool;
