@@ -9,6 +9,10 @@
 //! - **identification vs poses**: whole `robocal calibrate kinematics` processes on 1,000 /
 //!   10,000 / 100,000 poses (wall, peak RSS, time per pose), on data generated here from the
 //!   identified 500-pose model with 0.035 mm noise (every 10th pose held out);
+//! - **camera**: `robocal calibrate camera` on the 60 rendered 1280×1024 views of
+//!   `examples/camera_world` (world `ur5e-clean`, rendered by that example), whole process,
+//!   and OpenCV's detection + `calibrateCamera` + `calibrateHandEye` on the same image files
+//!   (`scripts/peers/camera_pipeline_cv2.py`, `.venv/peers-cv2`), with the ratio;
 //! - **peer**: pybotics + SciPy `least_squares` on the same 500-pose kinematic problem
 //!   (`examples/ident_pybotics.rs`, needs `.venv/peers-pybotics` from `.ci/peers.sh`).
 //!
@@ -210,7 +214,64 @@ fn main() {
         println!("{n:>9} {w:>9.2} {rss:>9.0} {:>12.1}", 1e6 * w / n as f64);
     }
 
+    camera_row(tmp.path());
+
     // --- peer: pybotics + SciPy least_squares on the same 500-pose problem
     println!("peer (examples/ident_pybotics.rs):");
     ident_pybotics::main();
+}
+
+/// `calibrate camera` (detection + intrinsics + hand-eye, whole process) on the 60 rendered
+/// 1280×1024 views of `examples/camera_world` (world `ur5e-clean`), and OpenCV's pipeline on
+/// the same image files (`scripts/peers/camera_pipeline_cv2.py`: findChessboardCorners +
+/// cornerSubPix, calibrateCamera, calibrateHandEye), whole process, with the ratio.
+fn camera_row(tmp: &Path) {
+    let data = root().join("out/camera-world/ur5e-clean/train.jsonl");
+    if !data.is_file() {
+        println!(
+            "camera 60 x 1280x1024: SKIPPED ({} absent: `cargo run --release --example \
+             camera_world -- ur5e-clean` renders it)",
+            data.display()
+        );
+        return;
+    }
+    let out = tmp.join("cam");
+    let d = data.to_str().expect("utf-8 path");
+    let o = out.to_str().expect("utf-8 path");
+    let (w, rss) = run_robocal(&["calibrate", "camera", "--data", d, "--out", o]);
+    println!(
+        "camera 60 x 1280x1024 (calibrate camera, whole process): {w:.2} s wall, peak {rss:.0} MB"
+    );
+    let py = root().join(".venv/peers-cv2/bin/python");
+    if !py.is_file() {
+        println!("  peer OpenCV: SKIPPED (.venv/peers-cv2 absent: `bash .ci/peers.sh`)");
+        return;
+    }
+    let t0 = Instant::now();
+    let res = Command::new(&py)
+        .arg(root().join("scripts/peers/camera_pipeline_cv2.py"))
+        .arg(&data)
+        .output()
+        .expect("run python");
+    let pw = t0.elapsed().as_secs_f64();
+    let txt = String::from_utf8_lossy(&res.stdout);
+    match serde_json::from_str::<Value>(txt.trim()) {
+        Ok(v) if res.status.success() => println!(
+            "  peer OpenCV {} (same images, whole process): {pw:.2} s wall ({} / {} views \
+             detected; detection {:.2} s, calibrateCamera {:.2} s, calibrateHandEye {:.3} s); \
+             OpenCV / robocal = {:.1}x",
+            v["opencv"].as_str().unwrap_or("?"),
+            v["found"],
+            v["views"],
+            v["detect_s"].as_f64().unwrap_or(f64::NAN),
+            v["calibrate_s"].as_f64().unwrap_or(f64::NAN),
+            v["handeye_s"].as_f64().unwrap_or(f64::NAN),
+            pw / w
+        ),
+        _ => println!(
+            "  peer OpenCV failed: {} {}",
+            txt.trim(),
+            String::from_utf8_lossy(&res.stderr).trim()
+        ),
+    }
 }

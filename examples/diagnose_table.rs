@@ -332,7 +332,7 @@ pub struct Outcome {
     pub absorbed: Vec<String>,
 }
 
-fn scenario(world: &World, seed: u64) -> Scenario {
+pub fn scenario(world: &World, seed: u64) -> Scenario {
     let mut s = Scenario::single_arm("denso-vs060", 1000 + seed);
     // Noise like the independent kin-* cases: 0.035 mm per axis on each recorded point.
     s.trackers[0].effects.noise_lateral_mm = 0.035;

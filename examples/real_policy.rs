@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run --release --example real_policy -- [--policy default|physics-first|kernel-benchmark]
-//!     [--max-train N] [--no-time-blocked] [SERIES ...]
+//!     [--max-train N] [--max-gap F] [--no-time-blocked] [SERIES ...]
 //! ```
 //!
 //! A `SERIES` is a directory holding `train.jsonl` + `heldout.jsonl` (the layout of
@@ -78,11 +78,18 @@ fn chain(d: &diagnose::Diagnosis) -> String {
 }
 
 fn main() -> anyhow::Result<()> {
+    if let Ok(f) = tracing_subscriber::EnvFilter::try_from_env("ROBOCAL_LOG") {
+        let _ = tracing_subscriber::fmt()
+            .with_env_filter(f)
+            .with_writer(std::io::stderr)
+            .try_init();
+    }
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut opt = Options::default();
     let mut policy = "default".to_string();
     let mut max_train = usize::MAX;
     let mut time_blocked = true;
+    let mut max_gap = None;
     let mut series: Vec<PathBuf> = Vec::new();
     let mut i = 0;
     while i < args.len() {
@@ -109,6 +116,14 @@ fn main() -> anyhow::Result<()> {
                     .ok_or_else(|| anyhow::anyhow!("--max-train needs a number"))?;
                 i += 1;
             }
+            "--max-gap" => {
+                max_gap = Some(
+                    args.get(i + 1)
+                        .and_then(|v| v.parse::<f64>().ok())
+                        .ok_or_else(|| anyhow::anyhow!("--max-gap needs a number"))?,
+                );
+                i += 1;
+            }
             "--no-time-blocked" => time_blocked = false,
             a if a.starts_with("--") => {
                 anyhow::bail!("unknown argument {a:?} (see the file's header)")
@@ -116,6 +131,9 @@ fn main() -> anyhow::Result<()> {
             a => series.push(PathBuf::from(a)),
         }
         i += 1;
+    }
+    if let Some(g) = max_gap {
+        opt.correction_max_gap = g;
     }
     if series.is_empty() {
         let p = std::env::var_os("ROBOCAL_REAL_DATA")

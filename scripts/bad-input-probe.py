@@ -407,6 +407,117 @@ def issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood):
         b(f"{cmd[0]} {cmd[1]} {cmd[-2]} {cmd[-1]}", cmd, exp, timeout=30)
 
 
+def ascii_stl(path, tris):
+    with open(path, "w") as f:
+        f.write("solid probe\n")
+        for a, b, c in tris:
+            f.write(" facet normal 0 0 0\n  outer loop\n")
+            for v in (a, b, c):
+                f.write(f"   vertex {v[0]} {v[1]} {v[2]}\n")
+            f.write("  endloop\n endfacet\n")
+        f.write("endsolid probe\n")
+    return path
+
+
+def bumpy_surface(scale=1.0, n=24, size=120.0):
+    """A distinctive surface z = f(x, y) (two bumps and a ridge; mm) as triangles, scaled."""
+    def z(x, y):
+        return (25 * math.exp(-((x - 30) ** 2 + (y - 20) ** 2) / 600) + 15 * math.exp(-((x + 35) ** 2 + (y + 25) ** 2) / 300)
+                + 0.08 * x + 0.15 * y * y / size)
+    h = size / n
+    tris = []
+    for i in range(n):
+        for k in range(n):
+            x0, y0 = -size / 2 + i * h, -size / 2 + k * h
+            p = [(x0, y0), (x0 + h, y0), (x0 + h, y0 + h), (x0, y0 + h)]
+            v = [[c[0] * scale, c[1] * scale, z(*c) * scale] for c in p]
+            tris.append((v[0], v[1], v[2]))
+            tris.append((v[0], v[2], v[3]))
+    return tris, z
+
+
+def issue26_round3(P, j, small, good, cal, lgood, lheldp):
+    """Issue 26, third round: quaternions in the wrong order in every reader of marker poses,
+    truth points / CT meshes in metres, camera calibration values predict applies, the
+    likely cause of "0 usable poses"."""
+    b = P.run
+    os.makedirs(j("r3"), exist_ok=True)
+    k = lambda *p: j("r3", *p)  # noqa: E731
+
+    # ---- quaternions scalar-last ([x, y, z, w]) in a file declared [w, x, y, z] (§3)
+    rows = json.loads(json.dumps(small))
+    for r in rows[1:]:
+        q = (r.get("marker") or {}).get("quat")
+        if q:
+            r["marker"]["quat"] = [q[1], q[2], q[3], q[0]]
+    xyzw = write_jsonl(k("xyzw.jsonl"), rows)
+    for cmd in (["inspect", xyzw], ["calibrate", "nominal", "--data", xyzw, "--out", k("o")],
+                ["calibrate", "kinematics", "--data", xyzw, "--out", k("o")],
+                ["calibrate", "robot-world", "--data", xyzw, "--out", k("rw.json")],
+                ["predict", "--calibration", cal, "--data", xyzw],
+                ["diagnose", "--data", xyzw, "--out", k("o")]):
+        b(f"{' '.join(cmd[:2]) if cmd[0] == 'calibrate' else cmd[0]}: marker quaternions scalar-last", cmd, ["[x, y, z, w]"], timeout=120)
+    b("ctl calibrate robot-world", ["calibrate", "robot-world", "--data", good, "--out", k("rw-ok.json")], good=True)
+
+    # ---- 0 usable poses: the likely cause (§6)
+    for name, g, exp in [("markers not seen", lambda r: r.update(marker={"visible": False}), ["did not see"]),
+                         ("markers without orientation", lambda r: r["marker"].pop("quat", None), ["orientation"])]:
+        rows = json.loads(json.dumps(small))
+        for r in rows[1:]:
+            g(r)
+        path = write_jsonl(k(name.replace(" ", "-") + ".jsonl"), rows)
+        b(f"calibrate robot-world: {name}", ["calibrate", "robot-world", "--data", path, "--out", k("rw.json")], exp)
+
+    # ---- calibrate laser --truth in metres (§3)
+    truth = os.path.join(LASER, "truth.csv")
+    lines = open(truth).read().splitlines()
+    tm = k("truth-m.csv")
+    with open(tm, "w") as f:
+        f.write(lines[0] + "\n")
+        for line in lines[1:]:
+            c = line.split(",")
+            f.write(",".join([c[0]] + [str(float(x) / 1000) for x in c[1:]]) + "\n")
+    b("ctl calibrate laser --truth", ["calibrate", "laser", "--data", lgood, "--heldout", lheldp, "--truth", truth, "--out", k("o-las")], good=True)
+    b("calibrate laser --truth in metres", ["calibrate", "laser", "--data", lgood, "--heldout", lheldp, "--truth", tm, "--out", k("o-las2")], ["metres"])
+
+    # ---- register --ct-mesh in metres (§3)
+    tris_mm, z = bumpy_surface(1.0)
+    tris_m, _ = bumpy_surface(0.001)
+    mesh_mm = ascii_stl(k("mesh-mm.stl"), tris_mm)
+    mesh_m = ascii_stl(k("mesh-m.stl"), tris_m)
+    rng = random.Random(5)
+    trk = k("surface.csv")
+    with open(trk, "w") as f:
+        f.write("name,x_mm,y_mm,z_mm\n")
+        for i in range(80):
+            x, y = rng.uniform(-55, 55), rng.uniform(-55, 55)
+            f.write(f"s{i},{x + 3.0},{y - 2.0},{z(x, y) + 1.5}\n")
+    b("ctl register --ct-mesh", ["register", "--ct-mesh", mesh_mm, "--tracker", trk, "--out", k("reg-s.json")], good=True, timeout=120)
+    b("register --ct-mesh: mesh in metres", ["register", "--ct-mesh", mesh_m, "--tracker", trk, "--out", k("reg-m.json")], ["metres"], timeout=120)
+
+    # ---- camera calibration values predict applies (§9, §3)
+    cam = {"format": "robocal-calibration/1", "robot": small[0]["robot"], "params": [], "kind": "camera",
+           "camera": {"intrinsics": {"fx": 900.0, "fy": 900.0, "cx": 320.0, "cy": 240.0, "dist": [0, 0, 0, 0, 0], "width": 640, "height": 480},
+                      "hand_eye": {"mount": "flange", "xyz_mm": [0, 50, 40], "quat": [1, 0, 0, 0]},
+                      "target_in_base": {"xyz_mm": [-576.9, -223.3, 0.0], "quat": [0, 1, 0, 0]},
+                      "target": {"kind": "chessboard", "cols": 9, "rows": 6, "square_mm": 30.0}}}
+    def camvar(name, f):
+        c = json.loads(json.dumps(cam))
+        f(c["camera"])
+        path = k(name + ".json")
+        json.dump(c, open(path, "w"))
+        return path
+    b("ctl predict camera calibration", ["predict", "--calibration", camvar("cam-ok", lambda c: c.update(target_bend_mm=[0.3, 0.0])), "--data", good, "--out", k("cam.csv")], good=True)
+    for name, f, exp in [("target_bend_mm 400 (m for mm?)", lambda c: c.update(target_bend_mm=[400.0, 0.0]), ["target_bend_mm"]),
+                         ("target_scale 1000", lambda c: c.update(target_scale=1000.0), ["target_scale"]),
+                         ("target_scale 0", lambda c: c.update(target_scale=0.0), ["target_scale"]),
+                         ("fx 0", lambda c: c["intrinsics"].update(fx=0.0), ["intrinsics"]),
+                         ("dist 1e308", lambda c: c["intrinsics"].update(dist=[1e308, 0, 0, 0, 0]), ["intrinsics"]),
+                         ("hand-eye quat norm 2", lambda c: c["hand_eye"].update(quat=[2, 0, 0, 0]), ["hand_eye", "quat"]),
+                         ("board 0 columns", lambda c: c["target"].update(cols=0), ["board", "target"])]:
+        b(f"predict: camera calibration {name}", ["predict", "--calibration", camvar("cam-" + name.split()[0], f), "--data", good], exp)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--bin", default=os.path.join(ROOT, "target/debug/robocal"))
@@ -651,6 +762,7 @@ def main():
         b("garbage: " + " ".join(c if c != garbage else "GARBAGE" for c in cmd[:2]), cmd, [], timeout=10)
 
     issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood)
+    issue26_round3(P, j, small, good, cal, lgood, lheldp)
 
     # ---- summary
     cats = {}

@@ -8,6 +8,7 @@
 //! only `cell` (dry runs) and `trials` (scoring against the simulated truth) wire the simulators in.
 
 pub mod acquire;
+pub mod capture;
 pub mod cell;
 pub mod chain;
 pub mod cli;

@@ -1212,3 +1212,121 @@ fn bad_input_robot_world_wrong_quaternion_order_is_refused() {
     );
     assert!(!out2.exists());
 }
+
+#[test]
+fn bad_input_laser_truth_in_metres_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let data = root().join("tests/data/laser-planes/train.jsonl");
+    let held = root().join("tests/data/laser-planes/heldout.jsonl");
+    let truth = std::fs::read_to_string(root().join("tests/data/laser-planes/truth.csv")).unwrap();
+    let mut m = String::new();
+    for (i, l) in truth.lines().enumerate() {
+        if i == 0 {
+            m += l;
+        } else {
+            let c: Vec<&str> = l.split(',').collect();
+            m += c[0];
+            for x in &c[1..] {
+                m += &format!(",{}", x.parse::<f64>().unwrap() / 1000.0);
+            }
+        }
+        m.push('\n');
+    }
+    let tm = d.path().join("truth-m.csv");
+    std::fs::write(&tm, m).unwrap();
+    let out = d.path().join("o");
+    let args = [
+        "calibrate",
+        "laser",
+        "--data",
+        s(&data),
+        "--heldout",
+        s(&held),
+        "--truth",
+        s(&tm),
+        "--out",
+        s(&out),
+    ];
+    refused(&args, &["truth", "metres"]);
+}
+
+#[test]
+fn bad_input_camera_calibration_values_predict_applies_are_checked() {
+    let d = tempfile::tempdir().unwrap();
+    let data = write(d.path(), "geo.jsonl", &geo(20));
+    let cam = |f: &dyn Fn(&mut Value)| {
+        let mut c = json!({"format": "robocal-calibration/1", "robot": geo(0)[0]["robot"], "params": [],
+            "kind": "camera", "camera": {
+            "intrinsics": {"fx": 900.0, "fy": 900.0, "cx": 320.0, "cy": 240.0, "dist": [0, 0, 0, 0, 0], "width": 640, "height": 480},
+            "hand_eye": {"mount": "flange", "xyz_mm": [0, 50, 40], "quat": [1, 0, 0, 0]},
+            "target_in_base": {"xyz_mm": [-576.9, -223.3, 0.0], "quat": [0, 1, 0, 0]},
+            "target": {"kind": "chessboard", "cols": 9, "rows": 6, "square_mm": 30.0},
+            "target_bend_mm": [0.3, 0.0]}});
+        f(&mut c["camera"]);
+        let p = d.path().join("cam.json");
+        std::fs::write(&p, c.to_string()).unwrap();
+        p
+    };
+    let ok = cam(&|_| {});
+    let o = run(&["predict", "--calibration", s(&ok), "--data", s(&data)]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    assert!(o.text.starts_with("id,corner,u_px,v_px"), "{}", o.text);
+    for (f, needle) in [
+        (
+            &(|c: &mut Value| c["target_bend_mm"] = json!([400.0, 0.0])) as &dyn Fn(&mut Value),
+            "target_bend_mm",
+        ),
+        (
+            &|c: &mut Value| c["target_scale"] = json!(1000.0),
+            "target_scale",
+        ),
+        (
+            &|c: &mut Value| c["intrinsics"]["fx"] = json!(0.0),
+            "intrinsics",
+        ),
+    ] {
+        let p = cam(f);
+        refused(
+            &["predict", "--calibration", s(&p), "--data", s(&data)],
+            &[needle],
+        );
+    }
+}
+
+#[test]
+fn bad_input_robot_world_without_usable_poses_names_the_likely_cause() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("rw.json");
+    let mut rows = robot_world_rows(false);
+    for r in rows.iter_mut().skip(1) {
+        r["marker"] = json!({"visible": false});
+    }
+    let f = write(d.path(), "unseen.jsonl", &rows);
+    let args = [
+        "calibrate",
+        "robot-world",
+        "--data",
+        s(&f),
+        "--out",
+        s(&out),
+    ];
+    refused(
+        &args,
+        &["0 usable poses", "likely cause", "did not see the marker"],
+    );
+    let mut rows = robot_world_rows(false);
+    for r in rows.iter_mut().skip(1) {
+        r["marker"].as_object_mut().unwrap().remove("quat");
+    }
+    let f = write(d.path(), "noquat.jsonl", &rows);
+    let args = [
+        "calibrate",
+        "robot-world",
+        "--data",
+        s(&f),
+        "--out",
+        s(&out),
+    ];
+    refused(&args, &["likely cause", "orientation"]);
+    assert!(!out.exists());
+}

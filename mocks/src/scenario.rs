@@ -618,6 +618,10 @@ pub struct Scenario {
     /// Passive objects.
     #[serde(default)]
     pub scene: SceneConfig,
+    /// The simulated operator (a scripted hand: pivots a probe, touches fiducials, drags an
+    /// arm), for `robocal capture`.
+    #[serde(default)]
+    pub operator: Option<crate::world::operator::OperatorConfig>,
 }
 
 impl Scenario {
@@ -692,6 +696,21 @@ impl Scenario {
                     c.name, c.width, c.height
                 ));
             }
+        }
+        if let Some(op) = &self.operator {
+            if !self.trackers.iter().any(|t| t.name == op.tracker) {
+                return bad(format!(
+                    "operator.tracker: no tracker named {:?}",
+                    op.tracker
+                ));
+            }
+            op.validate(|name| {
+                self.arms
+                    .iter()
+                    .find(|a| a.name == name)
+                    .and_then(|a| crate::world::chain::UrdfChain::preset(&a.model).map(|c| c.dof()))
+            })
+            .map_err(ScenarioError::Invalid)?;
         }
         Ok(())
     }
@@ -783,6 +802,7 @@ impl Scenario {
             lasers: Vec::new(),
             cameras: Vec::new(),
             scene: SceneConfig::default(),
+            operator: None,
         }
     }
 }

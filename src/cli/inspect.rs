@@ -26,5 +26,10 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         println!("file:     {}", args.file.display());
         print!("{summary}");
     }
+    // The summary of a file is shown even when its values cannot be right; the file is then
+    // refused as every command that uses it would (units, id order, corrupt values,
+    // quaternions: the plausibility layer, issue 26 §3).
+    crate::plausible::check_dataset(&loaded.dataset, &args.file)
+        .map_err(|e| anyhow::anyhow!("{e} (the summary above is of a file robocal refuses)"))?;
     Ok(())
 }

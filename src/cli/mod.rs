@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 use std::ffi::OsString;
 
 pub mod calibrate;
+pub mod capture;
 pub mod chain;
 pub mod correct;
 pub mod devices;
@@ -39,6 +40,8 @@ pub enum Command {
     Run(run::Args),
     /// Identify parameters from a dataset (nominal, kinematics, pivot, laser, ...).
     Calibrate(calibrate::Args),
+    /// Operator-guided acquisition: pivot a probe, touch fiducials, teach poses by hand.
+    Capture(capture::Args),
     /// Find the physical effect the model lacks, add it, report before/after.
     Diagnose(diagnose::Args),
     /// Predict marker positions / laser spots for the pose records of a dataset.
@@ -103,6 +106,7 @@ where
         Command::Plan(a) => plan::exec(a),
         Command::Run(a) => run::exec(a),
         Command::Calibrate(a) => calibrate::exec(a),
+        Command::Capture(a) => capture::exec(a),
         Command::Diagnose(a) => diagnose::exec(a),
         Command::Predict(a) => predict::exec(a),
         Command::Report(a) => report::exec(a),

@@ -23,6 +23,11 @@ pub struct Args {
     /// `robocal-registration/1` calibration; writes CSV `name,x_mm,y_mm,z_mm`.
     #[arg(long, value_name = "P.csv", conflicts_with = "data")]
     pub points: Option<PathBuf>,
+    /// The other pose records of the same session (e.g. a diagnosis' training file): used
+    /// only for where the arm came from before each pose when records carry no `q_prev`
+    /// (backlash), as the diagnosis does.
+    #[arg(long, value_name = "SESSION.jsonl", requires = "data")]
+    pub session: Option<PathBuf>,
     /// Write the CSV here instead of to stdout.
     #[arg(long, value_name = "FILE.csv")]
     pub out: Option<PathBuf>,
@@ -51,7 +56,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             "give --data DATA.jsonl (pose records) or --points P.csv (with a registration)"
         );
     };
-    let (rows, warnings) = predict_files_warn(&args.calibration, data)?;
+    let (rows, warnings) = crate::solve::predict::predict_files_in_session(
+        &args.calibration,
+        data,
+        args.session.as_deref(),
+    )?;
     for w in &warnings {
         eprintln!("warning: {}: {w}", data.display());
     }

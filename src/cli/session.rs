@@ -100,6 +100,15 @@ pub struct Args {
     /// Do not record the session in the fleet history.
     #[arg(long, conflicts_with = "history")]
     pub no_history: bool,
+    /// What the session calibrates: `kinematic` (tracker), `camera` (board images) or `laser`
+    /// (range sensor on calibration planes, seed 000) [default: from the cell: kinematic with a
+    /// tracker, else camera].
+    #[arg(long, value_name = "KIND", value_parser = ["kinematic", "camera", "laser"])]
+    pub kind: Option<String>,
+    /// Laser sessions: the arm's kinematic calibration of the same visit (a kinematic
+    /// session's `deploy/calibration.json`): the laser spots go through the identified arm.
+    #[arg(long, value_name = "CAL.json")]
+    pub arm_calibration: Option<PathBuf>,
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -274,6 +283,14 @@ pub fn describe_scenario(
         },
         one,
     ))
+}
+
+fn session_kind_name(k: SessionKind) -> &'static str {
+    match k {
+        SessionKind::Kinematic => "kinematic",
+        SessionKind::Camera => "camera",
+        SessionKind::Laser => "laser",
+    }
 }
 
 fn protocol_name<T: serde::Serialize>(p: &T) -> String {
@@ -523,8 +540,21 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                     sc.arms[0].name
                 );
             }
-            let (cell, one) = describe_scenario(&sc, a.arm.as_deref())?;
-            let kind = if !one.trackers.is_empty() {
+            let (cell, mut one) = describe_scenario(&sc, a.arm.as_deref())?;
+            let kind = if a.kind.as_deref() == Some("laser") {
+                if one.lasers.is_empty() {
+                    bail!(
+                        "{}: arm {:?} carries no laser: a laser session needs a [[laser]] on it",
+                        s.display(),
+                        one.arms[0].name
+                    );
+                }
+                // The laser session records ranges only: the tracker and cameras stay off
+                // (a marker out of view must not skip a laser pose).
+                one.trackers.clear();
+                one.cameras.clear();
+                SessionKind::Laser
+            } else if !one.trackers.is_empty() {
                 SessionKind::Kinematic
             } else if !one.cameras.is_empty() {
                 SessionKind::Camera
@@ -551,6 +581,11 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
             let checked = crate::acquire::device_check::check_file(d)?;
             checked.require_valid()?;
             let (cell, kind) = describe_devices(d)?;
+            let kind = if a.kind.as_deref() == Some("laser") {
+                SessionKind::Laser
+            } else {
+                kind
+            };
             let resolved =
                 crate::acquire::device_check::resolved_toml(&checked.file, &checked.base)?;
             (Mode::Live, cell, "devices.toml", Some(resolved), kind)
@@ -558,6 +593,20 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         _ => bail!("give --sim SCENARIO.toml (dry run) or --devices CELL.toml --live"),
     };
     let camera = kind == SessionKind::Camera;
+    let laser = kind == SessionKind::Laser;
+    if let Some(k) = a
+        .kind
+        .as_deref()
+        .filter(|k| !laser && *k != session_kind_name(kind))
+    {
+        bail!(
+            "--kind {k}: the cell makes a {} session (give a cell with a {k} setup)",
+            session_kind_name(kind)
+        );
+    }
+    if a.arm_calibration.is_some() && !laser {
+        bail!("--arm-calibration is for laser sessions (--kind laser)");
+    }
     let accept = match &a.accept {
         Some(p) => {
             let spec = AcceptSpec::from_file(p)?;
@@ -565,6 +614,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
             spec
         }
         None if camera => AcceptSpec::from_toml_str(CAMERA_ACCEPT, "accept/camera.toml")?,
+        None if laser => AcceptSpec::from_toml_str(session::laser::ACCEPT, "accept/laser.toml")?,
         None => AcceptSpec::default_surgical(),
     };
     // Every motion option against the cell's own limits before anything is created (a NaN
@@ -597,16 +647,36 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                     cell.robot_model
                 )
             })?,
+        None if laser => session::laser::SPEC.to_string(),
         None => DEFAULT_SPEC.to_string(),
     };
     let spec_name = a
         .spec
         .as_ref()
         .map_or("(default)".into(), |p| p.display().to_string());
-    let spec = crate::plan::PlanSpec::from_toml_str(&spec_text)
-        .with_context(|| format!("plan spec {spec_name}"))?;
-    if camera {
-        session::camera::check_spec(&spec, &spec_name)?;
+    if laser {
+        // One file with the planes and the five-direction plate (two plan generators).
+        session::laser::parse_spec(&spec_text).with_context(|| format!("plan spec {spec_name}"))?;
+    } else {
+        let spec = crate::plan::PlanSpec::from_toml_str(&spec_text)
+            .with_context(|| format!("plan spec {spec_name}"))?;
+        if camera {
+            session::camera::check_spec(&spec, &spec_name)?;
+        }
+    }
+    // The arm's calibration is read (and checked against the cell's robot) before anything
+    // is created.
+    if let Some(c) = &a.arm_calibration {
+        let cal = crate::dataset::CalibrationFile::load(c)
+            .with_context(|| format!("--arm-calibration {}", c.display()))?;
+        if cal.robot.model != cell.robot_model {
+            bail!(
+                "--arm-calibration {}: a calibration of robot {:?}, but the cell's arm is {:?}",
+                c.display(),
+                cal.robot.model,
+                cell.robot_model
+            );
+        }
     }
     let poses = a.poses.unwrap_or(if camera { 24 } else { 120 });
     let heldout_points = a.heldout_points.unwrap_or(if camera { 12 } else { 40 });
@@ -629,9 +699,17 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         operator_note: a.note.clone(),
         plan_only: a.plan_only,
         kind,
+        arm_calibration: a
+            .arm_calibration
+            .as_ref()
+            .map(|_| session::laser::ARM_CALIBRATION.to_string()),
     };
     let src = cell_src;
     session::create(dir, setup, src, cell, &spec_text, accept)?;
+    if let Some(c) = &a.arm_calibration {
+        let bytes = crate::fsio::read(c).with_context(|| format!("reading {}", c.display()))?;
+        session::write_atomic(&dir.join(session::laser::ARM_CALIBRATION), &bytes)?;
+    }
     if let Some(text) = scenario_text {
         // The session runs on the single-arm scenario (the copy keeps the original's content
         // for the record as scenario-original.toml); a device file's copy has its tool files
@@ -887,6 +965,10 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
                 b.intrinsics.fx,
                 b.intrinsics.fy
             );
+        } else if let Some(l) = &s.laser {
+            for line in session::laser::lines(l, &s.measured) {
+                println!("{line}");
+            }
         } else {
             println!(
                 "held-out RMS {} → {} mm, max {} → {} mm, relative distance {} → {} %",

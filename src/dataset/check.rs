@@ -128,15 +128,11 @@ pub(crate) fn object<'a>(
 }
 
 /// The norm check of a unit quaternion `[w, x, y, z]`.
+/// (The one quaternion check, [`crate::plausible::quat::unit_wxyz`].)
 pub(crate) fn unit_quat(q: &[f64; 4], field: &str) -> Result<(), Problem> {
-    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
-    if (n - 1.0).abs() > QUAT_NORM_TOL {
-        return Err(Problem::field(
-            field,
-            format!("quaternion [w, x, y, z] must be unit, its norm is {n:.6}"),
-        ));
-    }
-    Ok(())
+    crate::plausible::quat::unit_wxyz(q)
+        .map(|_| ())
+        .map_err(|e| Problem::field(field, format!("[w, x, y, z] must be unit: {e}")))
 }
 
 /// Checks a `{p, quat}` pose object.

@@ -6,7 +6,7 @@
 //! The rule both kinematic observation builders follow: when any pose of a dataset (or of a
 //! session) carries a reference, every pose is expressed in the reference frame and poses
 //! without a usable reference are skipped with a reason — frames are never mixed.
-use nalgebra::{Point3, Quaternion, UnitQuaternion, Vector3};
+use nalgebra::{Point3, UnitQuaternion, Vector3};
 
 use super::types::PoseRecord;
 
@@ -22,14 +22,7 @@ pub fn any_reference<'a>(records: impl IntoIterator<Item = &'a PoseRecord>) -> b
 }
 
 fn unit_quat(w: &[f64; 4], what: &str) -> Result<UnitQuaternion<f64>, String> {
-    if !w.iter().all(|x| x.is_finite()) {
-        return Err(format!("{what} `quat` is not finite"));
-    }
-    let v = Quaternion::new(w[0], w[1], w[2], w[3]);
-    if (v.norm() - 1.0).abs() > 1e-3 {
-        return Err(format!("{what} quaternion norm {:.4} is not 1", v.norm()));
-    }
-    Ok(UnitQuaternion::from_quaternion(v))
+    crate::plausible::quat::unit_wxyz(w).map_err(|e| format!("{what} `quat`: {e}"))
 }
 
 /// The reference body's pose in the tracker frame (`Err` says why it is unusable).

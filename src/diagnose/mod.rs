@@ -83,6 +83,12 @@ pub struct Options {
     /// Under [`Policy::Best`]: the physics-first chain is kept only when its time-blocked CV
     /// RMS is at least this fraction below the kernel-benchmark chain's.
     pub policy_margin: f64,
+    /// The nonparametric correction's length scale and ridge are the best cross-validated
+    /// ones whose CV RMS exceeds their own in-fold training RMS by at most this fraction
+    /// (or by at most [`OVERFIT_MIN_MM`]): a correction that fits its training poses far
+    /// better than unseen ones has learned the poses ([`OVERFIT_GAP`] is what the report
+    /// flags).
+    pub correction_max_gap: f64,
 }
 
 /// How [`diagnose`] chooses its chain of effects.
@@ -146,6 +152,7 @@ impl Default for Options {
             policy: Policy::Best,
             physics_first_max_effects: 6,
             policy_margin: 0.05,
+            correction_max_gap: 0.10,
         }
     }
 }
@@ -185,6 +192,9 @@ pub struct Step {
 
 /// Held-out RMS more than this fraction above the training RMS flags overfitting.
 pub const OVERFIT_GAP: f64 = 0.15;
+
+/// ... and more than this much (mm): a gap below it is within measurement noise.
+pub const OVERFIT_MIN_MM: f64 = 0.01;
 
 /// The result of a diagnosis.
 #[derive(Debug, Clone)]
@@ -911,7 +921,19 @@ fn add_correction(
         Some(c) if chain.steps.is_empty() => Some(c.clone()),
         _ => nonparam::cross_validate(&qs, &rv, &fo, opt.n_folds),
     };
-    let Some(cv) = cv else {
+    if let Some(c) = &cv {
+        for g in &c.grid {
+            tracing::debug!(
+                "correction grid: ell {} lambda {}: CV {:.4} fit {:.4} gap {:.1} %",
+                g.length_scale,
+                g.lambda,
+                g.cv_rms,
+                g.fit_rms,
+                100.0 * g.gap()
+            );
+        }
+    }
+    let Some(cv) = cv.and_then(|c| c.within_gap(opt.correction_max_gap, OVERFIT_MIN_MM)) else {
         return;
     };
     if cv.cv_rms_after >= (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
@@ -1133,7 +1155,7 @@ pub fn overfit_warnings(steps: &[Step]) -> Vec<String> {
         .filter_map(|s| {
             let h = s.heldout_rms_after?;
             let t = s.train_rms_after;
-            (h > (1.0 + OVERFIT_GAP) * t && h - t > 0.01).then(|| {
+            (h > (1.0 + OVERFIT_GAP) * t && h - t > OVERFIT_MIN_MM).then(|| {
                 format!(
                     "overfitting: after {} the held-out RMS {h:.4} mm is {:.0} % above the training RMS {t:.4} mm (limit {:.0} %): trust the held-out figure",
                     s.effect.block.label(),

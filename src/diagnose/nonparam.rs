@@ -79,6 +79,8 @@ fn all_finite(w: &Mat<f64>) -> bool {
 /// diagnosis take ~40 s.
 struct RidgeSystem {
     centres: Vec<usize>,
+    /// `K_nm` (subset only): predicts the training samples from the centres' weights.
+    kfit: Option<Mat<f64>>,
     /// `K` (exact) or `K_mn K_nm` (subset).
     gram: Mat<f64>,
     /// `I` (exact: `None`) or `K_mm` (subset): what λ multiplies.
@@ -97,6 +99,7 @@ impl RidgeSystem {
                 reg: None,
                 rhs: y,
                 centres,
+                kfit: None,
             }
         } else {
             let kmn = kernel(q, &centres, tr, ell);
@@ -105,6 +108,7 @@ impl RidgeSystem {
                 reg: Some(kernel(q, &centres, &centres, ell)),
                 rhs: &kmn * &y,
                 centres,
+                kfit: Some(kmn.transpose().to_owned()),
             }
         }
     }
@@ -128,10 +132,38 @@ impl RidgeSystem {
         let w = a.llt(Side::Lower).ok()?.solve(&self.rhs);
         all_finite(&w).then_some(w)
     }
+
+    /// Prediction at the training samples (`n × 3`) of the weights `w`.
+    fn fitted(&self, w: &Mat<f64>) -> Mat<f64> {
+        match &self.kfit {
+            None => &self.gram * w,
+            Some(knm) => knm * w,
+        }
+    }
 }
 
-/// Squared prediction error per fold and per λ: for each fold the training kernel system is
-/// built once and factorised once per λ (folds run in parallel).
+/// Squared errors of one fold under one ridge: on the fold's test samples (held out) and on
+/// its training samples (the fit itself).
+#[derive(Debug, Clone, Copy)]
+struct FoldSse {
+    test: f64,
+    fit: f64,
+    n_fit: usize,
+}
+
+/// Sum of squared 3-D differences `r[idx[a]] − pred[a]`.
+fn sse_of(r: &[Vector3<f64>], idx: &[usize], pred: &Mat<f64>) -> f64 {
+    idx.iter()
+        .enumerate()
+        .map(|(a, &i)| {
+            (r[i] - Vector3::new(pred[(a, 0)], pred[(a, 1)], pred[(a, 2)])).norm_squared()
+        })
+        .sum()
+}
+
+/// Squared prediction error per fold and per λ, on the fold's test samples and on its own
+/// training samples: for each fold the training kernel system is built once and factorised
+/// once per λ (folds run in parallel).
 fn fold_errors(
     q: &[Vec<f64>],
     r: &[Vector3<f64>],
@@ -139,7 +171,7 @@ fn fold_errors(
     n_folds: usize,
     ell: f64,
     lambdas: &[f64],
-) -> Vec<(usize, Vec<Option<f64>>)> {
+) -> Vec<(usize, Vec<Option<FoldSse>>)> {
     (0..n_folds)
         .into_par_iter()
         .filter_map(|f| {
@@ -154,16 +186,11 @@ fn fold_errors(
                 .iter()
                 .map(|&lam| {
                     let w = sys.solve(lam)?;
-                    let pred = &kx * &w;
-                    Some(
-                        te.iter()
-                            .enumerate()
-                            .map(|(a, &i)| {
-                                (r[i] - Vector3::new(pred[(a, 0)], pred[(a, 1)], pred[(a, 2)]))
-                                    .norm_squared()
-                            })
-                            .sum::<f64>(),
-                    )
+                    Some(FoldSse {
+                        test: sse_of(r, &te, &(&kx * &w)),
+                        fit: sse_of(r, &tr, &sys.fitted(&w)),
+                        n_fit: tr.len(),
+                    })
                 })
                 .collect();
             Some((te.len(), sse))
@@ -308,6 +335,29 @@ impl Rbf {
     }
 }
 
+/// One setting of the cross-validated grid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RbfSetting {
+    pub length_scale: f64,
+    pub lambda: f64,
+    /// CV RMS (mm, per axis) on the held-out folds.
+    pub cv_rms: f64,
+    /// RMS (mm, per axis) of each fold's fit on its own training samples, pooled: what the
+    /// correction's training RMS will be, to compare with `cv_rms` (the overfitting gap).
+    pub fit_rms: f64,
+}
+
+impl RbfSetting {
+    /// Expected held-out / training gap of this setting: `cv_rms / fit_rms − 1`.
+    pub fn gap(&self) -> f64 {
+        if self.fit_rms > 0.0 {
+            self.cv_rms / self.fit_rms - 1.0
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
 /// Result of the cross-validated search.
 #[derive(Debug, Clone)]
 pub struct RbfCv {
@@ -316,10 +366,44 @@ pub struct RbfCv {
     /// CV RMS (mm, 3-D) of the residual without / with the correction.
     pub cv_rms_before: f64,
     pub cv_rms_after: f64,
+    /// In-fold training RMS of the chosen setting (see [`RbfSetting::fit_rms`]).
+    pub fit_rms: f64,
+    /// Every setting that could be evaluated on every fold.
+    pub grid: Vec<RbfSetting>,
 }
 
+impl RbfCv {
+    fn of(&self, s: &RbfSetting) -> RbfCv {
+        RbfCv {
+            length_scale: s.length_scale,
+            lambda: s.lambda,
+            cv_rms_before: self.cv_rms_before,
+            cv_rms_after: s.cv_rms,
+            fit_rms: s.fit_rms,
+            grid: self.grid.clone(),
+        }
+    }
+
+    /// The best setting (lowest CV RMS) among those whose expected held-out / training gap
+    /// ([`RbfSetting::gap`]) is at most `max_gap` or whose CV RMS exceeds the fit by at
+    /// most `min_abs_mm`: a correction that predicts its own training poses far better than
+    /// unseen ones has learned the poses, not the robot. `None` when no setting qualifies.
+    pub fn within_gap(&self, max_gap: f64, min_abs_mm: f64) -> Option<RbfCv> {
+        self.grid
+            .iter()
+            .filter(|s| s.gap() <= max_gap || s.cv_rms - s.fit_rms <= min_abs_mm)
+            .min_by(|a, b| a.cv_rms.total_cmp(&b.cv_rms))
+            .map(|s| self.of(s))
+    }
+}
+
+/// Ridges and length scales (inputs' units) of the cross-validated grid.
+const LAMBDAS: [f64; 4] = [0.03, 0.3, 3.0, 30.0];
+const ELLS: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
+
 /// Choose length scale and ridge by cross-validation over the given folds (index of the
-/// fold of each sample). Returns the best setting, or `None` with fewer than 20 samples.
+/// fold of each sample). Returns the best setting (with the whole grid), or `None` with
+/// fewer than 20 samples.
 pub fn cross_validate(
     q: &[Vec<f64>],
     r: &[Vector3<f64>],
@@ -331,37 +415,48 @@ pub fn cross_validate(
     }
     let var: f64 = r.iter().map(|v| v.norm_squared()).sum::<f64>() / r.len() as f64;
     let before = (var / 3.0).sqrt();
-    let lambdas = [0.03, 0.3, 3.0];
-    let ells = [0.5, 1.0, 2.0, 4.0];
     // Every length scale in parallel (each runs its folds in parallel too): 20 kernel
     // systems keep both cores busy where 5 folds alone left one idle half the time.
-    let grid: Vec<Vec<(usize, Vec<Option<f64>>)>> = ells
+    let per_ell: Vec<Vec<(usize, Vec<Option<FoldSse>>)>> = ELLS
         .par_iter()
-        .map(|&ell| fold_errors(q, r, fold, n_folds, ell, &lambdas))
+        .map(|&ell| fold_errors(q, r, fold, n_folds, ell, &LAMBDAS))
         .collect();
-    let mut best: Option<RbfCv> = None;
-    for (&ell, per_fold) in ells.iter().zip(&grid) {
-        for (li, &lam) in lambdas.iter().enumerate() {
+    let mut grid = Vec::new();
+    for (&ell, per_fold) in ELLS.iter().zip(&per_ell) {
+        for (li, &lam) in LAMBDAS.iter().enumerate() {
             // A setting whose factorisation failed on any fold is not comparable: skip it.
-            let Some(sse) = per_fold.iter().map(|(_, e)| e[li]).sum::<Option<f64>>() else {
+            let Some(e) = per_fold
+                .iter()
+                .map(|(_, e)| e[li])
+                .collect::<Option<Vec<_>>>()
+            else {
                 continue;
             };
             let cnt: usize = per_fold.iter().map(|(n, _)| n).sum();
-            if cnt == 0 {
+            let n_fit: usize = e.iter().map(|x| x.n_fit).sum();
+            if cnt == 0 || n_fit == 0 {
                 continue;
             }
-            let after = (sse / cnt as f64 / 3.0).sqrt();
-            if best.as_ref().is_none_or(|b| after < b.cv_rms_after) {
-                best = Some(RbfCv {
-                    length_scale: ell,
-                    lambda: lam,
-                    cv_rms_before: before,
-                    cv_rms_after: after,
-                });
-            }
+            grid.push(RbfSetting {
+                length_scale: ell,
+                lambda: lam,
+                cv_rms: (e.iter().map(|x| x.test).sum::<f64>() / cnt as f64 / 3.0).sqrt(),
+                fit_rms: (e.iter().map(|x| x.fit).sum::<f64>() / n_fit as f64 / 3.0).sqrt(),
+            });
         }
     }
-    best
+    let best = *grid.iter().min_by(|a, b| a.cv_rms.total_cmp(&b.cv_rms))?;
+    Some(
+        RbfCv {
+            length_scale: 0.0,
+            lambda: 0.0,
+            cv_rms_before: before,
+            cv_rms_after: 0.0,
+            fit_rms: 0.0,
+            grid,
+        }
+        .of(&best),
+    )
 }
 
 /// Cross-validated (per-axis) RMS of the residual without / with a correction of fixed
@@ -378,7 +473,7 @@ pub fn cv_fixed(
     let mut sse1 = 0.0;
     let mut cnt = 0usize;
     for (n, e) in &per_fold {
-        sse1 += e[0]?;
+        sse1 += e[0]?.test;
         cnt += n;
     }
     // Same test samples as the folds that were fitted.
@@ -432,6 +527,7 @@ mod tests {
             gram: kernel(&q, &idx, &idx, 1.0),
             reg: None,
             rhs: targets(&r, &idx),
+            kfit: None,
         };
         let w = exact.solve(0.03).unwrap();
         let mut worst: f64 = 0.0;

@@ -252,16 +252,9 @@ impl Reading {
             }
             Layout::Quat(order) => {
                 let q = order.quaternion([v[3], v[4], v[5], v[6]]);
-                let norm = q.norm();
-                if (norm - 1.0).abs() > super::QUAT_NORM_TOL {
-                    return Err(format!(
-                        "quaternion norm {norm:.6} is not 1 (wrong layout, or not a quaternion)"
-                    ));
-                }
-                (
-                    UnitQuaternion::from_quaternion(q),
-                    Vector3::new(v[0], v[1], v[2]),
-                )
+                let q = crate::plausible::quat::unit_wxyz(&[q.w, q.i, q.j, q.k])
+                    .map_err(|e| format!("{e} (or the wrong layout)"))?;
+                (q, Vector3::new(v[0], v[1], v[2]))
             }
             Layout::Euler(seq, unit) => {
                 let k = match unit {

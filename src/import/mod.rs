@@ -94,19 +94,15 @@ pub(crate) fn unit_quat(
     cols: &[usize],
     q: Quaternion<f64>,
 ) -> Result<UnitQuaternion<f64>, ImportError> {
-    let n = q.norm();
-    if (n - 1.0).abs() > QUAT_NORM_TOL {
+    crate::plausible::quat::unit_wxyz(&[q.w, q.i, q.j, q.k]).map_err(|e| {
         let names: Vec<&str> = cols.iter().map(|&c| tab.columns[c].as_str()).collect();
-        return Err(ImportError::bad(
+        ImportError::bad(
             &tab.file,
             Some(tab.line(row)),
             Some(&names.join(",")),
-            format!(
-                "quaternion norm {n:.6} is not 1 (wrong columns, wrong --quat-order, or not a quaternion)"
-            ),
-        ));
-    }
-    Ok(UnitQuaternion::from_quaternion(q))
+            format!("{e} (or the wrong --quat-order)"),
+        )
+    })
 }
 
 /// Joints declared in degrees that all look like radians (or the reverse) are refused.

@@ -219,12 +219,12 @@ pub fn parse_ndi(
             let marker = {
                 let q = [vals[0], vals[1], vals[2], vals[3]];
                 let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-                if (n - 1.0).abs() > super::QUAT_NORM_TOL {
+                if let Err(e) = crate::plausible::quat::unit_wxyz(&q) {
                     return Err(ImportError::bad(
                         file,
                         Some(ln),
                         Some("Q0,Qx,Qy,Qz"),
-                        format!("quaternion norm {n:.6} is not 1 (a column shifted?)"),
+                        format!("{e} (a column shifted?)"),
                     ));
                 }
                 let p = [vals[4], vals[5], vals[6]];

@@ -12,7 +12,7 @@
 //!  "summary": { ... }}
 //! ```
 //! Poses are listed in acquisition order (`id` = 0, 1, 2, …).
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -44,17 +44,7 @@ impl PlanFilePose {
     }
     /// To an isometry; `None` when not finite or not (nearly) unit.
     pub fn to_iso(&self) -> Option<Isometry3<f64>> {
-        if !self.p.iter().chain(&self.quat).all(|x| x.is_finite()) {
-            return None;
-        }
-        let q = Quaternion::new(self.quat[0], self.quat[1], self.quat[2], self.quat[3]);
-        if (q.norm() - 1.0).abs() > 1e-3 {
-            return None;
-        }
-        Some(Isometry3::from_parts(
-            Translation3::from(Vector3::from(self.p)),
-            UnitQuaternion::from_quaternion(q),
-        ))
+        crate::plausible::quat::pose(&self.p, &self.quat).ok()
     }
 }
 

@@ -146,6 +146,9 @@ pub fn check_values(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetErr
             }
         }
     }
+    if cal.kind() == CalibrationKind::Other("camera".into()) {
+        check_camera_block(cal, file)?;
+    }
     if cal.kind() != CalibrationKind::Kinematic {
         return Ok(());
     }
@@ -225,4 +228,83 @@ pub fn load_for(
     check_same_robot(robot, data_file, &cal.robot, path, "calibration")?;
     check_values(&cal, path)?;
     Ok(cal)
+}
+
+/// Largest plausible board bend (`camera.target_bend_mm`) as a fraction of the board's corner
+/// radius: a printed board sags by a fraction of a millimetre, never by a tenth of its size.
+pub const MAX_BEND_FRACTION: f64 = 0.1;
+
+/// The camera block's numbers that `predict` applies: intrinsics finite with positive focal
+/// lengths, the declared board positive, the board scale the diagnosis found within 0.5–2
+/// (a scale off by 1000 is a unit mistake) and its bend finite and at most
+/// [`MAX_BEND_FRACTION`] of the board's corner radius.
+fn check_camera_block(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetError> {
+    let b = match cal.camera() {
+        Ok(Some(b)) => b,
+        Ok(None) => {
+            return Err(err(
+                file,
+                "camera".into(),
+                "a calibration of kind camera without its \"camera\" block: an unfinished or \
+                 hand-edited file"
+                    .into(),
+            ))
+        }
+        Err(e) => return Err(err(file, "camera".into(), e)),
+    };
+    let i = &b.intrinsics;
+    let intr = [i.fx, i.fy, i.cx, i.cy];
+    if intr.iter().chain(&i.dist).any(|v| !v.is_finite()) || i.fx <= 0.0 || i.fy <= 0.0 {
+        return Err(err(
+            file,
+            "camera.intrinsics".into(),
+            format!(
+                "fx {} fy {} cx {} cy {} dist {:?}: the intrinsics must be finite with fx, fy > 0 \
+                 (a corrupted value)",
+                i.fx, i.fy, i.cx, i.cy, i.dist
+            ),
+        ));
+    }
+    let t = &b.target;
+    if !(t.square_mm.is_finite() && t.square_mm > 0.0) || t.cols == 0 || t.rows == 0 {
+        return Err(err(
+            file,
+            "camera.target".into(),
+            format!(
+                "board {}x{} inner corners of {} mm squares: not a board (a corrupted value)",
+                t.cols, t.rows, t.square_mm
+            ),
+        ));
+    }
+    if let Some(s) = b.target_scale {
+        if !(s.is_finite() && (0.5..=2.0).contains(&s)) {
+            return Err(err(
+                file,
+                "camera.target_scale".into(),
+                format!(
+                    "{s}: a printed board is within a few per cent of its declared size (0.5–2 \
+                     accepted); a scale off by 1000 is metres for millimetres, else a corrupted \
+                     value"
+                ),
+            ));
+        }
+    }
+    if let Some(bend) = b.target_bend_mm {
+        let (w, h) = (
+            f64::from(t.cols + 1) * t.square_mm,
+            f64::from(t.rows + 1) * t.square_mm,
+        );
+        let max = MAX_BEND_FRACTION * (w * w + h * h).sqrt() / 2.0;
+        if bend.iter().any(|v| !v.is_finite() || v.abs() > max) {
+            return Err(err(
+                file,
+                "camera.target_bend_mm".into(),
+                format!(
+                    "{bend:?} mm: a board's bend is at most {max:.1} mm (a tenth of its corner \
+                     radius); a corrupted value or a bend in the wrong unit"
+                ),
+            ));
+        }
+    }
+    Ok(())
 }

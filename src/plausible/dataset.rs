@@ -74,7 +74,8 @@ fn range_kind(ds: &Dataset) -> Option<String> {
 }
 
 /// RMS distance of points from their centroid (mm).
-fn spread(pts: &[Point3<f64>]) -> f64 {
+/// RMS distance of `pts` from their centroid (mm; 0 when empty).
+pub(crate) fn spread(pts: &[Point3<f64>]) -> f64 {
     if pts.is_empty() {
         return 0.0;
     }
@@ -460,6 +461,7 @@ fn units(
             }
         }
     }
+    quat_order(&poses, file, model, first_line)?;
     let flanges: Vec<Point3<f64>> = poses
         .iter()
         .filter_map(|p| p.flange.as_ref().map(|f| Point3::from(f.p)))
@@ -488,6 +490,45 @@ fn units(
                 ranges.iter().fold(0.0f64, |a, r| a.max(*r))
             ),
         ));
+    }
+    Ok(())
+}
+
+/// Quaternion order ([`super::quat::check_order`]): the markers' and the flange blocks'
+/// rotations against the robot's (the flange block, else the nominal FK of `q`).
+fn quat_order(
+    poses: &[&PoseRecord],
+    file: &Path,
+    model: Option<&KinematicModel>,
+    first_line: usize,
+) -> Result<(), DatasetError> {
+    let fk = |p: &PoseRecord| {
+        let (m, q) = (model?, p.q.as_ref()?);
+        (q.len() == m.dof()).then(|| {
+            let qr: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
+            m.flange_pose(&qr).rotation
+        })
+    };
+    let flange_rot = |p: &PoseRecord| {
+        p.flange
+            .as_ref()
+            .and_then(|f| super::quat::unit_wxyz(&f.quat).ok())
+            .or_else(|| fk(p))
+    };
+    let markers: (Vec<_>, Vec<_>) = poses
+        .iter()
+        .filter_map(|p| {
+            let q = p.marker.as_ref().filter(|m| m.visible)?.quat?;
+            Some((flange_rot(p)?, q))
+        })
+        .unzip();
+    let flanges: (Vec<_>, Vec<_>) = poses
+        .iter()
+        .filter_map(|p| Some((fk(p)?, p.flange.as_ref()?.quat)))
+        .unzip();
+    for ((robot, quats), what) in [(markers, "marker.quat"), (flanges, "flange.quat")] {
+        super::quat::check_order(&robot, &quats, what)
+            .map_err(|e| field_err(file, first_line, what, e))?;
     }
     Ok(())
 }

@@ -6,6 +6,8 @@
 //!   plausible times and temperatures; a second file (held-out data, calibration) for the
 //!   same robot model.
 //! - [`calibration`]: calibration values finite, within reach of the nominal geometry.
+//! - [`quat`]: every file quaternion unit and finite, and in the declared `[w, x, y, z]`
+//!   order where the robot's rotations tell.
 //! - [`limits`]: speed / acceleration caps finite, positive and within the cell's limit;
 //!   timeouts finite and positive.
 //!
@@ -13,5 +15,6 @@
 pub mod calibration;
 pub mod dataset;
 pub mod limits;
+pub mod quat;
 
 pub use dataset::{check_dataset, check_same_robot, load_checked, load_with_heldout};

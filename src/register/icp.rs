@@ -295,6 +295,90 @@ fn robust_keep(idx: &SurfaceIndex, pts: &[Point3<f64>], s: &Isometry3<f64>) -> u
         .clamp(6.min(pts.len()), pts.len())
 }
 
+/// Smallest eigenvalue of the normalised point-to-plane normal matrix, relative to the
+/// largest, below which a registration is refused as sliding.
+pub const MIN_CONSTRAINT_RATIO: f64 = 1e-3;
+
+/// The weakest direction of the normal matrix `g` (columns scaled by `d`: rotations as
+/// displacements at the lever arm; rows 0..3 rotation about the points' centroid, 3..6
+/// translation, in the CT frame mapped by `r_ct_tracker`): its eigenvalue relative to the
+/// largest, and the direction in words.
+fn weakest_direction(
+    g: &DMatrix<f64>,
+    d: &[f64],
+    r_ct_tracker: &UnitQuaternion<f64>,
+) -> (f64, String) {
+    let e = g.clone().symmetric_eigen();
+    let (mut imin, mut imax) = (0, 0);
+    for i in 0..e.eigenvalues.len() {
+        if e.eigenvalues[i] < e.eigenvalues[imin] {
+            imin = i;
+        }
+        if e.eigenvalues[i] > e.eigenvalues[imax] {
+            imax = i;
+        }
+    }
+    let ratio = (e.eigenvalues[imin] / e.eigenvalues[imax].max(1e-300)).max(0.0);
+    let v: Vec<f64> = (0..6).map(|k| e.eigenvectors[(k, imin)] / d[k]).collect();
+    // In the tracker frame (where the points were digitised): rotation / translation parts.
+    let w = r_ct_tracker.inverse() * Vector3::new(v[0], v[1], v[2]);
+    let t = r_ct_tracker.inverse() * Vector3::new(v[3], v[4], v[5]);
+    // Compare a rotation with a translation at 100 mm lever arm.
+    let words = if w.norm() * 100.0 > t.norm() {
+        let a = w.normalize();
+        format!(
+            "rotation about the axis ({:.2}, {:.2}, {:.2}) through the points' centroid (tracker frame)",
+            a.x, a.y, a.z
+        )
+    } else {
+        let a = t.normalize();
+        format!(
+            "translation along ({:.2}, {:.2}, {:.2}) (tracker frame)",
+            a.x, a.y, a.z
+        )
+    };
+    (ratio, words)
+}
+
+/// Diagonal of the bounding box of `pts` (mm; 0 when empty or not finite).
+fn extent(pts: &[Point3<f64>]) -> f64 {
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f64::INFINITY),
+        Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for p in pts {
+        lo = lo.inf(&p.coords);
+        hi = hi.sup(&p.coords);
+    }
+    let d = (hi - lo).norm();
+    if d.is_finite() {
+        d
+    } else {
+        0.0
+    }
+}
+
+/// The digitised points lie on the surface, so they cannot span much more than the mesh: a
+/// mesh 1000× smaller than the points is in metres (files use mm), and the reverse, points
+/// spanning a thousandth of a mesh of anatomy, are.
+pub fn check_units(mesh: &Mesh, pts: &[Point3<f64>]) -> Result<(), RegisterError> {
+    let (m, p) = (extent(&mesh.vertices), extent(pts));
+    if m > 0.0 && p > 10.0 * m {
+        return Err(RegisterError::Invalid(format!(
+            "the mesh spans {m:.4} (bounding-box diagonal) while the digitised surface points on \
+             it span {p:.1} mm: the mesh looks like metres (an STL / PLY export in m); files use \
+             mm: rescale the mesh by 1000"
+        )));
+    }
+    if p > 0.0 && m > 10.0 && p < 0.002 * m {
+        return Err(RegisterError::Invalid(format!(
+            "the digitised surface points span {p:.4} while the mesh spans {m:.1} mm: the \
+             points look like metres; files use mm"
+        )));
+    }
+    Ok(())
+}
+
 /// Registers surface points `pts` (tracker frame) onto `mesh` (CT frame). `init` is a guess
 /// of `T_tracker_ct`; without one, 24 axis-aligned orientations about the centroids are
 /// tried (fine for whole-surface scans, a guess is needed for partial ones).
@@ -304,6 +388,7 @@ pub fn register_surface(
     init: Option<&Isometry3<f64>>,
     o: &IcpOptions,
 ) -> Result<IcpResult, RegisterError> {
+    check_units(mesh, pts)?;
     let idx = SurfaceIndex::new(mesh, o.sample_spacing_mm)?;
     register_surface_indexed(&idx, pts, init, o)
 }
@@ -448,6 +533,18 @@ pub fn register_surface_indexed(
             jc[(i, 3 + k)] = ns[i][k];
         }
     }
+    // Rotations as displacements at the points' RMS lever arm `l` (mm), so a weak direction
+    // is one that moves the points little against the surface, rotation or translation.
+    let l = (xs.iter().map(|x| (bs * x - sc).norm_squared()).sum::<f64>() / xs.len() as f64)
+        .sqrt()
+        .max(1e-9);
+    let lever = [l, l, l, 1.0, 1.0, 1.0];
+    let mut gl = jc.transpose() * &jc;
+    for a in 0..6 {
+        for b in 0..6 {
+            gl[(a, b)] /= lever[a] * lever[b];
+        }
+    }
     let mut g = jc.transpose() * &jc;
     let d: Vec<f64> = (0..6).map(|k| g[(k, k)].max(1e-300).sqrt()).collect();
     for a in 0..6 {
@@ -455,15 +552,22 @@ pub fn register_surface_indexed(
             g[(a, b)] /= d[a] * d[b];
         }
     }
-    let well_posed = g.symmetric_eigenvalues().min() > 1e-8;
+    // The weakest direction relative to the strongest (in the normalised frame): a surface
+    // that slides exactly gives 0, one that nearly slides (a shallow feature on a plane, a
+    // nearly cylindrical patch) a small ratio: its fit along that direction is noise.
+    let (ratio, weakest) = weakest_direction(&gl, &lever, &bs.rotation);
+    let well_posed = ratio >= MIN_CONSTRAINT_RATIO && g.symmetric_eigenvalues().min() > 1e-8;
     let cov_s = jtj
         .clone()
         .try_inverse()
         .filter(|m| m.iter().all(|x| x.is_finite()) && well_posed)
         .ok_or_else(|| {
-            RegisterError::Degenerate(
-                "the surface points do not constrain all 6 degrees of freedom (a plane, sphere or cylinder patch slides): digitise more distinctive anatomy".into(),
-            )
+            RegisterError::Degenerate(format!(
+                "the surface points do not constrain all 6 degrees of freedom: the surface can \
+                 slide by {weakest} (its constraint is {ratio:.1e} of the strongest, need ≥ \
+                 {MIN_CONSTRAINT_RATIO:.0e}; a plane, sphere or cylinder patch, or one shallow \
+                 feature): digitise more distinctive anatomy"
+            ))
         })?
         * s2;
     let cov_s = Matrix6::from_iterator(cov_s.iter().copied());
@@ -616,6 +720,82 @@ mod tests {
         let init = Isometry3::translation(3.0, -2.0, 1.0);
         let e = register_surface(&cube(), &pts, Some(&init), &IcpOptions::default()).unwrap_err();
         assert!(e.to_string().contains("do not constrain"), "{e}");
+    }
+
+    /// A 160 mm square grid surface `z = f(x, y)` (mm).
+    fn grid(f: impl Fn(f64, f64) -> f64) -> Mesh {
+        let n = 40;
+        let h = 160.0 / n as f64;
+        let mut vertices = Vec::new();
+        for i in 0..=n {
+            for k in 0..=n {
+                let (x, y) = (-80.0 + i as f64 * h, -80.0 + k as f64 * h);
+                vertices.push(Point3::new(x, y, f(x, y)));
+            }
+        }
+        let v = |i: usize, k: usize| i * (n + 1) + k;
+        let mut triangles = Vec::new();
+        for i in 0..n {
+            for k in 0..n {
+                triangles.push([v(i, k), v(i + 1, k), v(i + 1, k + 1)]);
+                triangles.push([v(i, k), v(i + 1, k + 1), v(i, k + 1)]);
+            }
+        }
+        Mesh {
+            vertices,
+            triangles,
+        }
+    }
+
+    fn points_on(f: impl Fn(f64, f64) -> f64) -> Vec<Point3<f64>> {
+        (0..100)
+            .map(|i| {
+                let (x, y) = (
+                    -60.0 + 12.0 * (i % 10) as f64,
+                    -60.0 + 12.0 * (i / 10) as f64,
+                );
+                Point3::new(x, y, f(x, y))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_nearly_sliding_surface_is_refused_naming_the_direction() {
+        // A plane with one 0.5 mm bump: every point constrains z and the tilts, the bump's
+        // gentle slopes hardly fix x, y and the rotation about z.
+        let f = |x: f64, y: f64| 0.5 * (-(x * x + y * y) / 800.0).exp();
+        let init = Isometry3::translation(0.5, -0.3, 0.2);
+        let e = register_surface(&grid(f), &points_on(f), Some(&init), &IcpOptions::default())
+            .unwrap_err();
+        let m = e.to_string();
+        assert!(
+            m.contains("slide by") && m.contains("of the strongest"),
+            "{m}"
+        );
+        // A distinctive surface (two bumps and a ridge) is accepted.
+        let g = |x: f64, y: f64| {
+            25.0 * (-((x - 30.0).powi(2) + (y - 20.0).powi(2)) / 600.0).exp()
+                + 15.0 * (-((x + 35.0).powi(2) + (y + 25.0).powi(2)) / 300.0).exp()
+                + 0.08 * x
+        };
+        let r =
+            register_surface(&grid(g), &points_on(g), Some(&init), &IcpOptions::default()).unwrap();
+        assert!(
+            r.t_tracker_ct.translation.vector.norm() < 0.05,
+            "{:?}",
+            r.t_tracker_ct
+        );
+    }
+
+    #[test]
+    fn a_mesh_in_metres_is_refused() {
+        let g = |x: f64, y: f64| 20.0 * (-((x - 30.0).powi(2) + y * y) / 600.0).exp() + 0.1 * x;
+        let mut m = grid(g);
+        for v in &mut m.vertices {
+            v.coords /= 1000.0;
+        }
+        let e = register_surface(&m, &points_on(g), None, &IcpOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("metres"), "{e}");
     }
 
     #[test]

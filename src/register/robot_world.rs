@@ -559,15 +559,13 @@ pub fn observations_from_dataset(
     let fin = |v: &[f64]| v.iter().all(|x| x.is_finite());
     for r in ds.poses() {
         let a = if let Some(f) = &r.flange {
-            if !fin(&f.p) || !fin(&f.quat) {
-                skipped.push((r.id, "flange pose not finite".into()));
-                continue;
+            match crate::plausible::quat::pose(&f.p, &f.quat) {
+                Ok(a) => a,
+                Err(e) => {
+                    skipped.push((r.id, format!("flange: {e}")));
+                    continue;
+                }
             }
-            let q = nalgebra::Quaternion::new(f.quat[0], f.quat[1], f.quat[2], f.quat[3]);
-            Isometry3::from_parts(
-                Translation3::new(f.p[0], f.p[1], f.p[2]),
-                UnitQuaternion::from_quaternion(q),
-            )
         } else if let (Some(q), Some(m)) = (&r.q, &model) {
             if q.len() != m.dof() || !fin(q) {
                 skipped.push((r.id, "bad `q`".into()));
@@ -587,17 +585,52 @@ pub fn observations_from_dataset(
             skipped.push((r.id, "marker without `p` and `quat`".into()));
             continue;
         };
-        if !fin(&p) || !fin(&qm) {
-            skipped.push((r.id, "marker not finite".into()));
-            continue;
-        }
-        let b = Isometry3::from_parts(
-            Translation3::new(p[0], p[1], p[2]),
-            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(qm[0], qm[1], qm[2], qm[3])),
-        );
+        let b = match crate::plausible::quat::pose(&p, &qm) {
+            Ok(b) => b,
+            Err(e) => {
+                skipped.push((r.id, format!("marker: {e}")));
+                continue;
+            }
+        };
         out.push(RwObs { id: r.id, a, b });
     }
     Ok((out, skipped))
+}
+
+/// Why poses were skipped, most common first (`N × reason`), with the likely cause of the
+/// most common one (issue 26 §6: "0 usable poses" names the cause, not the symptom).
+pub fn skip_summary(skipped: &[(u64, String)]) -> String {
+    let mut counts: Vec<(&str, usize)> = vec![];
+    for (_, w) in skipped {
+        match counts.iter_mut().find(|(k, _)| *k == w.as_str()) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((w.as_str(), 1)),
+        }
+    }
+    counts.sort_by(|a, b| b.1.cmp(&a.1));
+    let Some((top, _)) = counts.first() else {
+        return "no pose records".into();
+    };
+    let cause = if top.contains("not visible") {
+        "the tracker did not see the marker (the wrong tool, or the marker outside the tracker's \
+         volume)"
+    } else if top.contains("without `p` and `quat`") {
+        "the records carry marker positions only: robot-world needs each marker's orientation \
+         (`marker.quat`)"
+    } else if top.contains("neither `flange`") || top.contains("bad `q`") {
+        "no robot pose: the records need a `flange` block, or `q` in degrees with a robot model \
+         robocal knows"
+    } else if top.contains("quaternion") || top.contains("not finite") {
+        "corrupt values in the file"
+    } else {
+        "see the reasons"
+    };
+    let list: Vec<String> = counts
+        .iter()
+        .take(3)
+        .map(|(k, n)| format!("{n} × {k}"))
+        .collect();
+    format!("skipped {}; likely cause: {cause}", list.join(", "))
 }
 
 #[cfg(test)]

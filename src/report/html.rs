@@ -46,7 +46,7 @@ pub fn check_same_session(dir: &Path, s: &SessionFile) -> anyhow::Result<()> {
         let v: serde_json::Value =
             serde_json::from_str(&text).with_context(|| format!("{}", p.display()))?;
         match v.get("datasets") {
-            Some(got) if *got == want => {}
+            Some(got) if *got == want || subset_of(got, &want) => {}
             Some(got) => bail!(
                 "{}: made from datasets {got}, but this session's are {want}: refusing to combine \
                  artifacts of different sessions",
@@ -59,6 +59,15 @@ pub fn check_same_session(dir: &Path, s: &SessionFile) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// An artifact made before the session's later datasets existed (a laser calibration precedes
+/// its held-out run): every dataset it names is one of the session's, with the same SHA-256.
+fn subset_of(got: &serde_json::Value, want: &serde_json::Value) -> bool {
+    match (got.as_object(), want.as_object()) {
+        (Some(g), Some(w)) => !g.is_empty() && g.iter().all(|(role, sha)| w.get(role) == Some(sha)),
+        _ => false,
+    }
 }
 
 fn f4(v: Option<f64>) -> String {
@@ -260,6 +269,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     }
     if let Some(c) = &s.camera {
         camera_section(&mut h, c);
+    }
+    if let Some(l) = &s.laser {
+        h.push_str(&crate::session::laser::html(l, &s.measured));
     }
     // Effects.
     h.push_str("<h2>What the diagnosis found</h2>");

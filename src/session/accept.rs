@@ -91,19 +91,20 @@ pub struct AcceptSpec {
     /// (mean over targets of the largest distance between branches) must be ≤ this (mm).
     #[serde(default)]
     pub coincidence_mm_max: Option<f64>,
+    /// Laser sessions: the mean five-direction spread of the calibrated beam's spots on the
+    /// held-out validation targets (seed 000 §2.3.1) must be ≤ this (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_spread_mm_max: Option<f64>,
+    /// Laser sessions: the calibration data's point-to-plane RMS must be ≤ this (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_plane_rms_mm_max: Option<f64>,
 }
 
 fn kind_name(k: super::SessionKind) -> &'static str {
     match k {
         super::SessionKind::Kinematic => "kinematic",
         super::SessionKind::Camera => "camera",
-    }
-}
-
-fn other_kind(k: super::SessionKind) -> super::SessionKind {
-    match k {
-        super::SessionKind::Kinematic => super::SessionKind::Camera,
-        super::SessionKind::Camera => super::SessionKind::Kinematic,
+        super::SessionKind::Laser => "laser",
     }
 }
 
@@ -155,6 +156,8 @@ impl AcceptSpec {
             100.0,
         )?;
         check("coincidence_mm_max", spec.coincidence_mm_max, 1e4)?;
+        check("laser_spread_mm_max", spec.laser_spread_mm_max, 1e4)?;
+        check("laser_plane_rms_mm_max", spec.laser_plane_rms_mm_max, 1e4)?;
         let invalid = |field: &str, message: String| AcceptError::Invalid {
             path: path.into(),
             field: field.into(),
@@ -164,18 +167,19 @@ impl AcceptSpec {
             return Err(invalid(
                 "session",
                 "missing: name the kind of session this spec judges, `session = \"kinematic\"` \
-                 (tracker, mm) or `session = \"camera\"` (board images, px)"
+                 (tracker, mm), `session = \"camera\"` (board images, px) or `session = \
+                 \"laser\"` (range sensor on planes, mm)"
                     .into(),
             ));
         };
         let (own, other) = spec.criteria(kind);
-        if let Some(f) = other.first() {
+        if let Some((f, k)) = other.first() {
             return Err(invalid(
                 f,
                 format!(
                     "a criterion of {} sessions in a spec for {} sessions (`session = \"{}\"`): \
                      it would never be checked",
-                    kind_name(other_kind(kind)),
+                    kind_name(*k),
                     kind_name(kind),
                     kind_name(kind)
                 ),
@@ -187,6 +191,7 @@ impl AcceptSpec {
                     "heldout_rms_mm_max, heldout_max_mm_max or relative_distance_pct_max"
                 }
                 super::SessionKind::Camera => "heldout_reprojection_px_max",
+                super::SessionKind::Laser => "laser_spread_mm_max",
             };
             return Err(invalid(
                 "session",
@@ -201,8 +206,11 @@ impl AcceptSpec {
     }
 
     /// The accuracy criteria (fields) this spec sets for sessions of `kind`, and the
-    /// criteria it sets that only sessions of the other kind check.
-    fn criteria(&self, kind: super::SessionKind) -> (Vec<&'static str>, Vec<&'static str>) {
+    /// criteria it sets that only sessions of another kind check (with that kind).
+    fn criteria(
+        &self,
+        kind: super::SessionKind,
+    ) -> (Vec<&'static str>, Vec<(&'static str, super::SessionKind)>) {
         let kin = [
             ("heldout_rms_mm_max", self.heldout_rms_mm_max),
             ("heldout_max_mm_max", self.heldout_max_mm_max),
@@ -234,12 +242,27 @@ impl AcceptSpec {
                 .collect();
             (acc, all)
         };
-        let (kin_acc, kin_all) = set(&kin, 4);
-        let (cam_acc, cam_all) = set(&cam, 1);
-        match kind {
-            super::SessionKind::Kinematic => (kin_acc, cam_all),
-            super::SessionKind::Camera => (cam_acc, kin_all),
-        }
+        let las = [
+            ("laser_spread_mm_max", self.laser_spread_mm_max),
+            ("laser_plane_rms_mm_max", self.laser_plane_rms_mm_max),
+        ];
+        use super::SessionKind as K;
+        let all = [
+            (K::Kinematic, set(&kin, 4)),
+            (K::Camera, set(&cam, 1)),
+            (K::Laser, set(&las, 1)),
+        ];
+        let own = all
+            .iter()
+            .find(|(k, _)| *k == kind)
+            .map(|(_, (acc, _))| acc.clone())
+            .unwrap_or_default();
+        let other = all
+            .iter()
+            .filter(|(k, _)| *k != kind)
+            .flat_map(|(k, (_, every))| every.iter().map(move |f| (*f, *k)))
+            .collect();
+        (own, other)
     }
 
     /// Checks that this spec judges sessions of `kind` (before anything moves): a spec for
@@ -257,11 +280,13 @@ impl AcceptSpec {
                     match kind {
                         super::SessionKind::Kinematic => "tracker",
                         super::SessionKind::Camera => "camera without tracker",
+                        super::SessionKind::Laser => "laser on calibration planes",
                     },
                     kind_name(kind),
                     match kind {
                         super::SessionKind::Kinematic => "surgical",
                         super::SessionKind::Camera => "camera",
+                        super::SessionKind::Laser => "laser",
                     }
                 ),
             }),
@@ -341,6 +366,17 @@ pub struct Measured {
     pub coincidence_mm_after: Option<f64>,
     #[serde(default)]
     pub verified_vs_predicted: Option<f64>,
+    /// Laser: mean (and sd over targets) five-direction spread (mm) on the held-out validation
+    /// targets with the nominal beam mounting (before) and the calibrated beam (after).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_spread_mm_before: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_spread_mm_after: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_spread_sd_mm_after: Option<f64>,
+    /// Laser: point-to-plane RMS of the calibration data with the calibrated beam (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser_plane_rms_mm: Option<f64>,
 }
 
 impl Measured {
@@ -373,6 +409,11 @@ impl Measured {
             "held-out reprojection RMS (px)",
             self.heldout_reprojection_px_before,
             self.heldout_reprojection_px_after,
+        );
+        push(
+            "held-out five-direction spread (mm)",
+            self.laser_spread_mm_before,
+            self.laser_spread_mm_after,
         );
         v
     }
@@ -494,10 +535,13 @@ pub fn judge_kind(
     kind: super::SessionKind,
 ) -> Verdict {
     let camera = kind == super::SessionKind::Camera;
+    let laser = kind == super::SessionKind::Laser;
     let mut c = Vec::new();
     let mut incomplete = incomplete;
     if camera {
         camera_criteria(spec, m, &mut c, &mut incomplete);
+    } else if laser {
+        laser_criteria(spec, m, &mut c, &mut incomplete);
     } else {
         kinematic_criteria(spec, m, &mut c);
     }
@@ -505,12 +549,16 @@ pub fn judge_kind(
     if spec.must_improve {
         let have = if camera {
             m.heldout_reprojection_px_before.is_some() && m.heldout_reprojection_px_after.is_some()
+        } else if laser {
+            m.laser_spread_mm_before.is_some() && m.laser_spread_mm_after.is_some()
         } else {
             m.heldout_rms_mm_before.is_some() && m.heldout_rms_mm_after.is_some()
         };
         c.push(Criterion {
             name: if camera {
                 "no held-out metric worse after the diagnosis".into()
+            } else if laser {
+                "held-out spread no worse than with the nominal beam mounting".into()
             } else {
                 "no held-out metric worse than nominal".into()
             },
@@ -545,7 +593,7 @@ pub fn judge_kind(
             ok: frac.map(|f| f <= lim),
         });
     }
-    if !camera {
+    if !camera && !laser {
         le(
             "parameter 95 % half-interval (lengths)",
             "mm",
@@ -635,6 +683,36 @@ fn camera_criteria(
             c,
         );
     }
+}
+
+/// The laser criteria: the held-out five-direction spread, the calibration planes' RMS.
+fn laser_criteria(
+    spec: &AcceptSpec,
+    m: &Measured,
+    c: &mut Vec<Criterion>,
+    incomplete: &mut Vec<String>,
+) {
+    if spec.laser_spread_mm_max.is_none() && spec.laser_plane_rms_mm_max.is_none() {
+        incomplete.push(format!(
+            "the acceptance spec {:?} has no laser criterion (laser_spread_mm_max, \
+             laser_plane_rms_mm_max): see accept/laser.toml",
+            spec.name
+        ));
+    }
+    le(
+        "held-out five-direction spread (mean over targets)",
+        "mm",
+        m.laser_spread_mm_after,
+        spec.laser_spread_mm_max,
+        c,
+    );
+    le(
+        "calibration planes' point-to-plane RMS",
+        "mm",
+        m.laser_plane_rms_mm,
+        spec.laser_plane_rms_mm_max,
+        c,
+    );
 }
 
 /// The kinematic (position) criteria.

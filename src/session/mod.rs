@@ -20,6 +20,7 @@ pub mod camera;
 pub mod deploy;
 pub mod deploy_score;
 pub mod history;
+pub mod laser;
 pub mod svg;
 pub mod verify;
 
@@ -133,6 +134,10 @@ pub struct SessionSetup {
     /// What the session calibrates (sessions written before camera sessions: kinematic).
     #[serde(default)]
     pub kind: SessionKind,
+    /// Laser sessions: the arm's kinematic calibration of the same visit (copy in the session
+    /// directory): the laser spots go through the identified arm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm_calibration: Option<String>,
 }
 
 /// What a session calibrates.
@@ -144,6 +149,8 @@ pub enum SessionKind {
     Kinematic,
     /// A camera's intrinsics and hand-eye from board images (seed 004).
     Camera,
+    /// A laser range sensor's beam on the flange from calibration planes (seed 000).
+    Laser,
 }
 
 /// One dataset of the session and its SHA-256.
@@ -268,6 +275,10 @@ pub struct SessionFile {
     /// The `verify` stage: commanded-vs-measured before / after, coincidence error.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub verify: Option<verify::VerifySummary>,
+    /// Laser sessions: the beam, the methods side by side on the held-out targets, the
+    /// seed's figures beside ours.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub laser: Option<laser::LaserSummary>,
 }
 
 impl SessionFile {
@@ -456,6 +467,7 @@ pub fn create(
         warnings: vec![],
         camera: None,
         verify: None,
+        laser: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -531,15 +543,11 @@ impl Work {
 pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionFile> {
     let path = dir.join("session.json");
     let mut s = SessionFile::load(&path)?;
+    if s.setup.kind == SessionKind::Laser {
+        return laser::run(dir, s, cell, log);
+    }
     let mut work = Work::default();
-    let step = |s: &mut SessionFile, st: Stage| -> anyhow::Result<()> {
-        if !s.stages_done.contains(&st) {
-            s.stages_done.push(st);
-        }
-        s.updated = crate::acquire::utc_now_iso();
-        judge_into(s);
-        s.save(&dir.join("session.json"))
-    };
+    let step = |s: &mut SessionFile, st: Stage| stage_done(dir, s, st);
     if !s.done(Stage::Plan) {
         log("plan: training and validation poses fitted to the cell");
         plan_stage(dir, &mut s, &mut *log)?;
@@ -555,55 +563,8 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         if s.done(stage) {
             continue;
         }
-        log(&format!("acquire: {set} poses"));
-        let plan_path = dir.join("plan").join(format!("{set}.json"));
-        let run_dir = dir.join(format!("run-{set}"));
-        let summary = cell.acquire(&plan_path, &run_dir).with_context(|| {
-            format!(
-                "acquiring the {set} poses (continue with `robocal session --resume {}`)",
-                dir.display()
-            )
-        })?;
-        *s.duration_s.get_or_insert(0.0) += summary.time.total_s();
-        if let Some(reason) = &summary.aborted {
-            s.save(&path)?;
-            bail!(
-                "{set} acquisition stopped: {reason} (continue with `robocal session --resume {}`)",
-                dir.display()
-            );
-        }
-        s.skipped.retain(|k| k.set != set);
-        s.skipped.extend(summary.skipped.iter().map(|k| Skip {
-            set: set.into(),
-            id: k.id,
-            reason: k.reason.clone(),
-        }));
-        s.poses_skipped = s.skipped.len();
-        let ds_path = run_dir.join("dataset.jsonl");
-        // Read once: hashed and parsed from the same bytes, kept for the later stages.
-        let bytes = crate::fsio::read(&ds_path)
-            .with_context(|| format!("reading {}", ds_path.display()))?;
-        let loaded = crate::dataset::parse_dataset(&bytes, &ds_path)
-            .with_context(|| format!("{}", ds_path.display()))?;
-        let ds = &loaded.dataset;
-        if s.cell.robot_serial.is_none() {
-            s.cell.robot_serial = ds.header.robot.serial.clone();
-        }
-        s.datasets.retain(|d| d.role != set);
-        s.datasets.push(DatasetRef {
-            role: set.into(),
-            path: rel(dir, &ds_path),
-            sha256: sha256_hex(&bytes),
-            records: ds.poses().count(),
-        });
-        work.datasets
-            .insert(set.to_string(), (ds_path.clone(), loaded));
-        log(&format!(
-            "  {} recorded, {} skipped, {:.0} s",
-            summary.recorded,
-            summary.skipped.len(),
-            summary.time.total_s()
-        ));
+        let loaded = acquire_set(dir, &mut s, cell, set, &mut *log)?;
+        work.datasets.insert(set.to_string(), loaded);
         step(&mut s, stage)?;
     }
     let cam = s.setup.kind == SessionKind::Camera;
@@ -646,6 +607,75 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         s.save(&path)?;
     }
     Ok(s)
+}
+
+/// Acquire (or resume) the plan `plan/{set}.json` into `run-{set}/` and record the dataset as
+/// role `set` in the session (skips, duration, SHA-256). Does not mark a stage done.
+pub(crate) fn acquire_set(
+    dir: &Path,
+    s: &mut SessionFile,
+    cell: &mut dyn Cell,
+    set: &str,
+    log: Log,
+) -> anyhow::Result<(PathBuf, crate::dataset::Loaded)> {
+    log(&format!("acquire: {set} poses"));
+    let plan_path = dir.join("plan").join(format!("{set}.json"));
+    let run_dir = dir.join(format!("run-{set}"));
+    let summary = cell.acquire(&plan_path, &run_dir).with_context(|| {
+        format!(
+            "acquiring the {set} poses (continue with `robocal session --resume {}`)",
+            dir.display()
+        )
+    })?;
+    *s.duration_s.get_or_insert(0.0) += summary.time.total_s();
+    if let Some(reason) = &summary.aborted {
+        s.save(&dir.join("session.json"))?;
+        bail!(
+            "{set} acquisition stopped: {reason} (continue with `robocal session --resume {}`)",
+            dir.display()
+        );
+    }
+    s.skipped.retain(|k| k.set != set);
+    s.skipped.extend(summary.skipped.iter().map(|k| Skip {
+        set: set.into(),
+        id: k.id,
+        reason: k.reason.clone(),
+    }));
+    s.poses_skipped = s.skipped.len();
+    let ds_path = run_dir.join("dataset.jsonl");
+    // Read once: hashed and parsed from the same bytes, kept for the later stages.
+    let bytes =
+        crate::fsio::read(&ds_path).with_context(|| format!("reading {}", ds_path.display()))?;
+    let loaded = crate::dataset::parse_dataset(&bytes, &ds_path)
+        .with_context(|| format!("{}", ds_path.display()))?;
+    let ds = &loaded.dataset;
+    if s.cell.robot_serial.is_none() {
+        s.cell.robot_serial = ds.header.robot.serial.clone();
+    }
+    s.datasets.retain(|d| d.role != set);
+    s.datasets.push(DatasetRef {
+        role: set.into(),
+        path: rel(dir, &ds_path),
+        sha256: sha256_hex(&bytes),
+        records: ds.poses().count(),
+    });
+    log(&format!(
+        "  {} recorded, {} skipped, {:.0} s",
+        summary.recorded,
+        summary.skipped.len(),
+        summary.time.total_s()
+    ));
+    Ok((ds_path, loaded))
+}
+
+/// Mark `st` done, re-judge and save `session.json`.
+pub(crate) fn stage_done(dir: &Path, s: &mut SessionFile, st: Stage) -> anyhow::Result<()> {
+    if !s.stages_done.contains(&st) {
+        s.stages_done.push(st);
+    }
+    s.updated = crate::acquire::utc_now_iso();
+    judge_into(s);
+    s.save(&dir.join("session.json"))
 }
 
 /// Recompute the verdict from what is measured so far.

@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Context as _};
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, Vector3};
 
 use crate::dataset::CalibrationFile;
 use crate::model::{KinematicModel, ParamGroup};
@@ -87,14 +87,8 @@ pub fn parse_targets(file: &str, text: &str) -> anyhow::Result<Vec<Target>> {
                 p.norm()
             );
         }
-        let q = Quaternion::new(row.qw, row.qx, row.qy, row.qz);
-        if (q.norm() - 1.0).abs() > 1e-3 {
-            bail!(
-                "{file}:{line}: field `qw`..`qz`: the quaternion has norm {:.4}, not 1 \
-                 (Euler angles or a rotation vector in the quaternion columns?)",
-                q.norm()
-            );
-        }
+        let q = crate::plausible::quat::unit_wxyz(&[row.qw, row.qx, row.qy, row.qz])
+            .map_err(|e| anyhow::anyhow!("{file}:{line}: field `qw`..`qz`: {e}"))?;
         if let Some(b) = row.branch {
             if b > 7 {
                 bail!("{file}:{line}: field `branch` = {b}: IK branches are 0–7");
@@ -102,7 +96,7 @@ pub fn parse_targets(file: &str, text: &str) -> anyhow::Result<Vec<Target>> {
         }
         out.push(Target {
             name: row.name,
-            pose: Isometry3::from_parts(Translation3::from(p), UnitQuaternion::from_quaternion(q)),
+            pose: Isometry3::from_parts(Translation3::from(p), q),
             branch: row.branch,
         });
     }

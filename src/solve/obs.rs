@@ -127,14 +127,9 @@ impl PoseObs {
             return Err("marker `p` is not finite".into());
         }
         let quat = match m.quat {
-            Some(w) if finite(&w) => {
-                let v = nalgebra::Quaternion::new(w[0], w[1], w[2], w[3]);
-                if (v.norm() - 1.0).abs() > 1e-3 {
-                    return Err(format!("marker quaternion norm {:.4} is not 1", v.norm()));
-                }
-                Some(UnitQuaternion::from_quaternion(v))
-            }
-            Some(_) => return Err("marker `quat` is not finite".into()),
+            Some(w) => Some(
+                crate::plausible::quat::unit_wxyz(&w).map_err(|e| format!("marker `quat`: {e}"))?,
+            ),
             None => None,
         };
         let ctx = record_ctx(r, dof).ok_or("`q` is not usable")?;

@@ -137,6 +137,18 @@ impl Predictor {
         &self,
         ds: &Dataset,
     ) -> anyhow::Result<(Vec<PredictedPoint>, Vec<String>)> {
+        self.predict_in_session(ds, &[])
+    }
+
+    /// As [`Predictor::predict_dataset_warn`], with `session`: the other pose records of the
+    /// same session (e.g. the training file of a diagnosis), used only for the context of
+    /// `ds`'s records (the pose the arm came from when a record has no `q_prev`: in a
+    /// held-out file alone, the previous held-out pose is not where the arm came from).
+    pub fn predict_in_session(
+        &self,
+        ds: &Dataset,
+        session: &[&PoseRecord],
+    ) -> anyhow::Result<(Vec<PredictedPoint>, Vec<String>)> {
         let Engine::Kinematic { model, effects } = &self.engine else {
             let rows = ds
                 .poses()
@@ -151,7 +163,8 @@ impl Predictor {
         };
         // Session context once for the whole file (approach directions, times).
         let recs: Vec<&PoseRecord> = ds.poses().collect();
-        let (ctx, inferred) = crate::solve::obs::contexts_counted(&recs, model.dof());
+        let all: Vec<&PoseRecord> = recs.iter().chain(session).copied().collect();
+        let (ctx, inferred) = crate::solve::obs::contexts_counted(&all, model.dof());
         let by_key: std::collections::HashMap<usize, &crate::solve::obs::PoseCtx> =
             ctx.iter().map(|(k, c)| (*k, c)).collect();
         let parsed = effects
@@ -226,11 +239,22 @@ pub fn predict_files_warn(
     cal: &Path,
     data: &Path,
 ) -> anyhow::Result<(Vec<PredictedPoint>, Vec<String>)> {
-    // Strict reader + plausibility of both files, and one robot model (issue 14 §5).
-    let ds = crate::plausible::load_checked(data)?;
+    predict_files_in_session(cal, data, None)
+}
+
+/// [`predict_files_warn`] with the other records of the session in `session` (a dataset of
+/// the same robot; see [`Predictor::predict_in_session`]).
+pub fn predict_files_in_session(
+    cal: &Path,
+    data: &Path,
+    session: Option<&Path>,
+) -> anyhow::Result<(Vec<PredictedPoint>, Vec<String>)> {
+    // Strict reader + plausibility of every file, and one robot model (issue 14 §5).
+    let (ds, other) = crate::plausible::load_with_heldout(data, session)?;
     let cal = crate::plausible::calibration::load_for(cal, &ds.header.robot, data)?;
     let predictor = Predictor::new(&cal)?;
+    let others: Vec<&PoseRecord> = other.iter().flat_map(|o| o.poses()).collect();
     predictor
-        .predict_dataset_warn(&ds)
+        .predict_in_session(&ds, &others)
         .with_context(|| format!("predicting {}", data.display()))
 }

@@ -189,21 +189,7 @@ pub fn pivot_frames(ds: &crate::dataset::Dataset, tool: Option<&str>) -> Vec<Iso
         })
         .filter(|p| tool.is_none() || p.tool.as_deref() == tool)
         .filter(|p| p.marker.visible)
-        .filter_map(|p| {
-            let pos = p.marker.p?;
-            let q = p.marker.quat?;
-            if !pos.iter().chain(q.iter()).all(|v| v.is_finite()) {
-                return None;
-            }
-            let quat = nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]);
-            if (quat.norm() - 1.0).abs() > 1e-3 {
-                return None;
-            }
-            Some(Isometry3::from_parts(
-                nalgebra::Translation3::new(pos[0], pos[1], pos[2]),
-                nalgebra::UnitQuaternion::from_quaternion(quat),
-            ))
-        })
+        .filter_map(|p| crate::plausible::quat::pose(&p.marker.p?, &p.marker.quat?).ok())
         .collect()
 }
 

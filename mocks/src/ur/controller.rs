@@ -230,6 +230,7 @@ impl Controller {
         });
         if let Some(h) = had {
             h.abort();
+            self.world.arm_set_freedrive(self.arm, false);
             self.world.arm_stop(self.arm);
         }
     }
@@ -254,6 +255,10 @@ impl Controller {
             };
             if let Err(e) = result {
                 tracing::info!("{}: program stopped: {e}", me.device);
+            }
+            // Freedrive ends with the program that started it.
+            if me.still_current(seq) {
+                me.world.arm_set_freedrive(me.arm, false);
             }
             me.with(|c| {
                 if c.program_seq == seq {
@@ -318,6 +323,12 @@ impl Controller {
                     .await?
                 }
                 Statement::StopJ => self.world.arm_stop(self.arm),
+                Statement::Freedrive(on) => {
+                    if on && self.with(|c| c.robot_mode) != RobotMode::Running {
+                        return Err("freedrive_mode(): robot not powered / brakes engaged".into());
+                    }
+                    self.world.arm_set_freedrive(self.arm, on);
+                }
                 Statement::Sleep(s) => {
                     if self.world.is_virtual() {
                         self.world.advance(s);
@@ -414,6 +425,9 @@ pub enum Statement {
     StopJ,
     /// `sleep(s)`.
     Sleep(f64),
+    /// `freedrive_mode()` (true) / `end_freedrive_mode()` (false): the arm follows the
+    /// operator's hand until the program ends or it is ended.
+    Freedrive(bool),
     /// Anything that would move the arm in a way this simulator does not model.
     Unsupported(String),
 }
@@ -438,6 +452,12 @@ pub fn parse_statement(line: &str) -> Statement {
     }
     if call_args(l, "stopj").is_some() || call_args(l, "stopl").is_some() {
         return Statement::StopJ;
+    }
+    if call_args(l, "freedrive_mode").is_some() {
+        return Statement::Freedrive(true);
+    }
+    if call_args(l, "end_freedrive_mode").is_some() {
+        return Statement::Freedrive(false);
     }
     if let Some(args) = call_args(l, "sleep") {
         return match args.trim().parse::<f64>() {

@@ -16,6 +16,7 @@ pub mod clock;
 pub mod control;
 pub mod effects;
 pub mod motion;
+pub mod operator;
 pub mod sensors;
 
 use crate::scenario::{
@@ -85,6 +86,9 @@ pub(crate) struct ArmRuntime {
     pub(crate) approach: Vec<f64>,
     pub(crate) protective_stop: bool,
     pub(crate) rng: ChaCha8Rng,
+    /// The arm follows the operator's hand: a DENSO whose teach pendant holds it (always), a
+    /// UR only in `freedrive_mode()`.
+    pub(crate) follows_hand: bool,
 }
 
 impl ArmRuntime {
@@ -139,6 +143,16 @@ pub(crate) struct World {
     pub(crate) cameras: Vec<CameraRuntime>,
     pub(crate) scene: SceneConfig,
     pub(crate) control: control::ControlState,
+    pub(crate) operator: Option<OperatorRuntime>,
+}
+
+/// The simulated operator's script and when it started.
+pub(crate) struct OperatorRuntime {
+    cfg: operator::OperatorConfig,
+    tracker: usize,
+    t0: Option<f64>,
+    /// Joint angles of each arm when the script started (where a first drag starts from).
+    arm_start: Vec<Vec<f64>>,
 }
 
 /// Which device a name refers to.
@@ -300,6 +314,7 @@ impl WorldHandle {
                 approach: vec![1.0; n],
                 protective_stop: false,
                 rng: rng_for(s.seed, 2, i),
+                follows_hand: a.protocol != crate::scenario::Protocol::Ur,
             });
         }
         let arm_index = |name: &str, who: &str| {
@@ -383,6 +398,24 @@ impl WorldHandle {
                 cameras,
                 scene: s.scene.clone(),
                 control: Default::default(),
+                operator: match &s.operator {
+                    None => None,
+                    Some(op) => Some(OperatorRuntime {
+                        tracker: s
+                            .trackers
+                            .iter()
+                            .position(|t| t.name == op.tracker)
+                            .ok_or_else(|| {
+                                ScenarioError::Invalid(format!(
+                                    "operator.tracker: no tracker named {:?}",
+                                    op.tracker
+                                ))
+                            })?,
+                        cfg: op.clone(),
+                        t0: None,
+                        arm_start: Vec::new(),
+                    }),
+                },
             })),
             clock,
             vclock,
@@ -391,7 +424,62 @@ impl WorldHandle {
 
     pub(crate) fn with<R>(&self, f: impl FnOnce(&mut World) -> R) -> R {
         let mut g = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        if g.operator.as_ref().is_some_and(|o| o.t0.is_some()) {
+            let now = self.now();
+            g.apply_drag(now);
+        }
         f(&mut g)
+    }
+
+    /// Start the operator's script now, unless it has started already.
+    fn operator_start(&self) {
+        let now = self.now();
+        self.with(|w| {
+            let qs: Vec<Vec<f64>> = w.arms.iter().map(|a| a.motion.q_at(now)).collect();
+            if let Some(o) = w.operator.as_mut() {
+                if o.t0.is_none() {
+                    o.t0 = Some(now);
+                    o.arm_start = qs;
+                }
+            }
+        });
+    }
+
+    /// Put arm `arm` in (or out of) freedrive: in freedrive it follows the operator's hand.
+    /// A DENSO held by its teach pendant follows the hand whatever this says.
+    pub fn arm_set_freedrive(&self, arm: usize, on: bool) {
+        let uses_freedrive = self.with(|w| {
+            w.scenario
+                .arms
+                .get(arm)
+                .is_some_and(|a| a.protocol == crate::scenario::Protocol::Ur)
+        });
+        if uses_freedrive {
+            let now = self.now();
+            self.with(|w| {
+                if let Some(a) = w.arms.get_mut(arm) {
+                    a.follows_hand = on;
+                    if !on {
+                        a.halt(now);
+                    }
+                }
+            });
+        }
+    }
+
+    /// Whether arm `arm` follows the operator's hand now (freedrive / teach pendant).
+    pub fn arm_follows_hand(&self, arm: usize) -> bool {
+        self.with(|w| w.arms.get(arm).is_some_and(|a| a.follows_hand))
+    }
+
+    /// The operator's TRUE probe marker pose in the base frame now (tests only), if the probe
+    /// is in hand.
+    pub fn operator_probe_truth(&self) -> Option<Isometry3<f64>> {
+        let now = self.now();
+        self.with(|w| match w.operator_act(now) {
+            Some(operator::Act::Probe(m)) => Some(m),
+            _ => None,
+        })
     }
 
     /// The world clock (virtual or real time).
@@ -466,6 +554,7 @@ impl WorldHandle {
     /// # Panics
     /// Never; an unknown arm index yields an empty state.
     pub fn arm_joint_state(&self, arm: usize) -> JointState {
+        self.operator_start();
         let t = self.now();
         self.with(|w| match w.arms.get(arm) {
             Some(a) => JointState {
@@ -665,8 +754,25 @@ impl WorldHandle {
         if rate > 0.0 {
             self.advance(1.0 / rate);
         }
+        if self.with(|w| w.operator.as_ref().is_some_and(|o| o.tracker == tracker)) {
+            self.operator_start();
+        }
         let t = self.now();
         self.with(|w| {
+            let probe = match (
+                &w.operator,
+                w.operator_act(
+                    t - w
+                        .trackers
+                        .get(tracker)
+                        .map_or(0.0, |tr| tr.cfg.effects.latency_s),
+                ),
+            ) {
+                (Some(o), Some(operator::Act::Probe(m))) if o.tracker == tracker => {
+                    Some((o.cfg.probe_tool.clone(), m))
+                }
+                _ => None,
+            };
             let Some(tr) = w.trackers.get(tracker) else {
                 return TrackerFrame {
                     frame_number: 0,
@@ -680,59 +786,22 @@ impl WorldHandle {
             let flange = arm.physics.true_flange(&arm.motion.q_at(ts), &arm.ctx(ts));
             let tib = tracker_in_base_at(tr.tracker_in_base, &eff, t);
             let marker_base = flange * tr.marker_on_flange;
-            let pose = tib.inverse() * marker_base;
-            let p = Point3::from(pose.translation.vector);
-            let tracker_origin = Point3::from(tib.translation.vector);
-            let marker_origin = Point3::from(marker_base.translation.vector);
-            let facing = eff.max_view_angle_deg.is_none_or(|max| {
-                let zm = pose.rotation * Vector3::z();
-                let to_tracker = -p.coords.normalize();
-                zm.dot(&to_tracker).clamp(-1.0, 1.0).acos() <= max.to_radians()
-            });
-            let blocked = eff.occluders.iter().any(|o| {
-                sensors::segment_distance(
-                    &tracker_origin,
-                    &marker_origin,
-                    &Point3::from(o.center_mm),
-                ) < o.radius_mm
-            });
             let tr = &mut w.trackers[tracker];
             tr.frame_no += 1;
-            let status = if tr.occluded || blocked || !facing {
-                ToolStatus::Missing
-            } else if !sensors::in_volume(tr.volume, &p) {
-                ToolStatus::OutOfVolume
-            } else {
-                let scaled = p.coords * (1.0 + eff.scale_ppm * 1e-6);
-                let los = scaled.normalize();
-                let e1 = los
-                    .cross(&Vector3::x())
-                    .try_normalize(1e-9)
-                    .unwrap_or_else(|| los.cross(&Vector3::y()).normalize());
-                let e2 = los.cross(&e1);
-                let rng = &mut tr.rng;
-                let noise = los * (eff.noise_depth_mm * normal(rng))
-                    + e1 * (eff.noise_lateral_mm * normal(rng))
-                    + e2 * (eff.noise_lateral_mm * normal(rng));
-                let rot_sigma = eff.noise_rot_deg.to_radians();
-                let drot = Vector3::new(normal(rng), normal(rng), normal(rng)) * rot_sigma;
-                let rms = tr.cfg.fit_rms_mm * (1.0 + 0.2 * normal(rng).abs());
-                let measured = Isometry3::from_parts(
-                    Translation3::from(scaled + noise),
-                    UnitQuaternion::from_scaled_axis(drot) * pose.rotation,
-                );
-                ToolStatus::Visible {
-                    pose: MarkerToTracker(measured),
-                    rms_mm: rms,
-                }
-            };
+            let mut tools = vec![ToolObservation {
+                tool: tr.cfg.tool.clone(),
+                status: observe(tr, &eff, &tib, &marker_base, true),
+            }];
+            if let Some((name, m)) = probe {
+                tools.push(ToolObservation {
+                    tool: name,
+                    status: observe(tr, &eff, &tib, &m, false),
+                });
+            }
             TrackerFrame {
                 frame_number: tr.frame_no,
                 t,
-                tools: vec![ToolObservation {
-                    tool: tr.cfg.tool.clone(),
-                    status,
-                }],
+                tools,
             }
         })
     }
@@ -929,6 +998,90 @@ impl WorldHandle {
             cameras: w.cameras.iter().map(|c| c.cfg.clone()).collect(),
             scene: w.scene.clone(),
         })
+    }
+}
+
+/// One tool's status in a frame: missing when occluded / not facing the tracker (the
+/// tracker's occlusion switch applies to the arm marker only), out of volume, else the pose with
+/// the tracker's scale error and noise.
+fn observe(
+    tr: &mut TrackerRuntime,
+    eff: &TrackerEffects,
+    tib: &Isometry3<f64>,
+    marker_base: &Isometry3<f64>,
+    arm_marker: bool,
+) -> ToolStatus {
+    let pose = tib.inverse() * marker_base;
+    let p = Point3::from(pose.translation.vector);
+    let tracker_origin = Point3::from(tib.translation.vector);
+    let marker_origin = Point3::from(marker_base.translation.vector);
+    let facing = eff.max_view_angle_deg.is_none_or(|max| {
+        let zm = pose.rotation * Vector3::z();
+        let to_tracker = -p.coords.normalize();
+        zm.dot(&to_tracker).clamp(-1.0, 1.0).acos() <= max.to_radians()
+    });
+    let blocked = eff.occluders.iter().any(|o| {
+        sensors::segment_distance(&tracker_origin, &marker_origin, &Point3::from(o.center_mm))
+            < o.radius_mm
+    });
+    if (arm_marker && tr.occluded) || blocked || !facing {
+        return ToolStatus::Missing;
+    }
+    if !sensors::in_volume(tr.volume, &p) {
+        return ToolStatus::OutOfVolume;
+    }
+    let scaled = p.coords * (1.0 + eff.scale_ppm * 1e-6);
+    let los = scaled.normalize();
+    let e1 = los
+        .cross(&Vector3::x())
+        .try_normalize(1e-9)
+        .unwrap_or_else(|| los.cross(&Vector3::y()).normalize());
+    let e2 = los.cross(&e1);
+    let rng = &mut tr.rng;
+    let noise = los * (eff.noise_depth_mm * normal(rng))
+        + e1 * (eff.noise_lateral_mm * normal(rng))
+        + e2 * (eff.noise_lateral_mm * normal(rng));
+    let rot_sigma = eff.noise_rot_deg.to_radians();
+    let drot = Vector3::new(normal(rng), normal(rng), normal(rng)) * rot_sigma;
+    let rms = tr.cfg.fit_rms_mm * (1.0 + 0.2 * normal(rng).abs());
+    let measured = Isometry3::from_parts(
+        Translation3::from(scaled + noise),
+        UnitQuaternion::from_scaled_axis(drot) * pose.rotation,
+    );
+    ToolStatus::Visible {
+        pose: MarkerToTracker(measured),
+        rms_mm: rms,
+    }
+}
+
+impl World {
+    /// What the operator does at world time `now` (`None` without an operator or before the
+    /// script started).
+    fn operator_act(&self, now: f64) -> Option<operator::Act> {
+        let o = self.operator.as_ref()?;
+        let t0 = o.t0?;
+        let tr = self.trackers.get(o.tracker)?;
+        let tib = tracker_in_base_at(tr.tracker_in_base, &tr.cfg.effects, now);
+        let origin = Point3::from(tib.translation.vector);
+        Some(operator::act(
+            &o.cfg,
+            now - t0,
+            &origin,
+            |name| self.arms.iter().position(|a| a.name == name),
+            |a| o.arm_start.get(a).cloned().unwrap_or_default(),
+        ))
+    }
+
+    /// A dragged arm that follows the hand is where the hand holds it.
+    fn apply_drag(&mut self, now: f64) {
+        if let Some(operator::Act::Arm(a, q)) = self.operator_act(now) {
+            if let Some(arm) = self.arms.get_mut(a) {
+                if arm.follows_hand && !arm.protective_stop && q.len() == arm.motion.q_at(now).len()
+                {
+                    arm.motion = Move::hold(q, now);
+                }
+            }
+        }
     }
 }
 

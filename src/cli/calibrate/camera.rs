@@ -106,8 +106,11 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             let path = a.out.join("camera_report.json");
             crate::fsio::write(&path, serde_json::to_string_pretty(&report)? + "\n")
                 .with_context(|| format!("writing {}", path.display()))?;
+            let cause = crate::solve::camera::data::likely_cause(&train)
+                .map(|c| format!("; {c}"))
+                .unwrap_or_default();
             return Err(anyhow::Error::new(e).context(format!(
-                "calibrating the camera of {} ({} images without a usable board are listed above and in {})",
+                "calibrating the camera of {} ({} images without a usable board are listed above and in {}{cause})",
                 a.data.display(),
                 train.no_board.len(),
                 path.display()

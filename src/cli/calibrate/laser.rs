@@ -3,7 +3,6 @@
 use anyhow::Context as _;
 use std::path::PathBuf;
 
-use crate::dataset::CalibrationFile;
 use crate::solve::laser;
 use crate::solve::laser::stage::{load_heldout, scan_report};
 
@@ -35,6 +34,11 @@ pub struct Args {
     /// per-face flatness are printed and written to `scan_report.json`.
     #[arg(long, value_name = "SCAN.jsonl")]
     pub scan: Option<PathBuf>,
+    /// The arm's kinematic calibration (`robocal calibrate kinematics` / a kinematic session's
+    /// `deploy/calibration.json`): every flange pose is computed from the recorded joints
+    /// through the identified arm (geometry) instead of the controller's nominal flange.
+    #[arg(long, value_name = "CAL.json")]
+    pub calibration: Option<PathBuf>,
     /// Write the reconstructed scan as a PLY point cloud (needs `--scan`).
     #[arg(long, value_name = "OUT.ply", requires = "scan")]
     pub ply: Option<PathBuf>,
@@ -43,53 +47,38 @@ pub struct Args {
 /// Run `robocal calibrate laser`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     let ds = crate::plausible::load_checked(&args.data)?;
-    let obs = laser::observations(&ds)
+    let arm = match &args.calibration {
+        Some(c) => Some(laser::identified_arm(c, &ds, &args.data)?),
+        None => None,
+    };
+    let obs = laser::observations_through(&ds, arm.as_ref())
         .with_context(|| format!("reading laser poses of {}", args.data.display()))?;
     let mut validation: Vec<laser::LaserObs> =
         obs.iter().filter(|o| o.target.is_some()).cloned().collect();
     let train: Vec<laser::LaserObs> = obs.iter().filter(|o| o.plane.is_some()).cloned().collect();
     if let Some(h) = &args.heldout {
-        let hd = load_heldout(h, &ds, &args.data)?;
+        let hd = load_heldout(h, &ds, &args.data, arm.as_ref())?;
         validation.extend(hd);
     }
     let truth = match &args.truth {
-        Some(p) => Some(crate::schema::points_csv::read(p)?),
+        Some(p) => {
+            let t = crate::schema::points_csv::read(p)?;
+            laser::validate::check_truth_units(&t, &validation, p)?;
+            Some(t)
+        }
         None => None,
     };
     let cmp = laser::compare(&train, &validation, truth.as_ref(), args.huber)
         .context("laser hand-eye calibration")?;
     let beam = cmp.final_beam.context("no final beam")?;
-    let mut cal = CalibrationFile::new(
-        ds.header.robot.clone(),
-        laser::beam_params(&beam, cmp.final_std),
-    );
-    cal.set_kind("laser");
-    let final_row = cmp.rows.last().context("no rows")?;
-    let m = &mut cal.metrics;
-    m.insert("plane_rms_mm".into(), cmp.final_plane_rms_mm.into());
-    if final_row.spread_mean_mm.is_finite() {
-        m.insert("spread_mean_mm".into(), final_row.spread_mean_mm.into());
-    }
-    if let Some(x) = final_row.spot_rms_vs_truth_mm {
-        m.insert("heldout_rms_mm_after".into(), x.into());
-    }
-    if let Some(x) = final_row.tre_mm {
-        m.insert("tre_mm".into(), x.into());
-    }
+    let mut cal = laser::calibration_file(ds.header.robot.clone(), &cmp)?;
     cal.extra.insert(
-        "planes".into(),
-        serde_json::Value::Array(
-            cmp.final_planes
-                .iter()
-                .map(|(l, p)| {
-                    serde_json::json!({"label": l, "normal": [p.n.x, p.n.y, p.n.z], "offset_mm": p.c})
-                })
-                .collect(),
-        ),
-    );
-    cal.extra.insert(
-        "method".into(),
-        "direct point-to-plane ML (seed 000 methods compared in laser_report.json)".into(),
+        "flange_poses".into(),
+        match &args.calibration {
+            Some(c) => format!("joints through the identified arm of {}", c.display()),
+            None => "as recorded (the controller's nominal kinematics)".into(),
+        }
+        .into(),
     );
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;

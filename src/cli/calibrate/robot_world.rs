@@ -52,9 +52,10 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     }
     if obs.len() < 3 {
         bail!(
-            "{}: {} usable poses (need ≥ 3 with marker orientation; ~20 for a check)",
+            "{}: {} usable poses (need ≥ 3 with marker orientation; ~20 for a check): {}",
             a.data.display(),
-            obs.len()
+            obs.len(),
+            rw::skip_summary(&skipped)
         );
     }
     let model = a

@@ -184,7 +184,16 @@ pub fn apply_arm(
 /// arm model from `q` when it carries one).
 pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, usize, [f64; 2])>> {
     let cal = CalibrationFile::load(cal_path)?;
+    crate::plausible::calibration::check_values(&cal, cal_path)?;
     let (k, x, target, mount, tgt) = from_calibration(&cal)?;
+    // The board's bend the camera diagnosis found (`target_flatness`): applied, as the
+    // diagnosis' own held-out figure does.
+    let bend = cal
+        .camera()
+        .ok()
+        .flatten()
+        .and_then(|b| b.target_bend_mm)
+        .unwrap_or([0.0; 2]);
     let ds = crate::dataset::Dataset::load(data)?;
     let model = crate::model::KinematicModel::from_robot_block(&ds.header.robot).ok();
     let mut views = vec![];
@@ -213,7 +222,7 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
         views,
     };
     apply_arm(&cal, &mut cd, &ds).with_context(|| format!("{}", cal_path.display()))?;
-    Ok(camera::predict(&cd, &k, &x, &target))
+    Ok(camera::predict(&cd, &k, &x, &target, bend))
 }
 
 /// `camera_report.json`: every method side by side, distortion scores, rejections, timing.

@@ -214,6 +214,57 @@ pub fn common_size(sizes: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)
     counts.into_iter().find(|(_, n)| *n == best).map(|(k, _)| k)
 }
 
+/// The likely cause when images give no view (issue 26 §6), from the reasons of
+/// [`Loaded::no_board`]: the images that could not be read, that have another size, or that
+/// were read but show no board of the declared layout (a wrong `--board` / `target` block:
+/// inner corners, not squares, or rows and columns swapped; the board out of view). `None`
+/// when every image gave a view.
+pub fn likely_cause(l: &Loaded) -> Option<String> {
+    let first = |f: &dyn Fn(&str) -> bool| {
+        l.no_board
+            .iter()
+            .find(|(_, w)| f(w))
+            .map(|(id, w)| format!("pose {id}: {w}"))
+    };
+    let size = |w: &str| w.contains("wrong size");
+    let detect = |w: &str| w.starts_with("image ") && !size(w);
+    let unread = |w: &str| {
+        !w.starts_with("image ") && !w.starts_with("field ") && !w.starts_with("no image")
+    };
+    let total = l.no_board.len() + l.data.views.len();
+    let count = |f: &dyn Fn(&str) -> bool| l.no_board.iter().filter(|(_, w)| f(w)).count();
+    let b = l.data.board;
+    let mut out = vec![];
+    let n = count(&detect);
+    if n > 0 {
+        out.push(format!(
+            "{n} of {total} images were read but show no {}×{} {} board of {} mm squares: \
+             likely a wrong --board / target block (it counts inner corners, not squares; rows \
+             and columns swapped?) or the board out of view or focus (first: {})",
+            b.cols,
+            b.rows,
+            l.target.kind,
+            b.square_mm,
+            first(&detect).unwrap_or_default()
+        ));
+    }
+    let n = count(&unread);
+    if n > 0 {
+        out.push(format!(
+            "{n} of {total} images could not be read (missing, a directory, not an image or \
+             truncated; first: {})",
+            first(&unread).unwrap_or_default()
+        ));
+    }
+    let n = count(&size);
+    if n > 0 {
+        out.push(format!(
+            "{n} of {total} images have another size (another camera or a resized copy)"
+        ));
+    }
+    (!out.is_empty()).then(|| out.join("; "))
+}
+
 /// The console lines naming every image (or record) that gives no view, and why.
 pub fn unusable_lines(l: &Loaded, label: &str) -> Vec<String> {
     let mut v: Vec<String> = l

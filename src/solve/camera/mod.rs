@@ -298,23 +298,29 @@ pub fn heldout_rms(
     (r.iter().map(|(_, _, a, b)| a * a + b * b).sum::<f64>() / r.len() as f64).sqrt()
 }
 
-/// Predicted pixel of every board corner at every view: `(view id, corner, u, v)`.
+/// Predicted pixel of every board corner at every view: `(view id, corner, u, v)`, with the
+/// board bent by `bend` (mm, the sag model of [`problem`] about [`bend_centre`]; `[0, 0]` =
+/// flat): the same board model the camera diagnosis fits, so `robocal predict` on a
+/// diagnosis' calibration reproduces its figures.
 pub fn predict(
     data: &CameraData,
     k: &Intrinsics,
     x: &Isometry3<f64>,
     target: &Isometry3<f64>,
+    bend: [f64; 2],
 ) -> Vec<(u64, usize, [f64; 2])> {
     let g = motion_poses(&data.views, data.mount);
+    let [x0, y0, rr] = bend_centre(&data.board);
     let mut out = vec![];
     for (v, view) in data.views.iter().enumerate() {
         let cam_from_board = (g[v] * x).inverse() * target;
         for k_i in 0..data.board.cols * data.board.rows {
-            let p = board_point(
+            let mut p = board_point(
                 k_i % data.board.cols,
                 k_i / data.board.cols,
                 data.board.square_mm,
             );
+            p.z = bend[0] * ((p.x - x0) / rr).powi(2) + bend[1] * ((p.y - y0) / rr).powi(2);
             if let Some(uv) = geom::project(k, &(cam_from_board * p).coords) {
                 out.push((view.id, k_i, uv));
             }

@@ -28,7 +28,7 @@ pub mod validate;
 
 use crate::dataset::{CalParam, CalibrationFile, Dataset, PoseRecord};
 use crate::model::KinematicModel;
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Unit, Vector3};
 use std::collections::BTreeMap;
 
 pub use fit::{
@@ -36,8 +36,8 @@ pub use fit::{
     SelectionTrace,
 };
 pub use validate::{
-    compare, face_angles, five_direction_spread, fre_tre, plane_stats, ply, table, Comparison,
-    MethodRow,
+    compare, compare_split, face_angles, five_direction_spread, fre_tre, plane_stats, ply, table,
+    Comparison, MethodRow,
 };
 
 /// The unknowns of the laser hand-eye problem.
@@ -133,15 +133,7 @@ pub enum LaserError {
 
 /// Parse a file quaternion `[w, x, y, z]` and position into an isometry.
 pub fn file_pose(p: &[f64; 3], quat: &[f64; 4]) -> Option<Isometry3<f64>> {
-    let q = Quaternion::new(quat[0], quat[1], quat[2], quat[3]);
-    let norm = q.norm();
-    if !(norm.is_finite() && (norm - 1.0).abs() < 1e-3 && p.iter().all(|x| x.is_finite())) {
-        return None;
-    }
-    Some(Isometry3::from_parts(
-        Translation3::new(p[0], p[1], p[2]),
-        UnitQuaternion::from_quaternion(q),
-    ))
+    crate::plausible::quat::pose(p, quat).ok()
 }
 
 /// The flange pose of a record: its `flange` block, else the model's FK of `q`.
@@ -173,14 +165,47 @@ pub fn record_flange(
 
 /// Every pose record with a valid range, as observations (records with `range: null` are skipped).
 pub fn observations(ds: &Dataset) -> Result<Vec<LaserObs>, LaserError> {
+    observations_through(ds, None)
+}
+
+/// [`observations`] with the flange of every record computed from its joints `q` by
+/// `identified` (the arm's kinematic calibration: geometry and joint effects) instead of the
+/// recorded controller flange: the spots then carry the identified arm's accuracy, not the
+/// nominal kinematic errors. A record without joints is an error (its flange cannot go
+/// through the identified arm).
+pub fn observations_through(
+    ds: &Dataset,
+    identified: Option<&IdentifiedArm>,
+) -> Result<Vec<LaserObs>, LaserError> {
     let model = KinematicModel::from_robot_block(&ds.header.robot).ok();
+    let ctx: std::collections::HashMap<u64, crate::solve::obs::PoseCtx> = match identified {
+        Some(a) => {
+            let recs: Vec<&PoseRecord> = ds.poses().collect();
+            crate::solve::obs::contexts(&recs, a.model.dof())
+                .into_iter()
+                .map(|(_, c)| (c.id, c))
+                .collect()
+        }
+        None => Default::default(),
+    };
     let mut out = Vec::new();
     for rec in ds.poses() {
         let Some(Some(d)) = rec.range else { continue };
         if !d.is_finite() {
             continue;
         }
-        let flange = record_flange(rec, model.as_ref())?;
+        let flange = match identified {
+            Some(a) => {
+                let c = ctx.get(&rec.id).ok_or_else(|| LaserError::BadRecord {
+                    id: rec.id,
+                    reason: "no usable joint angles `q`: the flange cannot be computed through \
+                             the identified arm (--calibration)"
+                        .into(),
+                })?;
+                a.flange(c)
+            }
+            None => record_flange(rec, model.as_ref())?,
+        };
         let move_kind = match rec.move_kind.as_deref() {
             Some("translate") => Some(MoveKind::Translate),
             Some("rotate") => Some(MoveKind::Rotate),
@@ -295,9 +320,158 @@ pub fn predict_spot(
     Ok(Some(beam.spot(&flange, d)))
 }
 
+/// The laser calibration file of a comparison: the final (direct ML) beam with its standard
+/// deviations, the plane RMS, the spread / TRE of the last method, the fitted planes.
+pub fn calibration_file(
+    robot: crate::dataset::RobotBlock,
+    cmp: &Comparison,
+) -> Result<CalibrationFile, LaserError> {
+    let beam = cmp
+        .final_beam
+        .ok_or_else(|| LaserError::Degenerate("no final beam".into()))?;
+    let mut cal = CalibrationFile::new(robot, beam_params(&beam, cmp.final_std));
+    cal.set_kind("laser");
+    let final_row = cmp
+        .rows
+        .last()
+        .ok_or_else(|| LaserError::Degenerate("no method row".into()))?;
+    let m = &mut cal.metrics;
+    m.insert("plane_rms_mm".into(), cmp.final_plane_rms_mm.into());
+    if final_row.spread_mean_mm.is_finite() {
+        m.insert("spread_mean_mm".into(), final_row.spread_mean_mm.into());
+    }
+    if let Some(x) = final_row.spot_rms_vs_truth_mm {
+        m.insert("heldout_rms_mm_after".into(), x.into());
+    }
+    if let Some(x) = final_row.tre_mm {
+        m.insert("tre_mm".into(), x.into());
+    }
+    cal.extra.insert(
+        "planes".into(),
+        serde_json::Value::Array(
+            cmp.final_planes
+                .iter()
+                .map(|(l, p)| {
+                    serde_json::json!({"label": l, "normal": [p.n.x, p.n.y, p.n.z], "offset_mm": p.c})
+                })
+                .collect(),
+        ),
+    );
+    cal.extra.insert(
+        "method".into(),
+        "direct point-to-plane ML (seed 000 methods compared in laser_report.json)".into(),
+    );
+    Ok(cal)
+}
+
+/// Effects of a kinematic calibration that act on the arm's joints (they move the flange);
+/// the others describe the tracker or that session's clock (scale, base shift, drift in time,
+/// latency, a residual learnt on tracker data) and do not carry to another sensor.
+pub const ARM_EFFECTS: [&str; 7] = [
+    "joint_compliance",
+    "backlash",
+    "joint_eccentricity",
+    "transmission_ratio",
+    "transmission_ripple",
+    "joint_coupling",
+    "wave_generator",
+];
+
+/// The identified arm of a kinematic calibration: its geometry and its joint effects.
+#[derive(Debug, Clone)]
+pub struct IdentifiedArm {
+    pub model: KinematicModel,
+    pub effects: Vec<crate::diagnose::effects::Effect>,
+    /// Effect kinds applied / left out (not acting on the arm's joints).
+    pub applied: Vec<String>,
+    pub left_out: Vec<String>,
+}
+
+impl IdentifiedArm {
+    /// The flange pose (robot base, mm) of one pose: the identified geometry at the joints
+    /// corrected by the joint effects.
+    pub fn flange(&self, ctx: &crate::solve::obs::PoseCtx) -> Isometry3<f64> {
+        use crate::diagnose::effects::{joint_offsets, pose_model};
+        let d = joint_offsets(&self.model, &self.effects, ctx);
+        let th: Vec<f64> = ctx.q.iter().zip(&d).map(|(q, d)| q + d).collect();
+        pose_model(&self.model, &self.effects, ctx).flange_pose(&th)
+    }
+}
+
+/// The identified arm of a kinematic calibration file (its geometric parameters and joint
+/// effects on the dataset's robot model): refused when it is a calibration of another robot
+/// model or serial, or not a kinematic calibration (a laser or camera calibration has no arm
+/// parameters).
+pub fn identified_arm(
+    cal_path: &std::path::Path,
+    ds: &Dataset,
+    data: &std::path::Path,
+) -> anyhow::Result<IdentifiedArm> {
+    use anyhow::{bail, Context as _};
+    let cal = CalibrationFile::load(cal_path)
+        .with_context(|| format!("reading the arm calibration {}", cal_path.display()))?;
+    if cal.robot.model != ds.header.robot.model {
+        bail!(
+            "{}: a calibration of robot {:?}, but {} was recorded with {:?}: give the kinematic \
+             calibration of this arm",
+            cal_path.display(),
+            cal.robot.model,
+            data.display(),
+            ds.header.robot.model
+        );
+    }
+    if let (Some(a), Some(b)) = (&cal.robot.serial, &ds.header.robot.serial) {
+        if a != b {
+            bail!(
+                "{}: a calibration of robot serial {a:?}, but {} was recorded on serial {b:?}",
+                cal_path.display(),
+                data.display()
+            );
+        }
+    }
+    let mut model = KinematicModel::from_robot_block(&cal.robot)
+        .with_context(|| format!("{}: robot block", cal_path.display()))?;
+    let arm: Vec<CalParam> = cal
+        .params
+        .iter()
+        .filter(|p| model.param_index(&p.name).is_some())
+        .cloned()
+        .collect();
+    if arm.is_empty() {
+        bail!(
+            "{}: no kinematic parameter of {:?} in it (a laser or camera calibration?): give \
+             the arm's kinematic calibration (`robocal calibrate kinematics`)",
+            cal_path.display(),
+            cal.robot.model
+        );
+    }
+    model
+        .apply_cal_params(&arm)
+        .with_context(|| format!("{}: parameters", cal_path.display()))?;
+    let (mut effects, mut applied, mut left_out) = (Vec::new(), Vec::new(), Vec::new());
+    for e in &cal.effects {
+        if ARM_EFFECTS.contains(&e.kind.as_str()) {
+            effects.push(
+                crate::diagnose::effects::Effect::from_cal(e)
+                    .with_context(|| format!("{}: effect {}", cal_path.display(), e.kind))?,
+            );
+            applied.push(e.kind.clone());
+        } else {
+            left_out.push(e.kind.clone());
+        }
+    }
+    Ok(IdentifiedArm {
+        model,
+        effects,
+        applied,
+        left_out,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
 
     #[test]
     fn spot_follows_eq_19() {

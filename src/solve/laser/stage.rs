@@ -90,7 +90,12 @@ pub fn scan_report(
 /// The validation (target) poses of a `--heldout` file: read strictly, checked for
 /// plausibility and for the robot of `ds`; an error when it has none (never silently
 /// dropped).
-pub fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<laser::LaserObs>> {
+pub fn load_heldout(
+    h: &Path,
+    ds: &Dataset,
+    data: &Path,
+    arm: Option<&laser::IdentifiedArm>,
+) -> anyhow::Result<Vec<laser::LaserObs>> {
     let hd = Dataset::load(h)?;
     crate::plausible::check_same_robot(
         &ds.header.robot,
@@ -100,7 +105,7 @@ pub fn load_heldout(h: &Path, ds: &Dataset, data: &Path) -> anyhow::Result<Vec<l
         "held-out file",
     )?;
     crate::plausible::check_dataset(&hd, h)?;
-    let v: Vec<laser::LaserObs> = laser::observations(&hd)
+    let v: Vec<laser::LaserObs> = laser::observations_through(&hd, arm)
         .with_context(|| format!("reading laser poses of {}", h.display()))?
         .into_iter()
         .filter(|o| o.target.is_some())
@@ -138,7 +143,7 @@ pub fn diagnose_laser(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow
     let mut validation: Vec<laser::LaserObs> =
         obs.iter().filter(|o| o.target.is_some()).cloned().collect();
     if let Some(h) = heldout {
-        validation.extend(load_heldout(h, &ds, data)?);
+        validation.extend(load_heldout(h, &ds, data, None)?);
     }
     let cmp = laser::compare(&train, &validation, None, None).context("laser base fit")?;
     let beam = cmp.final_beam.context("no beam")?;

@@ -276,6 +276,19 @@ pub fn compare(
     truth: Option<&HashMap<u64, Point3<f64>>>,
     huber_mm: Option<f64>,
 ) -> Result<Comparison, LaserError> {
+    compare_split(train, validation, validation, truth, huber_mm)
+}
+
+/// [`compare`] with the single-plane data selection (§1.4 / §2.2) scored on the
+/// `selection_obs` targets and every method reported on `validation` targets: with separate target sets the
+/// reported spreads are not the ones the selection was tuned on.
+pub fn compare_split(
+    train: &[LaserObs],
+    selection_obs: &[LaserObs],
+    validation: &[LaserObs],
+    truth: Option<&HashMap<u64, Point3<f64>>>,
+    huber_mm: Option<f64>,
+) -> Result<Comparison, LaserError> {
     let planes = by_plane(train);
     if planes.is_empty() {
         return Err(LaserError::TooFewData {
@@ -285,6 +298,7 @@ pub fn compare(
         });
     }
     let targets = by_target(validation);
+    let sel_targets = by_target(selection_obs);
     let mut rows = Vec::new();
     let mut singles: Vec<(String, Beam, Plane)> = Vec::new();
     for (label, obs) in &planes {
@@ -327,7 +341,7 @@ pub fn compare(
     for (label, obs) in &planes {
         let all = obs.clone();
         let score = |b: &Beam| -> f64 {
-            if targets.is_empty() {
+            if sel_targets.is_empty() {
                 let pts: Vec<Point3<f64>> = all.iter().map(|o| b.spot(&o.flange, o.d)).collect();
                 super::fit::pca_plane(&pts)
                     .map(|pl| {
@@ -336,7 +350,7 @@ pub fn compare(
                     })
                     .unwrap_or(f64::INFINITY)
             } else {
-                mean_spread(b, &targets)
+                mean_spread(b, &sel_targets)
             }
         };
         let max_drop = obs.len().saturating_sub(20).min(40);
@@ -493,4 +507,50 @@ pub fn ply(points: &[Point3<f64>], comment: &str) -> String {
         s.push_str(&format!("{:.6} {:.6} {:.6}\n", p.x, p.y, p.z));
     }
     s
+}
+
+/// Refuses true points (`--truth`, mm in the robot base) that are in metres: every point
+/// within 10 mm of the base origin while the flanges of the same poses are hundreds of mm
+/// away, or several distinct points spreading over less than 1 % of what those flanges
+/// spread over (the spots are a sensor's range from the flange).
+pub fn check_truth_units(
+    truth: &HashMap<u64, Point3<f64>>,
+    obs: &[LaserObs],
+    file: &std::path::Path,
+) -> Result<(), LaserError> {
+    let flanges: Vec<Point3<f64>> = obs
+        .iter()
+        .filter(|o| truth.contains_key(&o.id))
+        .map(|o| Point3::from(o.flange.translation.vector))
+        .collect();
+    let pts: Vec<Point3<f64>> = obs
+        .iter()
+        .filter_map(|o| truth.get(&o.id))
+        .copied()
+        .collect();
+    if pts.is_empty() {
+        return Ok(());
+    }
+    let far = |v: &[Point3<f64>]| {
+        let mut n: Vec<f64> = v.iter().map(|p| p.coords.norm()).collect();
+        n.sort_by(f64::total_cmp);
+        n[n.len() / 2]
+    };
+    let (st, sf) = (
+        crate::plausible::dataset::spread(&pts),
+        crate::plausible::dataset::spread(&flanges),
+    );
+    let metres = (pts.iter().all(|p| p.coords.norm() < 10.0) && far(&flanges) > 100.0)
+        || (st > 1e-9 && sf > 20.0 && st < 0.01 * sf);
+    if metres {
+        return Err(LaserError::Calibration(format!(
+            "{}: the true points look like metres: they lie {:.4} from the base origin \
+             (median) and spread over {st:.4} while the flanges of the same poses are {:.0} mm \
+             away and spread over {sf:.1} mm; files use mm",
+            file.display(),
+            far(&pts),
+            far(&flanges)
+        )));
+    }
+    Ok(())
 }
