@@ -42,7 +42,7 @@ fn main() {
         (act2 / n).sqrt()
     );
     let tot: f64 = var.iter().sum();
-    for (k, name) in robocal::chain::LINKS.iter().enumerate() {
+    for (k, name) in robocal::navchain::LINKS.iter().enumerate() {
         println!(
             "chain: {name:<36} RMS {:.3} mm  share {:5.1} %",
             (var[k] / n).sqrt(),

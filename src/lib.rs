@@ -10,13 +10,13 @@
 pub mod acquire;
 pub mod capture;
 pub mod cell;
-pub mod chain;
 pub mod cli;
 pub mod dataset;
 pub mod diagnose;
 pub mod fsio;
 pub mod import;
 pub mod model;
+pub mod navchain;
 pub mod plan;
 pub mod plausible;
 pub mod register;

@@ -85,7 +85,7 @@ fn chain_coverage_and_link_shares_over_500_trials() {
         (pred2 / trials as f64).sqrt(),
         (act2 / trials as f64).sqrt()
     );
-    for (k, name) in robocal::chain::LINKS.iter().enumerate() {
+    for (k, name) in robocal::navchain::LINKS.iter().enumerate() {
         println!(
             "chain: link {name:<36} RMS {:.3} mm, share of variance {:.1} %",
             (var[k] / trials as f64).sqrt(),
@@ -480,7 +480,7 @@ fn cli_register_predict_robot_world_chain() {
     ]);
     assert!(ok, "{out}{err}");
     println!("{out}");
-    let c = robocal::chain::ChainReport::load(&d.path().join("chain.json")).unwrap();
+    let c = robocal::navchain::ChainReport::load(&d.path().join("chain.json")).unwrap();
     assert_eq!(c.targets.len(), 3);
     for t in &c.targets {
         assert!(
@@ -519,7 +519,7 @@ fn cli_register_predict_robot_world_chain() {
             m[(i - 1) * n + i] = m[i * n + i - 1];
         }
     }
-    let bc = robocal::chain::BootstrapCovariance {
+    let bc = robocal::navchain::BootstrapCovariance {
         units: "mm, rad".into(),
         names,
         matrix: m,
@@ -551,7 +551,7 @@ fn cli_register_predict_robot_world_chain() {
         "{out}{err}"
     );
     println!("{out}");
-    let c = robocal::chain::ChainReport::load(&d.path().join("chain_cal.json")).unwrap();
+    let c = robocal::navchain::ChainReport::load(&d.path().join("chain_cal.json")).unwrap();
     for t in &c.targets {
         assert!(
             (t.mc_rms_mm / t.rms_mm - 1.0).abs() < 0.05,
@@ -610,10 +610,10 @@ use crate::diagnose::table;
 #[test]
 #[ignore]
 fn seed_network_vs_physical_and_nonparametric() {
-    use robocal::chain::nn::{NetOptions, SeedNet};
     use robocal::dataset::PoseRecord;
     use robocal::diagnose::{self, effects, Options};
     use robocal::model::KinematicModel;
+    use robocal::navchain::nn::{NetOptions, SeedNet};
     use robocal::solve::obs::{session_observations, PoseObs};
     use robocal_mocks::scenario::Scenario;
     use robocal_mocks::synth::{synthesize, SynthConfig};

@@ -3,7 +3,7 @@
 //! estimates, the world says where the tool tip really went.
 #![allow(dead_code)]
 use nalgebra::{Matrix3, Point3};
-use robocal::chain::{link_covariances, ChainInputs, CHI2_3_95};
+use robocal::navchain::{link_covariances, ChainInputs, CHI2_3_95};
 use robocal::register::icp::{register_surface_indexed, IcpOptions, SurfaceIndex};
 use robocal::register::mesh::Mesh;
 use robocal::register::paired::{register_paired, PairedOptions};

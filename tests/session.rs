@@ -647,7 +647,8 @@ fn session_ends_with_a_chain_report_for_ct_targets() {
         out.contains("chain report") && out.contains("robot link"),
         "{out}"
     );
-    let r = robocal::chain::ChainReport::load(&copy.join("chain.json")).expect("chain.json loads");
+    let r =
+        robocal::navchain::ChainReport::load(&copy.join("chain.json")).expect("chain.json loads");
     assert_eq!(r.targets.len(), 3);
     for t in &r.targets {
         assert!(t.rms_mm.is_finite() && t.rms_mm > 0.0, "{t:?}");

@@ -546,11 +546,12 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     assert!(f.param("a2").unwrap().std.unwrap() > 0.0);
     assert!(out_k.join("bootstrap.csv").exists());
     // The bootstrap's full covariance is written and is the chain's robot link.
-    let bc: robocal::chain::BootstrapCovariance =
+    let bc: robocal::navchain::BootstrapCovariance =
         serde_json::from_value(f.extra["bootstrap"]["covariance"].clone()).unwrap();
     assert_eq!(bc.matrix.len(), bc.names.len() * bc.names.len());
     let (c, source) =
-        robocal::chain::robot_link_from_calibration(&f, &[0.1, -0.3, 1.2, 0.2, 0.6, -0.4]).unwrap();
+        robocal::navchain::robot_link_from_calibration(&f, &[0.1, -0.3, 1.2, 0.2, 0.6, -0.4])
+            .unwrap();
     println!(
         "robot link from the bootstrap covariance: tip RMS {:.4} mm",
         c.trace().sqrt()

@@ -7,12 +7,14 @@
 //! - [`safety`]: the safety limits the arm is wrapped in, and the consent to move hardware;
 //! - [`sim`] (in-process simulators), [`wire`] (simulators behind the real protocols on
 //!   loopback / ptys, the real drivers connected to them), [`live`] (real hardware);
+//! - [`describe`]: a scenario or a device file read into the session's cell description;
 //! - [`checks`]: the input checks of a run that need the cell (plan against the cell's robot,
 //!   speed / acceleration caps within its limits).
 //!
 //! Only this module (and the evaluation harnesses in [`crate::trials`]) wires the simulators
 //! in; the acquisition engine ([`crate::acquire`]) sees only the device traits.
 pub mod checks;
+pub mod describe;
 pub mod live;
 pub mod run;
 pub mod safety;

@@ -1,10 +1,10 @@
 //! `robocal chain`: the predicted tool-tip error at CT targets and each link's share
-//! (thin adapter over [`crate::chain::chain_report`]).
+//! (thin adapter over [`crate::navchain::chain_report`]).
 use std::path::PathBuf;
 
 use anyhow::{bail, Context as _};
 
-use crate::chain::{chain_from_files, report_text, ChainFiles, RobotLinkSource};
+use crate::navchain::{chain_from_files, report_text, ChainFiles, RobotLinkSource};
 
 /// Arguments of `robocal chain`.
 #[derive(Debug, clap::Args)]

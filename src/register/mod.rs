@@ -6,7 +6,7 @@
 //! Units inside: mm and radians. Files: mm and degrees (`registration.json`,
 //! `robot_world.json`, CSV `name,x_mm,y_mm,z_mm`).
 //!
-//! The end-to-end error transfer to a CT target lives in [`crate::chain`].
+//! The end-to-end error transfer to a CT target lives in [`crate::navchain`].
 
 pub mod file;
 pub mod icp;

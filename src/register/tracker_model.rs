@@ -7,7 +7,7 @@
 //! The covariance of a measured point is anisotropic: `σ_z²` along the line of sight (from
 //! the tracker origin to the point) and `σ_⊥²` across it. It is used as the weights of the
 //! registrations ([`super::paired`], [`super::robot_world`]) and as the tracker link of the
-//! error chain ([`crate::chain`]).
+//! error chain ([`crate::navchain`]).
 use nalgebra::{Matrix3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 

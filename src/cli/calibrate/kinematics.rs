@@ -262,7 +262,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
                    "seed": args.seed, "seconds": b.elapsed_s,
                    "max_mean_shift_sigma": b.max_mean_shift_sigma,
                    "non_normal": b.non_normal, "heldout_rms_mm_mean_model": heldout_mean,
-                   "covariance": crate::chain::BootstrapCovariance::from_samples(&b.names, &b.samples),
+                   "covariance": crate::navchain::BootstrapCovariance::from_samples(&b.names, &b.samples),
                    "final": "full-data fit (the subset mean is reported per parameter)"}),
         );
         say!("wrote {}", path.display());
