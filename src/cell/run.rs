@@ -563,10 +563,10 @@ fn skipped_too_many(p: &Progress, limit: f64) -> Option<String> {
 
 fn new_run(
     args: &RunRequest,
-    plan_path: &PathBuf,
+    plan_path: &Path,
     sim: Option<&PathBuf>,
     devices: Option<&PathBuf>,
-    dir: &PathBuf,
+    dir: &Path,
 ) -> anyhow::Result<Started> {
     if args.live && devices.is_none() {
         bail!("--live drives the hardware of --devices DEVICES.toml: give the device file");

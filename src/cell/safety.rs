@@ -131,6 +131,7 @@ mod tests {
     use super::*;
     use robocal_drivers::safety::guard;
     use serde_json::json;
+    use std::path::Path;
 
     /// The run's safety wrapper carries the plan's table and envelope: a move that swings the
     /// flange below the table is refused before it reaches the arm.

@@ -251,7 +251,7 @@ pub fn verify_stage(
         .iter()
         .map(|p| (p.id, (p.point, nominal.measured_pose(&target_of(p)))))
         .collect();
-    let before = hits(&val, dof, &|id| before_want.get(&id).copied());
+    let before = hits(val, dof, &|id| before_want.get(&id).copied());
     // The deployed calibration's effects (joint compliance, backlash, …) are inverted by
     // aiming the geometric IK off by what they add, in the validation pose's context.
     let ctxs: HashMap<u64, crate::solve::obs::PoseCtx> = if cal.effects.is_empty() {
