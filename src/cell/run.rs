@@ -197,7 +197,7 @@ pub struct RunConfig {
     pub capture: CaptureOptions,
 }
 
-const RUN_FORMAT: &str = "robocal-run/1";
+use crate::schema::RUN_FORMAT;
 const DATASET: &str = "dataset.jsonl";
 
 // ----------------------------------------------------------------- simulator wiring

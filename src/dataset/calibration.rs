@@ -9,7 +9,7 @@ use super::io::{check_robot_semantics, write_atomic};
 use super::types::{CalEffect, CalParam, CalibrationFile, RobotBlock};
 
 /// The `format` of a calibration file.
-pub const CALIBRATION_FORMAT: &str = "robocal-calibration/1";
+pub use crate::schema::CALIBRATION_FORMAT;
 
 /// What a calibration file calibrates (its optional top-level `kind`).
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -16,7 +16,7 @@ use super::error::{DatasetError, LoadWarning, Location, Problem};
 use super::types::{Dataset, Header, PoseRecord, Record, RobotBlock};
 
 /// The `format` of a dataset header.
-pub const DATASET_FORMAT: &str = "robocal-dataset/1";
+pub use crate::schema::DATASET_FORMAT;
 /// The `what` values an `event` record may carry.
 pub const EVENT_KINDS: [&str; 6] = ["skip", "retry", "fault", "resume", "pause", "note"];
 

@@ -163,7 +163,7 @@ pub fn run_loaded(
     );
     metrics.insert("heldout_rms_mm_after".into(), num(d.heldout_rms_final));
     let cal = CalibrationFile {
-        format: "robocal-calibration/1".into(),
+        format: crate::schema::CALIBRATION_FORMAT.into(),
         robot: main.dataset.header.robot.clone(),
         params: d.state.model.to_cal_params(),
         effects: d.cal_effects(),

@@ -109,7 +109,7 @@ pub struct ChainReport {
 }
 
 /// Format tag of `chain.json`.
-pub const CHAIN_FORMAT: &str = "robocal-chain/1";
+pub use crate::schema::CHAIN_FORMAT;
 
 /// The five link covariances (base frame, mm²) at CT target `x`.
 pub fn link_covariances(inp: &ChainInputs, x: &Point3<f64>) -> [Matrix3<f64>; 5] {

@@ -22,7 +22,7 @@ use crate::dataset::RobotBlock;
 use crate::model::KinematicModel;
 
 /// Plan file format tag.
-pub const PLAN_FORMAT: &str = "robocal-plan/1";
+pub use crate::schema::PLAN_FORMAT;
 
 /// A pose in a file: position (mm) and unit quaternion `[w, x, y, z]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

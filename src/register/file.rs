@@ -14,7 +14,7 @@ use super::paired::{iso_to_rows, rows_to_iso, PairedRegistration};
 use super::{io_err, RegisterError};
 
 /// Format tag of a registration file.
-pub const REGISTRATION_FORMAT: &str = "robocal-registration/1";
+pub use crate::schema::REGISTRATION_FORMAT;
 
 /// A transform with covariance.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -401,7 +401,7 @@ pub fn refine(
 }
 
 /// Format tag of the tracker ↔ robot file.
-pub const ROBOT_WORLD_FORMAT: &str = "robocal-robot-world/1";
+pub use crate::schema::ROBOT_WORLD_FORMAT;
 
 /// One closed-form estimate in the file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -307,7 +307,7 @@ impl Session {
     pub fn to_json(&self) -> Value {
         let h = self.headline();
         json!({
-            "format": "robocal-report/1",
+            "format": crate::schema::REPORT_FORMAT,
             "headline": self.headline_text(),
             "heldout_rms_mm": { "before": h.before_mm, "after": h.after_mm, "source": h.source },
             "heldout_rms_px": { "before": h.before_px, "after": h.after_px },

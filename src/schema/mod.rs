@@ -24,8 +24,33 @@ use serde::{Deserialize, Serialize};
 pub mod points_csv;
 
 pub use crate::acquire::summary::RunSummary;
-pub use crate::dataset::{CalEffect, CalibrationFile, CALIBRATION_FORMAT};
-pub use crate::plan::file::{PlanFile, PLAN_FORMAT};
+pub use crate::dataset::{CalEffect, CalibrationFile};
+pub use crate::plan::file::PlanFile;
+
+// Every output format tag of robocal, one place; the modules that read and write each file
+// re-export theirs.
+/// A dataset (`*.jsonl`, JSON Lines).
+pub const DATASET_FORMAT: &str = "robocal-dataset/1";
+/// `calibration.json`.
+pub const CALIBRATION_FORMAT: &str = "robocal-calibration/1";
+/// A pose plan (`robocal plan --out`).
+pub const PLAN_FORMAT: &str = "robocal-plan/1";
+/// `run.json` of a run directory (how to resume it).
+pub const RUN_FORMAT: &str = "robocal-run/1";
+/// `session.json`.
+pub const SESSION_FORMAT: &str = "robocal-session/1";
+/// `registration.json` (CT ↔ tracker).
+pub const REGISTRATION_FORMAT: &str = "robocal-registration/1";
+/// `robot_world.json` (tracker ↔ robot base).
+pub const ROBOT_WORLD_FORMAT: &str = "robocal-robot-world/1";
+/// `chain.json` (the navigation error chain CT target → tool tip).
+pub const CHAIN_FORMAT: &str = "robocal-chain/1";
+/// `camera_report.json` of a camera calibration.
+pub const CAMERA_REPORT_FORMAT: &str = "robocal-camera-report/1";
+/// `rcm_report.json` of an RCM endoscope calibration.
+pub const RCM_REPORT_FORMAT: &str = "robocal-rcm-report/1";
+/// `robocal report --json`.
+pub const REPORT_FORMAT: &str = "robocal-report/1";
 
 /// `diagnosis.json`.
 pub const DIAGNOSIS_FORMAT: &str = "robocal-diagnosis/2";

@@ -39,7 +39,7 @@ use crate::solve::{calfile, metrics};
 pub use accept::{AcceptSpec, Measured, Verdict, VerdictKind};
 
 /// `session.json` format tag.
-pub const SESSION_FORMAT: &str = "robocal-session/1";
+pub use crate::schema::SESSION_FORMAT;
 
 /// The stages, in order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]

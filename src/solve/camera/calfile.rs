@@ -250,7 +250,7 @@ pub fn report_json(
     }
     methods.push(est(&res.ml));
     json!({
-        "format": "robocal-camera-report/1",
+        "format": crate::schema::CAMERA_REPORT_FORMAT,
         "views": train.data.views.len(),
         "views_without_board": unusable_json(train),
         "detection_notes": train.notes.iter().map(|(id, n)| json!({"id": id, "note": n})).collect::<Vec<_>>(),
@@ -285,7 +285,7 @@ pub fn failure_report_json(
     error: &str,
 ) -> serde_json::Value {
     json!({
-        "format": "robocal-camera-report/1",
+        "format": crate::schema::CAMERA_REPORT_FORMAT,
         "failed": error,
         "views": train.data.views.len(),
         "views_without_board": unusable_json(train),

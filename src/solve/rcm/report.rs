@@ -125,7 +125,7 @@ pub fn calibration_file(
         .collect();
     let (dt, dr) = super::pose_error(&res.seed.hand_eye, &res.ml.pose);
     let report = RcmReport {
-        format: "robocal-rcm-report/1".into(),
+        format: crate::schema::RCM_REPORT_FORMAT.into(),
         n_poses: res.n_poses,
         rms_px: res.ml.rms_px,
         termination: res.ml.termination.describe().into(),
