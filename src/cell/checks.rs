@@ -1,4 +1,4 @@
-//! The input checks of `robocal run` that need the cell description (issue 14 §5): the plan
+//! The input checks of `robocal run` that need the cell description (bad input refused before anything moves): the plan
 //! is re-checked against its own constraints and the cell's robot, and the speed and
 //! acceleration caps must be finite, positive and within the cell's own limits. Runs before
 //! anything is created or opened (a fresh run) and again on `--resume` (the run directory's

@@ -481,7 +481,8 @@ fn acquire_in(
             stop.request();
         }
     });
-    // Early stop: too many poses skipped for the verdict to pass (issue 28 §1).
+    // Early stop: too many poses skipped for the verdict to pass (an hour of acquisition
+    // that cannot pass is not started over at the end).
     let skip_limit = req.max_skipped_fraction;
     let early_stop = opts.stop.clone();
     let mut early: Option<String> = None;

@@ -598,7 +598,7 @@ pub fn fleet_table(sessions: &[session::SessionFile]) -> String {
 }
 
 /// The options used only after the acquisition (fleet history, chain files), checked before
-/// anything is created or moves (issue 26 §5): a bad `--history` or `--chain-registration`
+/// anything is created or moves: a bad `--history` or `--chain-registration`
 /// found after an hour of acquisition leaves a session without a verdict line.
 fn check_late_options(a: &Args) -> anyhow::Result<()> {
     if !a.no_history {

@@ -51,7 +51,8 @@ pub enum Stage {
     Calibrate,
     Diagnose,
     Validate,
-    /// Command the calibrated robot at held-out targets and measure (issue 30).
+    /// Command the calibrated robot at held-out targets and measure (what a hospital accepts
+    /// a robot on).
     Verify,
     Report,
 }
