@@ -677,7 +677,7 @@ pub fn skip_summary(skipped: &[(u64, String)]) -> String {
             None => counts.push((w.as_str(), 1)),
         }
     }
-    counts.sort_by(|a, b| b.1.cmp(&a.1));
+    counts.sort_by_key(|c| std::cmp::Reverse(c.1));
     let Some((top, _)) = counts.first() else {
         return "no pose records".into();
     };
