@@ -94,7 +94,7 @@ pub async fn capture_points(
         loop {
             let (names_seen, obs) = next_frame(tracker, &opt.tool).await?;
             anyhow::ensure!(
-                names_seen.iter().any(|n| *n == opt.tool),
+                names_seen.contains(&opt.tool),
                 "the tracker has no tool {:?} (tools: {}): check --tool",
                 opt.tool,
                 names_seen.join(", ")
