@@ -268,16 +268,39 @@ pub fn verify_stage(
     let mut poses = Vec::new();
     let mut after_want: HashMap<u64, (u64, Isometry3<f64>)> = HashMap::new();
     let mut not_commanded = 0;
+    // Direction-dependent effects (backlash) are inverted for the approach each joint will
+    // have in THIS run: from the previous commanded pose (the first from where the validation
+    // run left the arm), not the validation run's, whose predecessor may differ (a target not
+    // commanded here, the run's first pose).
+    let (mut prev_cmd, mut last_sign) = match ctxs.values().max_by(|a, b| a.t.total_cmp(&b.t)) {
+        Some(c) => (Some(c.q.clone()), c.approach.clone()),
+        None => (None, vec![0.0; dof]),
+    };
     for p in &vplan.poses {
         let q_plan = target_of(p);
         // The target is a place in the cell (tracker frame); each model reaches it through
         // its own tracker → base (the bases of two fits are different gauges of one frame).
         let world = nominal.measured_pose(&q_plan);
         let t = calibrated.base().inverse() * world;
+        let mut sign = last_sign.clone();
+        let ctx = ctxs.get(&p.id).map(|c| {
+            let mut c = c.clone();
+            if let Some(prev) = &prev_cmd {
+                for (i, s) in sign.iter_mut().enumerate().take(dof.min(prev.len())) {
+                    let d = q_plan[i] - prev[i];
+                    if d.abs() > 1e-9 {
+                        *s = d.signum();
+                    }
+                }
+                c.approach = sign.clone();
+                c.q_prev = Some(prev.clone());
+            }
+            c
+        });
         let sol = solve_with_effects(
             &calibrated,
             &cal.effects,
-            ctxs.get(&p.id),
+            ctx.as_ref(),
             p.branch,
             &t,
             &world,
@@ -296,6 +319,8 @@ pub fn verify_stage(
             not_commanded += 1;
             continue;
         }
+        prev_cmd = Some(sol.q.clone());
+        last_sign = sign;
         let id = poses.len() as u64;
         after_want.insert(id, (p.point, world));
         poses.push(PlanPose {
