@@ -14,10 +14,7 @@ fn root() -> PathBuf {
 fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>) {
     let dir = root().join("../shared/data").join(dir);
     if !dir.exists() {
-        eprintln!(
-            "\n*** SKIPPED: real set {name} absent ({}) ***\n",
-            dir.display()
-        );
+        crate::common::skipped(format_args!("real set {name} absent ({})", dir.display()));
         return;
     }
     let set = load(&dir).unwrap();
@@ -27,7 +24,7 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
     }
     if cam.views.len() + 10 < set.images.len() {
         eprintln!(
-            "\n*** SKIPPED: {name}: only {} of {} images read and detected (this build reads: see above) ***\n",
+            "{name}: only {} of {} images read and detected (this build reads: see above)",
             cam.views.len(),
             set.images.len()
         );
@@ -37,7 +34,9 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
     let script = root().join("scripts/peers/camera_handeye_cv2.py");
     let peer = py.exists().then_some((py.as_path(), script.as_path()));
     if peer.is_none() {
-        eprintln!("\n*** {name}: OpenCV peer SKIPPED (no .venv/peers-cv2): compared with robocal's closed forms ***\n");
+        crate::common::skipped(format_args!(
+            "{name}: OpenCV peer (no .venv/peers-cv2): compared with robocal's closed forms only"
+        ));
     }
     let r = realeval::evaluate(&cam, peer, 30).unwrap();
     let res = &r.result;
