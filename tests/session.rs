@@ -719,4 +719,13 @@ fn lab_session_verifies_by_commanding_the_calibrated_robot() {
     let r = v.verified_vs_predicted.unwrap();
     assert!((0.8..=1.2).contains(&r) && !v.flagged, "{v:?}");
     assert_eq!(s.measured.verified_rms_mm_after, Some(v.after.rms_mm));
+    // The report shows it: table (both rows, the after RMS as in session.json) and the plot.
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    let t = &html[html
+        .find("<table id=\"verify\">")
+        .expect("verify table in report.html")..];
+    let t = &t[..t.find("</table>").unwrap()];
+    assert!(t.contains("before (nominal IK)") && t.contains("after (calibrated IK)"));
+    assert!(t.contains(&format!("{:.4}", v.after.rms_mm)), "{t}");
+    assert!(html.contains("id=\"plot-verify\"") && html.contains("id=\"verify-vs-predicted\""));
 }
