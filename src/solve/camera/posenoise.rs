@@ -211,9 +211,8 @@ mod tests {
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
-    /// Flange poses with 0.03° / 0.4 mm noise: the fit recovers X and the noise levels.
-    #[test]
-    fn recovers_x_and_the_pose_noise() {
+    /// The test scene: hand-eye `X`, board in the base `B`, 40 camera poses in the base.
+    fn scene() -> (Isometry3<f64>, Isometry3<f64>, Vec<Isometry3<f64>>) {
         let x = Isometry3::from_parts(
             Translation3::new(10.0, 60.0, 45.0),
             UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.2, 1.4)),
@@ -222,22 +221,33 @@ mod tests {
             Translation3::new(600.0, -100.0, 5.0),
             UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.3)),
         );
+        let cams = (0..40)
+            .map(|i| {
+                let a = i as f64 * 0.7;
+                Isometry3::from_parts(
+                    Translation3::new(500.0 + 80.0 * a.cos(), -100.0 + 80.0 * a.sin(), 450.0),
+                    UnitQuaternion::from_scaled_axis(Vector3::new(
+                        std::f64::consts::PI + 0.3 * a.sin(),
+                        0.3 * a.cos(),
+                        a,
+                    )),
+                )
+            })
+            .collect();
+        (x, b, cams)
+    }
+
+    /// Flange poses with 0.03° / 0.4 mm noise: the fit recovers X and the noise levels.
+    #[test]
+    fn recovers_x_and_the_pose_noise() {
+        let (x, b, cams) = scene();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let (nr, nt) = (
             Normal::new(0.0, 0.03f64.to_radians()).unwrap(),
             Normal::new(0.0, 0.4).unwrap(),
         );
         let (mut g, mut t) = (vec![], vec![]);
-        for i in 0..40 {
-            let a = i as f64 * 0.7;
-            let cam = Isometry3::from_parts(
-                Translation3::new(500.0 + 80.0 * a.cos(), -100.0 + 80.0 * a.sin(), 450.0),
-                UnitQuaternion::from_scaled_axis(Vector3::new(
-                    std::f64::consts::PI + 0.3 * a.sin(),
-                    0.3 * a.cos(),
-                    a,
-                )),
-            );
+        for cam in &cams {
             let f_true = cam * x.inverse();
             let xi = Isometry3::from_parts(
                 Translation3::new(
@@ -275,14 +285,7 @@ mod tests {
     /// one.
     #[test]
     fn full_covariance_finds_correlated_pose_noise() {
-        let x = Isometry3::from_parts(
-            Translation3::new(10.0, 60.0, 45.0),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.1, -0.2, 1.4)),
-        );
-        let b = Isometry3::from_parts(
-            Translation3::new(600.0, -100.0, 5.0),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 0.3)),
-        );
+        let (x, b, cams) = scene();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let (nw, nt) = (
             Normal::new(0.0, 0.05f64.to_radians()).unwrap(),
@@ -290,16 +293,7 @@ mod tests {
         );
         let lever = Vector3::new(0.0, 0.0, 400.0);
         let (mut g, mut t) = (vec![], vec![]);
-        for i in 0..40 {
-            let a = i as f64 * 0.7;
-            let cam = Isometry3::from_parts(
-                Translation3::new(500.0 + 80.0 * a.cos(), -100.0 + 80.0 * a.sin(), 450.0),
-                UnitQuaternion::from_scaled_axis(Vector3::new(
-                    std::f64::consts::PI + 0.3 * a.sin(),
-                    0.3 * a.cos(),
-                    a,
-                )),
-            );
+        for cam in &cams {
             let w = Vector3::new(nw.sample(&mut rng), nw.sample(&mut rng), 0.0);
             let tr = w.cross(&lever)
                 + Vector3::new(
