@@ -470,55 +470,6 @@ pub fn fleet_table(sessions: &[SessionFile]) -> String {
     t
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn coincidence_is_the_mean_largest_branch_spread() {
-        let h = |point, x: f64| Hit {
-            point,
-            p: Point3::new(x, 0.0, 0.0),
-            pos_err: x.abs(),
-            rot_rel: None,
-        };
-        let v = vec![
-            h(1, 0.0),
-            h(1, 0.3),
-            h(1, 0.1),
-            h(2, 1.0),
-            h(2, 2.0),
-            h(3, 5.0),
-        ];
-        let (c, n) = coincidence(&v);
-        assert_eq!(n, 2);
-        assert!((c.unwrap() - 0.65).abs() < 1e-12);
-        let s = summarise(&v);
-        assert_eq!(s.poses, 6);
-        assert!((s.max_mm - 5.0).abs() < 1e-12);
-        assert!(s.rot_rms_deg.is_none());
-        assert_eq!(coincidence(&v[5..]).1, 0);
-    }
-
-    #[test]
-    fn a_constant_mounting_rotation_is_not_an_orientation_error() {
-        let mount = UnitQuaternion::from_euler_angles(0.0, 0.0, 30f64.to_radians());
-        let h: Vec<Hit> = [0.0, 0.1, -0.1]
-            .iter()
-            .map(|d: &f64| Hit {
-                point: 1,
-                p: Point3::origin(),
-                pos_err: 0.0,
-                rot_rel: Some(mount * UnitQuaternion::from_euler_angles(d.to_radians(), 0.0, 0.0)),
-            })
-            .collect();
-        let s = summarise(&h);
-        let rms = s.rot_rms_deg.unwrap();
-        // errors 0, 0.1, 0.1 deg about the mean: RMS sqrt(2/3)·0.1
-        assert!((rms - (2.0f64 / 3.0).sqrt() * 0.1).abs() < 1e-6, "{rms}");
-    }
-}
-
 /// The report's section on the verify stage: commanded-vs-measured before / after (table and a
 /// log-scale bar chart, so a 50× improvement stays readable), the coincidence error and how
 /// the verified error compares with the prediction.
@@ -615,10 +566,11 @@ fn bars_svg(v: &VerifySummary) -> String {
         let _ = write!(
             s,
             "<line x1=\"{xv:.1}\" y1=\"10\" x2=\"{xv:.1}\" y2=\"{:.0}\" stroke=\"#ddd\"/>\
-             <text x=\"{xv:.1}\" y=\"{:.0}\" text-anchor=\"middle\">{}</text>",
+             <text x=\"{xv:.1}\" y=\"{:.0}\" text-anchor=\"middle\">{:.*}</text>",
             height - 22.0,
             height - 8.0,
-            format!("{:.*}", (-d).max(0.0) as usize, 10f64.powf(d))
+            (-d).max(0.0) as usize,
+            10f64.powf(d)
         );
         d += 1.0;
     }
@@ -647,4 +599,53 @@ fn bars_svg(v: &VerifySummary) -> String {
          after.</figcaption></figure>"
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coincidence_is_the_mean_largest_branch_spread() {
+        let h = |point, x: f64| Hit {
+            point,
+            p: Point3::new(x, 0.0, 0.0),
+            pos_err: x.abs(),
+            rot_rel: None,
+        };
+        let v = vec![
+            h(1, 0.0),
+            h(1, 0.3),
+            h(1, 0.1),
+            h(2, 1.0),
+            h(2, 2.0),
+            h(3, 5.0),
+        ];
+        let (c, n) = coincidence(&v);
+        assert_eq!(n, 2);
+        assert!((c.unwrap() - 0.65).abs() < 1e-12);
+        let s = summarise(&v);
+        assert_eq!(s.poses, 6);
+        assert!((s.max_mm - 5.0).abs() < 1e-12);
+        assert!(s.rot_rms_deg.is_none());
+        assert_eq!(coincidence(&v[5..]).1, 0);
+    }
+
+    #[test]
+    fn a_constant_mounting_rotation_is_not_an_orientation_error() {
+        let mount = UnitQuaternion::from_euler_angles(0.0, 0.0, 30f64.to_radians());
+        let h: Vec<Hit> = [0.0, 0.1, -0.1]
+            .iter()
+            .map(|d: &f64| Hit {
+                point: 1,
+                p: Point3::origin(),
+                pos_err: 0.0,
+                rot_rel: Some(mount * UnitQuaternion::from_euler_angles(d.to_radians(), 0.0, 0.0)),
+            })
+            .collect();
+        let s = summarise(&h);
+        let rms = s.rot_rms_deg.unwrap();
+        // errors 0, 0.1, 0.1 deg about the mean: RMS sqrt(2/3)·0.1
+        assert!((rms - (2.0f64 / 3.0).sqrt() * 0.1).abs() < 1e-6, "{rms}");
+    }
 }
