@@ -1,4 +1,4 @@
-//! The performance suite of issue 32: `cargo bench --bench perf [-- quick]`.
+//! The performance suite of issue 32: `cargo bench --bench perf [-- quick|camera]`.
 //!
 //! Prints, on this machine, each figure of the issue that the kinematic side owns and the
 //! peer on the same input in the same run, with the ratio:
@@ -16,7 +16,8 @@
 //! - **peer**: pybotics + SciPy `least_squares` on the same 500-pose kinematic problem
 //!   (`examples/ident_pybotics.rs`, needs `.venv/peers-pybotics` from `.ci/peers.sh`).
 //!
-//! `quick` stops the pose ladder at 10,000. Nothing in CI runs this or depends on a timing.
+//! `quick` stops the pose ladder at 10,000; `camera` runs the camera row only. Nothing in CI
+//! runs this or depends on a timing.
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -108,6 +109,11 @@ fn write_poses(path: &Path, template: &Path, truth: &KinematicModel, n: usize) {
 
 fn main() {
     let quick = std::env::args().any(|a| a == "quick");
+    if std::env::args().any(|a| a == "camera") {
+        let tmp = tempfile::tempdir().expect("tempdir");
+        camera_row(tmp.path());
+        return;
+    }
     let data = root().join("tests/data/kin-geometric");
     let train = data.join("train.jsonl");
     let held = data.join("heldout.jsonl");

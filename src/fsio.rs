@@ -21,6 +21,16 @@ use std::path::{Path, PathBuf};
 /// smaller (the largest real dataset is a few MB; images are read by the camera drivers).
 pub const MAX_INPUT_BYTES: u64 = 512 << 20;
 
+/// What the file at `path` is, for messages ("a character device", "a regular file", ...;
+/// "missing" when it does not exist).
+pub fn describe(path: &Path) -> &'static str {
+    match std::fs::symlink_metadata(path) {
+        Err(_) => "missing",
+        Ok(m) if m.file_type().is_file() => "a regular file",
+        Ok(m) => kind_name(&m.file_type()),
+    }
+}
+
 /// What a non-regular file is, for messages.
 fn kind_name(ft: &std::fs::FileType) -> &'static str {
     #[cfg(unix)]

@@ -1330,3 +1330,102 @@ fn bad_input_robot_world_without_usable_poses_names_the_likely_cause() {
     refused(&args, &["likely cause", "orientation"]);
     assert!(!out.exists());
 }
+/// The kinematic dataset with every marker quaternion written scalar-last (`[x, y, z, w]`).
+#[test]
+fn bad_input_marker_quaternions_scalar_last_are_refused_everywhere() {
+    let d = tempfile::tempdir().unwrap();
+    let (cal, held) = nominal_cal(d.path());
+    let mut rows = geo(80);
+    for r in rows.iter_mut().skip(1) {
+        if let Some(q) = r["marker"]["quat"].as_array().cloned() {
+            r["marker"]["quat"] = json!([q[1], q[2], q[3], q[0]]);
+        }
+    }
+    let bad = write(d.path(), "xyzw.jsonl", &rows);
+    let o = d.path().join("o");
+    for args in [
+        vec!["inspect", s(&bad)],
+        vec!["calibrate", "nominal", "--data", s(&bad), "--out", s(&o)],
+        vec!["predict", "--calibration", s(&cal), "--data", s(&bad)],
+    ] {
+        refused(&args, &["marker.quat", "[x, y, z, w]"]);
+    }
+    // The same file written right passes `inspect`.
+    let o = run(&["inspect", s(&held)]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+}
+
+/// Every shipped scenario states its cell's safety limits (table plane; the tracker cells
+/// their envelope too): a plan run on it is checked against the cell, never only against
+/// its own editable constraints (issue 26 §2).
+#[test]
+fn bad_input_every_scenario_states_its_cells_safety_limits() {
+    let mut n = 0;
+    for e in std::fs::read_dir(root().join("mocks/scenarios")).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().and_then(|x| x.to_str()) != Some("toml") {
+            continue;
+        }
+        let sc = robocal_mocks::Scenario::load(&p).unwrap();
+        for a in &sc.arms {
+            let s = a.safety.as_ref();
+            assert!(
+                s.is_some_and(|s| s.table_z_mm.is_some()),
+                "{}: arm {:?} states no [arm.safety] table_z_mm",
+                p.display(),
+                a.name
+            );
+            if !sc.trackers.is_empty() {
+                assert!(
+                    s.is_some_and(|s| s.envelope.is_some()),
+                    "{}: arm {:?} states no [arm.safety] envelope",
+                    p.display(),
+                    a.name
+                );
+            }
+            n += 1;
+        }
+    }
+    assert!(n >= 10, "{n} arms");
+}
+
+/// A camera cell's plan with its table lowered below the cell's is refused naming the limit.
+#[test]
+fn bad_input_camera_plan_below_the_cells_table_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dp = d.path();
+    let spec = std::fs::read_to_string(root().join("plans/seed004-ur5e-camera.toml"))
+        .unwrap()
+        .replace("table_z_mm = -20.0", "table_z_mm = -400.0");
+    assert!(spec.contains("table_z_mm = -400.0"));
+    let sp = dp.join("low.toml");
+    std::fs::write(&sp, spec).unwrap();
+    let plan = dp.join("low.json");
+    let o = run(&[
+        "plan",
+        "--spec",
+        s(&sp),
+        "--robot",
+        "ur5e",
+        "--out",
+        s(&plan),
+    ]);
+    assert_eq!(o.code, Some(0), "{}", o.text);
+    let sc = root().join("mocks/scenarios/ur5e-camera.toml");
+    let out = dp.join("run");
+    refused(
+        &[
+            "run",
+            "--plan",
+            s(&plan),
+            "--sim",
+            s(&sc),
+            "--out",
+            s(&out),
+            "--virtual-clock",
+            "--in-process",
+        ],
+        &["table", "never wider"],
+    );
+    assert!(!out.exists());
+}

@@ -305,6 +305,24 @@ fn diagnose_names_an_undeclared_board_scale() {
     let scale = eff[0]["parameters"][0]["value"].as_f64().unwrap();
     assert!((scale - 1.004).abs() < 3e-4, "scale {scale}");
     assert_eq!(d["format"], "robocal-diagnosis/2", "{d}");
+    // The board-scale evidence is in the report; an exact arm is not blamed.
+    let notes: Vec<&str> = d["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v.as_str())
+        .collect();
+    assert!(
+        notes.iter().any(
+            |n| n.starts_with("board scale: the robot's motion implies 30.1")
+                && n.contains("fitted target_scale 1.00")
+        ),
+        "{notes:?}"
+    );
+    assert!(
+        !notes.iter().any(|n| n.contains("robot poses dominate")),
+        "{notes:?}"
+    );
     let (b, a) = (
         d["heldout_rms"]["base_model_px"].as_f64().unwrap(),
         d["heldout_rms"]["final_px"].as_f64().unwrap(),

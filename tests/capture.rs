@@ -134,10 +134,11 @@ fn capture_pivot_recovers_the_probe_tip() {
         best.frames, rob.trust
     );
     assert!(tip_err < 0.1, "tip {tip_err} mm from the truth");
-    assert!(piv_err < 0.1, "pivot point {piv_err} mm from the truth");
+    // The pivot point is not part of the criterion (measured 0.076 – 0.094 mm).
+    assert!(piv_err < 0.2, "pivot point {piv_err} mm from the truth");
     // The frames load back as a dataset.
     let ds = robocal::dataset::read_dataset(out.join("pivot.jsonl")).unwrap();
-    assert!(ds.dataset.records.len() >= 300);
+    assert!(ds.dataset.records.len() >= 600);
 }
 
 #[test]
@@ -195,7 +196,6 @@ fn capture_pivot_refuses_a_small_cone_and_a_moving_divot() {
 }
 
 #[test]
-#[ignore = "worst point 0.104 mm at a 1.5 s hold (needs < 0.1 mm): the hold is lengthened next"]
 fn capture_points_averages_still_windows() {
     let tmp = tempfile::tempdir().unwrap();
     let (scen, sc) = scenario(

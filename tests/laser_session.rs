@@ -260,3 +260,29 @@ fn param(name: &str, value: f64, unit: &str) -> robocal::dataset::CalParam {
         extra: Default::default(),
     }
 }
+
+#[test]
+fn a_laser_scan_ply_is_read_as_surface_points() {
+    // `calibrate laser --scan … --ply` writes a vertex-only PLY; `register --ct-mesh --tracker
+    // SCAN.ply` reads its vertices as the surface points.
+    let pts = vec![
+        nalgebra::Point3::new(1.0, 2.0, 3.0),
+        nalgebra::Point3::new(-4.5, 0.25, 100.0),
+    ];
+    let dir = std::env::temp_dir().join(format!("robocal-laser-ply-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("scan.ply");
+    std::fs::write(&p, laser::ply(&pts, "test scan")).unwrap();
+    let got = robocal::register::points::read_surface_points(&p).unwrap();
+    assert_eq!(got.len(), 2);
+    assert_eq!(got[1].name, "v2");
+    assert!((got[1].p - pts[1]).norm() < 1e-9);
+    std::fs::write(&p, laser::ply(&[], "empty")).unwrap();
+    let e = robocal::register::points::read_surface_points(&p)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("without vertices") && e.contains("scan.ply"),
+        "{e}"
+    );
+}

@@ -29,10 +29,10 @@ fn python(venv: &str, what: &str) -> Option<PathBuf> {
             py.display()
         );
     }
-    eprintln!(
-        "\n!!!!! SKIP {what}: {} missing (run .ci/peers.sh) !!!!!\n",
+    crate::common::skipped(format_args!(
+        "{what}: {} missing (run .ci/peers.sh)",
         py.display()
-    );
+    ));
     None
 }
 

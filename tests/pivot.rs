@@ -130,10 +130,10 @@ fn pivot_glitches_are_dropped_and_the_tip_is_inside_its_interval() {
 fn real_ndi_pivot_beats_the_published_reference() {
     let frames = root().join("../shared/data/real-pivot-ndi/frames.txt");
     if !frames.is_file() {
-        eprintln!(
-            "SKIPPED: {} not present: the real pivot recording is not tested",
+        crate::common::skipped(format_args!(
+            "{} not present: the real pivot recording is not tested",
             frames.display()
-        );
+        ));
         return;
     }
     let d = tempfile::tempdir().unwrap();

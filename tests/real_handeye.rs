@@ -14,10 +14,7 @@ fn root() -> PathBuf {
 fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>) {
     let dir = root().join("../shared/data").join(dir);
     if !dir.exists() {
-        eprintln!(
-            "\n*** SKIPPED: real set {name} absent ({}) ***\n",
-            dir.display()
-        );
+        crate::common::skipped(format_args!("real set {name} absent ({})", dir.display()));
         return;
     }
     let set = load(&dir).unwrap();
@@ -27,7 +24,7 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
     }
     if cam.views.len() + 10 < set.images.len() {
         eprintln!(
-            "\n*** SKIPPED: {name}: only {} of {} images read and detected (this build reads: see above) ***\n",
+            "{name}: only {} of {} images read and detected (this build reads: see above)",
             cam.views.len(),
             set.images.len()
         );
@@ -37,7 +34,9 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
     let script = root().join("scripts/peers/camera_handeye_cv2.py");
     let peer = py.exists().then_some((py.as_path(), script.as_path()));
     if peer.is_none() {
-        eprintln!("\n*** {name}: OpenCV peer SKIPPED (no .venv/peers-cv2): compared with robocal's closed forms ***\n");
+        crate::common::skipped(format_args!(
+            "{name}: OpenCV peer (no .venv/peers-cv2): compared with robocal's closed forms only"
+        ));
     }
     let r = realeval::evaluate(&cam, peer, 30).unwrap();
     let res = &r.result;
@@ -60,6 +59,23 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
         "{name}: split half {:.2} mm / {:.3} deg (OpenCV Park {:?}), ratios {:?}; σ {:?} mm {:?} deg, bootstrap {:?}",
         r.split.dx_mm, r.split.dr_deg, r.split.opencv_park, r.split.ratios, r.sigma_mm, r.sigma_deg, r.bootstrap
     );
+    // §3: the residual is the robot's (training RMS far above the board-only RMS), and the
+    // diagnosis wording says so for this set (no joint angles recorded).
+    let note = robocal::diagnose::camera::robot_dominance_note(
+        r.written.train_px,
+        r.board_only_px,
+        res.pose_noise,
+        &robocal::diagnose::camera::ArmState::Untestable(
+            "the records carry no joint angles `q`".into(),
+        ),
+    );
+    eprintln!(
+        "{name}: training RMS {:.3} px / board-only {:.3} px = {:.1}x; {note:?}",
+        r.written.train_px,
+        r.board_only_px,
+        r.written.train_px / r.board_only_px
+    );
+    assert!(note.is_some_and(|n| n.contains("robot poses dominate")));
     let reference: Vec<f64> = if r.opencv.is_empty() {
         res.closed_form
             .iter()
@@ -113,4 +129,115 @@ fn real_ur3e_hand_eye() {
     check("ur3e", "real-handeye-ur3e", |d| {
         realeval::load_ur3e(d, 12.5)
     });
+}
+
+/// Issue 31 §3: on the UR3e set's `cam0_079.jpg` OpenCV's detectors label the grid wrongly
+/// (the shared README: shifted one square, 88° from what the robot says; measured here with
+/// OpenCV 4.14: both `findChessboardCorners` and `...SB` put the board ≈180° and 64–80 mm from
+/// where the other views put it, at the same corner positions as robocal). robocal's labelling
+/// must agree with the robot: the board in the base that image implies (`G X T`, X from Park on
+/// the other views, T from robocal's corners with the board-only intrinsics) lies where the
+/// other views put it, within the arm's pose error (measured 2.74 mm / 0.457°; the other
+/// views' worst 4.19 mm / 1.334°).
+#[test]
+fn real_ur3e_shifted_grid_image_is_labelled_right() {
+    use robocal::solve::camera::geom::{mean_pose, pose_error};
+    use robocal::solve::camera::handeye::{motion_pairs, solve, Method};
+    use robocal::solve::camera::intrinsics::calibrate_intrinsics;
+    use robocal::solve::camera::DistModel;
+
+    let dir = root().join("../shared/data/real-handeye-ur3e");
+    if !dir.exists() {
+        eprintln!(
+            "\n*** SKIPPED: real set ur3e absent ({}) ***\n",
+            dir.display()
+        );
+        return;
+    }
+    let set = realeval::load_ur3e(&dir, 12.5).unwrap();
+    let (cam, failed) = realeval::detect_set(&set);
+    let Some(i79) = cam.views.iter().position(|v| v.id == 79) else {
+        eprintln!("\n*** SKIPPED: cam0_079 not read or not detected: {failed:?} ***\n");
+        return;
+    };
+    let fit = calibrate_intrinsics(&cam, DistModel::K1K2).unwrap();
+    let g: Vec<_> = cam.views.iter().map(|v| v.flange).collect();
+    let others: Vec<usize> = (0..g.len()).filter(|&i| i != i79).collect();
+    let (go, to): (Vec<_>, Vec<_>) = others.iter().map(|&i| (g[i], fit.poses[i])).unzip();
+    let x = solve(Method::ParkMartin, &motion_pairs(&go, &to, 2.0)).unwrap();
+    let b: Vec<_> = go.iter().zip(&to).map(|(g, t)| g * x * t).collect();
+    let b_mean = mean_pose(&b);
+    let spread: Vec<(f64, f64)> = b.iter().map(|bi| pose_error(&b_mean, bi)).collect();
+    let worst = spread
+        .iter()
+        .fold((0.0f64, 0.0f64), |a, s| (a.0.max(s.0), a.1.max(s.1)));
+    let (dt, dr) = pose_error(&b_mean, &(g[i79] * x * fit.poses[i79]));
+    eprintln!(
+        "ur3e cam0_079: board in base {dt:.2} mm / {dr:.3} deg from the other views' mean (their worst {:.2} mm / {:.3} deg); board-only RMS {:.3} px",
+        worst.0, worst.1, fit.rms_px
+    );
+    assert!(
+        dr < 2.0 && dt < 8.0,
+        "cam0_079 off by {dt:.2} mm / {dr:.3} deg"
+    );
+    assert!(dt <= worst.0 && dr <= worst.1);
+    // OpenCV's detector on the same image, when the peer is installed: shown, not asserted
+    // (a later OpenCV may fix it).
+    let py = root().join(".venv/peers-cv2/bin/python");
+    if !py.exists() {
+        eprintln!("OpenCV peer SKIPPED (no .venv/peers-cv2)");
+        return;
+    }
+    let job = format!(
+        "{{\"pattern\": [6, 5], \"images\": [{:?}]}}",
+        set.images[78].display().to_string()
+    );
+    let out = std::process::Command::new(&py)
+        .arg(root().join("scripts/peers/chessboard_detect_cv2.py"))
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .and_then(|mut c| {
+            use std::io::Write;
+            c.stdin.take().unwrap().write_all(job.as_bytes())?;
+            c.wait_with_output()
+        })
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
+    let ours = &cam.views[i79].corners;
+    for det in ["classic", "sb"] {
+        let r = &v["results"][0][det];
+        let cs: Vec<[f64; 2]> = r["corners"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(|c| Some([c[0].as_f64()?, c[1].as_f64()?]))
+                    .collect()
+            })
+            .unwrap_or_default();
+        // The corner positions agree; the labelling is what a detector can get wrong. The
+        // board in the base under OpenCV's labelling (corner k = (k mod 6, k div 6), pose from
+        // the homography with robocal's K) against where the other views put it.
+        let far = cs
+            .iter()
+            .filter(|c| {
+                ours.iter()
+                    .flatten()
+                    .all(|o| (o[0] - c[0]).hypot(o[1] - c[1]) > 3.0)
+            })
+            .count();
+        let plane: Vec<[f64; 2]> = (0..cs.len())
+            .map(|k| [(k % 6) as f64 * 12.5, (k / 6) as f64 * 12.5])
+            .collect();
+        let km = nalgebra::Matrix3::new(
+            fit.k.fx, 0.0, fit.k.cx, 0.0, fit.k.fy, fit.k.cy, 0.0, 0.0, 1.0,
+        );
+        let off = robocal::solve::camera::zhang::homography(&plane, &cs)
+            .and_then(|h| robocal::solve::camera::zhang::pose_from_h(&km, &h))
+            .map(|t| pose_error(&b_mean, &(g[i79] * x * t)));
+        eprintln!(
+            "OpenCV {det} on cam0_079: found {}, {far} of {} corners more than 3 px from every robocal corner; its labelling puts the board {:?} (mm, deg) from the other views' mean",
+            r["found"], cs.len(), off
+        );
+    }
 }

@@ -14,10 +14,10 @@ fn real(name: &str) -> Option<PathBuf> {
     if p.is_dir() {
         Some(p)
     } else {
-        eprintln!(
-            "SKIPPED: {} is not present (real data is never copied into the project)",
+        crate::common::skipped(format_args!(
+            "{} is not present (real data is never copied into the project)",
             p.display()
-        );
+        ));
         None
     }
 }

@@ -276,3 +276,48 @@ fn report_shows_laser_diagnosis_effects() {
         .markdown()
         .contains("scale = 300.0000 ppm (95 %: 280.4000 … 319.6000)"));
 }
+
+#[test]
+fn report_collects_the_navigation_chain_and_rcm_files() {
+    let dir = std::env::temp_dir().join(format!("robocal-report-nav-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("nav")).unwrap();
+    std::fs::write(
+        dir.join("nav/registration.json"),
+        r#"{"format": "robocal-registration/1", "fre_mm": 0.24, "tre_mm": 0.26, "residuals": [1, 2]}"#,
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("chain.json"),
+        r#"{"format": "robocal-chain/1", "tip_rms_mm": 0.5}"#,
+    )
+    .unwrap();
+    std::fs::write(dir.join("rcm_report.json"), "[1, 2]").unwrap();
+    let s = gather(&dir).unwrap();
+    assert_eq!(s.navigation.len(), 2, "{:?}", s.navigation);
+    assert!(
+        s.warnings
+            .iter()
+            .any(|w| w.contains("rcm_report.json") && w.contains("not a JSON object")),
+        "{:?}",
+        s.warnings
+    );
+    let md = s.markdown();
+    assert!(
+        md.contains("CT ↔ tracker registration (`nav/registration.json`)"),
+        "{md}"
+    );
+    assert!(
+        md.contains("- fre_mm: 0.2400") && md.contains("- tre_mm: 0.2600"),
+        "{md}"
+    );
+    assert!(
+        md.contains("Navigation chain") && md.contains("- tip_rms_mm: 0.5000"),
+        "{md}"
+    );
+    assert!(
+        !md.contains("residuals"),
+        "nested tables stay in the file: {md}"
+    );
+    assert_eq!(s.to_json()["navigation"].as_array().unwrap().len(), 2);
+}

@@ -247,7 +247,9 @@ fn report_renders_in_headless_chromium() {
                 .is_ok_and(|o| o.status.success())
         });
     let Some(chromium) = chromium else {
-        eprintln!("SKIPPED: no chromium on PATH (Debian package `chromium`): report not checked in a browser");
+        crate::common::skipped(
+            "no chromium on PATH (Debian package `chromium`): report not checked in a browser",
+        );
         return;
     };
     let url = format!("file://{}", dir.join("report.html").display());
@@ -457,7 +459,9 @@ fn history_postgres() {
     .map(Path::new)
     .find(|d| d.join("initdb").exists() && d.join("pg_ctl").exists());
     let Some(bin) = bin else {
-        eprintln!("SKIPPED: no initdb / pg_ctl (Debian package `postgresql`): PostgreSQL history not tested");
+        crate::common::skipped(
+            "no initdb / pg_ctl (Debian package `postgresql`): PostgreSQL history not tested",
+        );
         return;
     };
     let root_user = Command::new("id")
@@ -501,10 +505,10 @@ fn history_postgres() {
         "UTF8",
     ]);
     if !o.status.success() {
-        eprintln!(
-            "SKIPPED: initdb failed: {}",
+        crate::common::skipped(format_args!(
+            "initdb failed: {}",
             String::from_utf8_lossy(&o.stderr)
-        );
+        ));
         return;
     }
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -716,6 +720,15 @@ fn lab_session_verifies_by_commanding_the_calibrated_robot() {
     let r = v.verified_vs_predicted.unwrap();
     assert!((0.8..=1.2).contains(&r) && !v.flagged, "{v:?}");
     assert_eq!(s.measured.verified_rms_mm_after, Some(v.after.rms_mm));
+    // The report shows it: table (both rows, the after RMS as in session.json) and the plot.
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    let t = &html[html
+        .find("<table id=\"verify\">")
+        .expect("verify table in report.html")..];
+    let t = &t[..t.find("</table>").unwrap()];
+    assert!(t.contains("before (nominal IK)") && t.contains("after (calibrated IK)"));
+    assert!(t.contains(&format!("{:.4}", v.after.rms_mm)), "{t}");
+    assert!(html.contains("id=\"plot-verify\"") && html.contains("id=\"verify-vs-predicted\""));
 }
 
 /// One session, one geometric fit, each dataset read once: the training and held-out sets are

@@ -51,8 +51,8 @@ fn denso_follows_the_hand_ur_only_in_freedrive() {
     let s = scenario();
     let w = WorldHandle::from_scenario(&s).unwrap();
     w.arm_joint_state(0);
-    // Pivot 0.5 + 14, wait 1, touch 4 × 4.5 = 33.5 s, then the drag; its first hold 33.5 + 2.5.
-    w.advance(37.0);
+    // Pivot 0.5 + 14, wait 1, touch 4 × 6 = 39.5 s, then the drag; its first hold 39.5 + 2.5.
+    w.advance(43.0);
     let q = w.arm_joint_state(0).q;
     let want = [10.0f64, 10.0, 80.0, 0.0, 50.0, 0.0];
     for (a, b) in q.iter().zip(want) {
@@ -65,7 +65,7 @@ fn denso_follows_the_hand_ur_only_in_freedrive() {
     u.arms[0].home_deg = Some(vec![0.0, -90.0, 90.0, -90.0, -90.0, 0.0]);
     let w = WorldHandle::from_scenario(&u).unwrap();
     let q0 = w.arm_joint_state(0).q;
-    w.advance(37.0);
+    w.advance(43.0);
     assert_eq!(w.arm_joint_state(0).q, q0, "a UR moved without freedrive");
     w.arm_set_freedrive(0, true);
     let q = w.arm_joint_state(0).q;

@@ -37,6 +37,34 @@ impl Keys {
     }
 }
 
+/// Paces a loop at a fixed period on `clock` (deadlines, so the time a frame takes does not
+/// lower the rate; a late loop does not try to catch up).
+#[derive(Debug, Clone, Copy)]
+pub struct Pacer {
+    next: f64,
+    period: f64,
+}
+
+impl Pacer {
+    /// A pacer whose first tick is one period from now.
+    pub fn new(clock: &dyn robocal_drivers::Clock, period: f64) -> Self {
+        Self {
+            next: clock.now() + period,
+            period,
+        }
+    }
+    /// Sleep until the next deadline.
+    pub async fn tick(&mut self, clock: &dyn robocal_drivers::Clock) {
+        let now = clock.now();
+        if self.next > now {
+            clock.sleep(self.next - now).await;
+            self.next += self.period;
+        } else {
+            self.next = now + self.period;
+        }
+    }
+}
+
 /// One tracked pose of the captured tool.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ToolFrame {

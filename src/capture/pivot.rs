@@ -36,7 +36,7 @@ impl Default for PivotOptions {
             tool: None,
             min_spread_deg: 40.0,
             min_sectors: 6,
-            min_frames: 300,
+            min_frames: 600,
             max_seconds: 120.0,
             period_s: 1.0 / 60.0,
             max_drift_mm: 0.5,
@@ -179,6 +179,7 @@ pub async fn capture_pivot(
     let mut missing = 0usize;
     let mut spread: f64 = 0.0;
     let mut last_report = t_start;
+    let mut pacer = super::Pacer::new(clock, opt.period_s);
     let stopped;
     loop {
         let name = match &tool {
@@ -237,7 +238,7 @@ pub async fn capture_pivot(
             stopped = "time limit";
             break;
         }
-        clock.sleep(opt.period_s).await;
+        pacer.tick(clock).await;
     }
     let tool = tool.unwrap_or_default();
     let cov = coverage(&frames);

@@ -31,7 +31,7 @@ impl Default for PointOptions {
         Self {
             tool: "probe".into(),
             tip_mm: Vector3::zeros(),
-            hold_s: 1.5,
+            hold_s: 3.0,
             still_mm: 0.6,
             lift_mm: 5.0,
             max_seconds_per_point: 60.0,
@@ -90,6 +90,7 @@ pub async fn capture_points(
         let mut rejected = 0usize;
         let mut was_still_candidate = false;
         let mut last_report = t_start;
+        let mut pacer = super::Pacer::new(clock, opt.period_s);
         loop {
             let (names_seen, obs) = next_frame(tracker, &opt.tool).await?;
             anyhow::ensure!(
@@ -173,7 +174,7 @@ pub async fn capture_points(
                     .join(", "),
                 opt.hold_s
             );
-            clock.sleep(opt.period_s).await;
+            pacer.tick(clock).await;
         }
     }
     Ok(out)

@@ -94,6 +94,7 @@ pub async fn capture_poses(
     let mut window: Vec<Vec<f64>> = Vec::new();
     let mut keys_seen = keys.count();
     let mut last_report = t_start;
+    let mut pacer = super::Pacer::new(clock, opt.period_s);
     progress(&format!(
         "guide the arm to pose P1 of {} and hold it still{}",
         opt.count,
@@ -191,7 +192,7 @@ pub async fn capture_poses(
             opt.count,
             opt.max_seconds
         );
-        clock.sleep(opt.period_s).await;
+        pacer.tick(clock).await;
     }
     Ok(out)
 }

@@ -70,7 +70,7 @@ pub struct PointsArgs {
     #[arg(long, value_name = "points.csv")]
     pub out: PathBuf,
     /// Still window averaged into a point (s).
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 3.0)]
     pub hold_s: f64,
     /// Largest RMS spread of the tip over the window (mm).
     #[arg(long, default_value_t = 0.6)]
@@ -120,7 +120,7 @@ pub struct PivotArgs {
     #[arg(long, default_value_t = 40.0)]
     pub min_spread_deg: f64,
     /// Frames needed at least.
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 600)]
     pub min_frames: usize,
     /// Give up after this many seconds.
     #[arg(long, default_value_t = 120.0)]

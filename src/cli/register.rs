@@ -21,7 +21,8 @@ pub struct Args {
     /// CT surface mesh, STL or PLY (surface mode).
     #[arg(long, value_name = "MESH")]
     pub ct_mesh: Option<PathBuf>,
-    /// Tracker points, CSV `name,x_mm,y_mm,z_mm` (fiducials paired by name, or surface points).
+    /// Tracker points, CSV `name,x_mm,y_mm,z_mm` (fiducials paired by name, or surface points;
+    /// surface points may also be a PLY point cloud, e.g. `calibrate laser --scan … --ply`).
     #[arg(long, value_name = "TRK.csv")]
     pub tracker: Option<PathBuf>,
     /// Tracker fiducials from a dataset's probe-tip records (`tip` + `target` label).
@@ -95,7 +96,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             bail!("surface mode needs --tracker TRK.csv (digitised surface points)")
         };
         let m = mesh::read_mesh(mp)?;
-        let pts: Vec<_> = points::read_points_csv(tp)?.into_iter().collect();
+        let pts: Vec<_> = points::read_surface_points(tp)?.into_iter().collect();
         let xyz: Vec<_> = pts.iter().map(|p| p.p).collect();
         let init = a.init.as_deref().map(file::load_init).transpose()?;
         let o = icp::IcpOptions {

@@ -37,7 +37,11 @@ fn write(path: &Path, text: &str) -> anyhow::Result<()> {
 /// Run `robocal report`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
     if !args.dir.is_dir() {
-        bail!("{}: not a directory", args.dir.display());
+        bail!(
+            "{}: not a directory ({}): --dir takes a run or session directory",
+            args.dir.display(),
+            crate::fsio::describe(&args.dir)
+        );
     }
     let session = gather(&args.dir)?;
     if session.runs.is_empty()

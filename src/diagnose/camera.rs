@@ -94,6 +94,131 @@ pub struct CameraDiagnosis {
     pub n_heldout: usize,
     /// Candidates that could not be tested, and why.
     pub untestable: Vec<(String, String)>,
+    /// The declared square size (mm).
+    pub square_mm: f64,
+}
+
+/// Above this ratio of the final training RMS to the board-only RMS, the residual is the
+/// robot's, not the camera model's (a real arm 1 mm off leaves 10–30× the board-only RMS; a
+/// simulated cell whose flange poses are exact leaves ~1×).
+pub const ROBOT_DOMINATES_RATIO: f64 = 5.0;
+
+impl CameraDiagnosis {
+    /// Final training RMS over the board-only RMS (what the camera model alone leaves).
+    pub fn residual_over_board_only(&self) -> f64 {
+        self.last().train_rms_px / self.calibration.intrinsics_rms_px
+    }
+
+    /// Whether the robot poses dominate the residual ([`ROBOT_DOMINATES_RATIO`]).
+    pub fn robot_dominates(&self) -> bool {
+        self.residual_over_board_only() > ROBOT_DOMINATES_RATIO
+    }
+
+    /// What the residual says beyond the effects (written to `diagnosis.json`'s `warnings`
+    /// and printed by `robocal diagnose`): [`robot_dominance_note`] and [`board_scale_note`].
+    pub fn findings(&self) -> Vec<String> {
+        let arm = if self.arm.is_some() {
+            ArmState::Identified
+        } else if let Some((_, why)) = self.untestable.iter().find(|(k, _)| k == "arm_kinematics") {
+            ArmState::Untestable(why.clone())
+        } else {
+            ArmState::NotSignificant
+        };
+        let fitted = self
+            .effects
+            .iter()
+            .any(|e| e.kind == "target_scale")
+            .then_some(self.scale);
+        robot_dominance_note(
+            self.last().train_rms_px,
+            self.calibration.intrinsics_rms_px,
+            self.calibration.pose_noise,
+            &arm,
+        )
+        .into_iter()
+        .chain(board_scale_note(
+            self.calibration.implied_scale,
+            self.square_mm,
+            fitted,
+        ))
+        .collect()
+    }
+}
+
+/// What the diagnosis could say about the arm's kinematics.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ArmState {
+    /// `arm_kinematics` accepted.
+    Identified,
+    /// Tested, not significant.
+    NotSignificant,
+    /// Not testable, and why (no joint angles, eye-to-hand, ...).
+    Untestable(String),
+}
+
+/// When the residual (`res_px`, final training RMS) is more than [`ROBOT_DOMINATES_RATIO`]×
+/// the board-only RMS (`board_px`): say that the robot poses dominate it, with the pose noise
+/// the data imply (`(deg, mm)`), and what would separate them.
+pub fn robot_dominance_note(
+    res_px: f64,
+    board_px: f64,
+    pose_noise: Option<(f64, f64)>,
+    arm: &ArmState,
+) -> Option<String> {
+    if !res_px.is_finite() || !board_px.is_finite() || res_px <= ROBOT_DOMINATES_RATIO * board_px {
+        return None;
+    }
+    let noise = pose_noise.map_or(String::new(), |(deg, mm)| {
+        format!("; the data imply flange poses wrong by {mm:.2} mm and {deg:.3}° (1σ per axis)")
+    });
+    let tracker = "an external tracker on the flange would measure the pose error directly";
+    let separate = match arm {
+        ArmState::Identified => format!(
+            "the arm's kinematic errors were identified (arm_kinematics); what remains is pose \
+             error the joint angles do not explain (repeatability, image/pose timing, a camera \
+             moving on its mount): {tracker}"
+        ),
+        ArmState::Untestable(why) => format!(
+            "to separate the arm's kinematic errors from the hand-eye, record the joint angles \
+             `q` with every image and the robot model in the header, so that arm_kinematics can \
+             be identified with the camera as the sensor (untested here: {why}); {tracker}"
+        ),
+        ArmState::NotSignificant => format!(
+            "arm_kinematics was tested and is not significant, so the pose error is not the \
+             arm's geometry (repeatability, image/pose timing, a camera moving on its mount): \
+             {tracker}"
+        ),
+    };
+    Some(format!(
+        "the robot poses dominate the residual: {res_px:.3} px is {:.0}x what the board alone \
+         leaves ({board_px:.3} px), so the camera model is not what limits the hand-eye{noise}; \
+         {separate}",
+        res_px / board_px
+    ))
+}
+
+/// The board-scale evidence: the square size the robot's motion implies (`implied`, printed /
+/// declared, from [`camera::CameraResult::implied_scale`]) against the declared `square_mm`,
+/// beside the diagnosis' fitted `target_scale` when it was accepted. Said when the implied
+/// scale is more than 1 % off or a scale was fitted.
+pub fn board_scale_note(implied: f64, square_mm: f64, fitted: Option<f64>) -> Option<String> {
+    if !(implied.is_finite() && implied > 0.0 && ((implied - 1.0).abs() > 0.01 || fitted.is_some()))
+    {
+        return None;
+    }
+    let fit = fitted.map_or(String::new(), |f| {
+        format!(
+            "; the diagnosis fitted target_scale {f:.5} ({:.3} mm squares)",
+            f * square_mm
+        )
+    });
+    Some(format!(
+        "board scale: the robot's motion implies {:.3} mm squares against the declared {:.3} mm \
+         ({:+.1} %){fit}",
+        implied * square_mm,
+        square_mm,
+        (implied - 1.0) * 100.0
+    ))
 }
 
 impl CameraDiagnosis {
@@ -167,7 +292,7 @@ impl CameraDiagnosis {
                 })
                 .collect(),
             ambiguous_heldout: vec![],
-            warnings: vec![],
+            warnings: self.findings(),
             hand_eye_before: Some(pose_of(&self.baseline.x)),
             hand_eye_after: Some(pose_of(&last.x)),
         }
@@ -545,6 +670,7 @@ pub fn diagnose(
             _ => None,
         },
         untestable,
+        square_mm: train.board.square_mm,
     })
 }
 
@@ -802,5 +928,53 @@ fn effect_params(
             .enumerate()
             .map(|(k, nm)| p((*nm).into(), s.k.dist[k], f64::NAN, "1"))
             .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robot_dominance_is_said_only_far_above_the_board_only_rms() {
+        // Simulated cell, exact flange poses: 1.1x the board-only RMS: nothing to say.
+        assert!(robot_dominance_note(0.15, 0.14, None, &ArmState::NotSignificant).is_none());
+        // Real KUKA: 3.0 px against 0.11 px from the board alone, no joint angles recorded.
+        let n = robot_dominance_note(
+            3.0,
+            0.11,
+            Some((0.05, 1.2)),
+            &ArmState::Untestable("the records carry no joint angles `q`".into()),
+        )
+        .unwrap();
+        assert!(
+            n.contains("robot poses dominate") && n.contains("27x"),
+            "{n}"
+        );
+        assert!(
+            n.contains("1.20 mm") && n.contains("joint angles `q`"),
+            "{n}"
+        );
+        assert!(n.contains("arm_kinematics") && n.contains("tracker"), "{n}");
+        // A NaN residual says nothing (never a false claim).
+        assert!(robot_dominance_note(f64::NAN, 0.1, None, &ArmState::Identified).is_none());
+    }
+
+    #[test]
+    fn board_scale_evidence_names_the_implied_square() {
+        // 14.07 mm implied on a declared 15 mm board (issue 31's real set): -6.2 %.
+        let n = board_scale_note(14.07 / 15.0, 15.0, None).unwrap();
+        assert!(
+            n.contains("14.070 mm") && n.contains("15.000 mm") && n.contains("-6.2 %"),
+            "{n}"
+        );
+        let n = board_scale_note(1.004, 30.0, Some(1.0041)).unwrap();
+        assert!(
+            n.contains("30.120 mm") && n.contains("target_scale 1.00410"),
+            "{n}"
+        );
+        // Within 1 % and nothing fitted: no note.
+        assert!(board_scale_note(1.005, 30.0, None).is_none());
+        assert!(board_scale_note(f64::NAN, 30.0, Some(1.0)).is_none());
     }
 }

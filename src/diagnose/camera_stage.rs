@@ -67,7 +67,10 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     for r in &d.rejected {
         s += &format!("  not significant: {} (F {:.1})\n", r.kind, r.f_stat);
     }
-    if d.effects.is_empty() {
+    for f in d.findings() {
+        s += &format!("  {f}\n");
+    }
+    if d.effects.is_empty() && !d.robot_dominates() {
         s += "  no effect found: the camera model explains the residual\n";
     }
     Ok(s)

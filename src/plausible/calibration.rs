@@ -254,13 +254,18 @@ fn check_camera_block(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetE
     };
     let i = &b.intrinsics;
     let intr = [i.fx, i.fy, i.cx, i.cy];
-    if intr.iter().chain(&i.dist).any(|v| !v.is_finite()) || i.fx <= 0.0 || i.fy <= 0.0 {
+    // A focal length beyond 1e6 px or a distortion coefficient beyond 1e4 is no lens.
+    if intr.iter().any(|v| !v.is_finite() || v.abs() > 1e6)
+        || i.dist.iter().any(|v| !v.is_finite() || v.abs() > 1e4)
+        || i.fx <= 0.0
+        || i.fy <= 0.0
+    {
         return Err(err(
             file,
             "camera.intrinsics".into(),
             format!(
-                "fx {} fy {} cx {} cy {} dist {:?}: the intrinsics must be finite with fx, fy > 0 \
-                 (a corrupted value)",
+                "fx {} fy {} cx {} cy {} dist {:?}: the intrinsics must be finite with fx, fy > 0, \
+                 |fx|, |fy|, |cx|, |cy| ≤ 1e6 px and |dist| ≤ 1e4 (a corrupted value)",
                 i.fx, i.fy, i.cx, i.cy, i.dist
             ),
         ));

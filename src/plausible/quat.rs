@@ -2,11 +2,10 @@
 //! quaternion `[w, x, y, z]` is finite and of unit norm (a non-unit one is Euler angles, a
 //! rotation vector, wrong columns or a corrupted value — normalising it would silently turn
 //! it into some other rotation), and, where the same rotations are also known from the robot
-//! (a flange block, or the nominal FK of `q`), in the declared order: the rotation angle
-//! between two poses of a body is the same whatever frame it is seen from, so a tracked
-//! marker's relative rotation angles follow the flange's; read in the wrong order they do
-//! not, and read in the other order they do.
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+//! (a flange block, or the nominal FK of `q`), in the declared order: a tracked marker fixed
+//! on the flange turns between two poses as the flange does, up to one fixed rotation; read
+//! in the wrong order it does not, and read in the other order it does.
+use nalgebra::{Isometry3, Matrix3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 /// Largest accepted deviation of a file quaternion's norm from 1.
 pub const NORM_TOL: f64 = 1e-3;
@@ -57,8 +56,35 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// How well a body's file quaternions follow the robot's rotations: the median mismatch (deg)
-/// of the rotation angle between consecutive poses, as declared (`[w, x, y, z]`) and read
+/// Median residual (deg) of the rotations between consecutive poses of a body rigidly
+/// fixed to the flange against the flange's: `R_m = A R_f B` makes each relative rotation
+/// `R_m,i-1ᵀ R_m,i = Bᵀ (R_f,i-1ᵀ R_f,i) B`, so the rotation vectors of the two agree after one
+/// fixed rotation (fitted in closed form, Kabsch). Quaternions read in the wrong order break
+/// that (a permutation of the components keeps the angles, not the axes).
+fn rigid_residual_deg(robot: &[UnitQuaternion<f64>], body: &[UnitQuaternion<f64>]) -> f64 {
+    let n = robot.len().min(body.len());
+    let rel = |v: &[UnitQuaternion<f64>], i: usize| (v[i - 1].inverse() * v[i]).scaled_axis();
+    let pairs: Vec<(Vector3<f64>, Vector3<f64>)> =
+        (1..n).map(|i| (rel(robot, i), rel(body, i))).collect();
+    let h = pairs
+        .iter()
+        .fold(Matrix3::zeros(), |h, (f, m)| h + m * f.transpose());
+    let svd = h.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return f64::INFINITY;
+    };
+    let d = (u * vt).determinant().signum();
+    let x = u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * vt;
+    median(
+        pairs
+            .iter()
+            .map(|(f, m)| (m - x * f).norm().to_degrees())
+            .collect(),
+    )
+}
+
+/// How well a body's file quaternions follow the robot's rotations (see
+/// [`rigid_residual_deg`]): the median residual (deg) as declared (`[w, x, y, z]`) and read
 /// scalar-last. `robot[i]` is the flange rotation at the pose of `file[i]`.
 pub fn order_mismatch_deg(robot: &[UnitQuaternion<f64>], file: &[[f64; 4]]) -> (f64, f64) {
     let decl: Vec<UnitQuaternion<f64>> = file
@@ -66,18 +92,10 @@ pub fn order_mismatch_deg(robot: &[UnitQuaternion<f64>], file: &[[f64; 4]]) -> (
         .map(|q| UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])))
         .collect();
     let alt: Vec<UnitQuaternion<f64>> = file.iter().map(scalar_last).collect();
-    let mism = |f: &[UnitQuaternion<f64>]| {
-        median(
-            (1..robot.len().min(f.len()))
-                .map(|i| {
-                    (robot[i - 1].angle_to(&robot[i]) - f[i - 1].angle_to(&f[i]))
-                        .abs()
-                        .to_degrees()
-                })
-                .collect(),
-        )
-    };
-    (mism(&decl), mism(&alt))
+    (
+        rigid_residual_deg(robot, &decl),
+        rigid_residual_deg(robot, &alt),
+    )
 }
 
 /// Refuses quaternions in the wrong order: at least 5 poses that rotate, whose declared
@@ -101,8 +119,9 @@ pub fn check_order(
     if decl > ORDER_MISMATCH_DEG && alt < 0.25 * decl {
         return Err(format!(
             "{what}: the quaternions look like [x, y, z, w] (scalar last): read as [w, x, y, z] \
-             their rotations between poses differ from the robot's by {decl:.1}° (median), read \
-             scalar-last by {alt:.3}°; files use [w, x, y, z]"
+             their rotations between poses differ from the robot's by {decl:.1}° (median, after \
+             the best fixed mounting rotation), read scalar-last by {alt:.3}°; files use \
+             [w, x, y, z]"
         ));
     }
     Ok(())

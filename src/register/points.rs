@@ -48,6 +48,34 @@ pub fn read_points_csv(path: &Path) -> Result<Vec<NamedPoint>, RegisterError> {
     parse_points_csv(&text, &path.display().to_string())
 }
 
+/// Surface points from a CSV `name,x_mm,y_mm,z_mm` table or a PLY point cloud (the vertices,
+/// named `v1`, `v2`, …; e.g. `robocal calibrate laser --scan … --ply`), by the file's first
+/// bytes. A PLY without vertices is an error naming the file.
+pub fn read_surface_points(path: &Path) -> Result<Vec<NamedPoint>, RegisterError> {
+    let bytes = crate::fsio::read(path).map_err(|e| io_err(path, e))?;
+    if !bytes.starts_with(b"ply") {
+        return read_points_csv(path);
+    }
+    let file = path.display().to_string();
+    let m = super::mesh::parse_mesh(&bytes, &file)?;
+    if m.vertices.is_empty() {
+        return Err(RegisterError::Input {
+            file,
+            line: 0,
+            msg: "a PLY point cloud without vertices".into(),
+        });
+    }
+    Ok(m.vertices
+        .iter()
+        .enumerate()
+        .map(|(i, p)| NamedPoint {
+            name: format!("v{}", i + 1),
+            p: *p,
+            line: 0,
+        })
+        .collect())
+}
+
 /// Writes named points as CSV `name,x_mm,y_mm,z_mm` (to 1e-6 mm), through the same schema.
 pub fn write_points_csv<W: Write>(mut w: W, pts: &[NamedPoint]) -> std::io::Result<()> {
     let rows: Vec<NamedRow> = pts

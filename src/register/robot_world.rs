@@ -607,7 +607,7 @@ pub fn skip_summary(skipped: &[(u64, String)]) -> String {
             None => counts.push((w.as_str(), 1)),
         }
     }
-    counts.sort_by_key(|b| std::cmp::Reverse(b.1));
+    counts.sort_by_key(|c| std::cmp::Reverse(c.1));
     let Some((top, _)) = counts.first() else {
         return "no pose records".into();
     };

@@ -267,6 +267,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
             svg::histogram(&b, &a)
         );
     }
+    if let Some(v) = &s.verify {
+        h.push_str(&crate::session::verify::html(v));
+    }
     if let Some(c) = &s.camera {
         camera_section(&mut h, c);
     }

@@ -62,6 +62,9 @@ pub struct Session {
     pub scan_reports: Vec<Found<ScanReportFile>>,
     /// `pivot.json` files.
     pub pivots: Vec<Found<PivotFile>>,
+    /// Navigation-chain and RCM files (`registration.json`, `robot_world.json`, `chain.json`,
+    /// `rcm_report.json`): JSON objects shown by their scalar figures.
+    pub navigation: Vec<Found<Value>>,
     /// SVG plots: relative path and content.
     pub plots: Vec<(String, String)>,
     /// Files that could not be read or parsed.
@@ -114,6 +117,21 @@ fn take<T: SchemaFile>(p: &Path, rel: &str, slot: &mut Vec<Found<T>>, warnings: 
     }
 }
 
+/// A JSON object file (navigation chain, RCM report): kept as read; anything else is a warning.
+fn take_json(p: &Path, rel: &str, slot: &mut Vec<Found<Value>>, warnings: &mut Vec<String>) {
+    let parsed = crate::fsio::read_to_string(p)
+        .map_err(|e| e.to_string())
+        .and_then(|t| serde_json::from_str::<Value>(&t).map_err(|e| e.to_string()));
+    match parsed {
+        Ok(v) if v.is_object() => slot.push(Found {
+            rel: rel.to_string(),
+            value: v,
+        }),
+        Ok(_) => warnings.push(format!("{rel}: not a JSON object")),
+        Err(e) => warnings.push(format!("{rel}: {e}")),
+    }
+}
+
 /// Gathers the session files under `dir` (recursively, sorted by path).
 pub fn gather(dir: &Path) -> anyhow::Result<Session> {
     let mut files = Vec::new();
@@ -137,6 +155,9 @@ pub fn gather(dir: &Path) -> anyhow::Result<Session> {
             "laser_report.json" => take(&p, &rel, &mut s.laser_reports, w),
             "scan_report.json" => take(&p, &rel, &mut s.scan_reports, w),
             "pivot.json" => take(&p, &rel, &mut s.pivots, w),
+            "registration.json" | "robot_world.json" | "chain.json" | "rcm_report.json" => {
+                take_json(&p, &rel, &mut s.navigation, w)
+            }
             _ if name.ends_with(".jsonl") => match read_dataset(&p) {
                 Ok(loaded) => {
                     let w = loaded.warnings.iter().map(ToString::to_string).collect();
@@ -321,6 +342,7 @@ impl Session {
             "laser_reports": self.laser_reports.iter().map(|f| json!({"file": f.rel, "report": f.value})).collect::<Vec<_>>(),
             "scan_reports": self.scan_reports.iter().map(|f| json!({"file": f.rel, "report": f.value})).collect::<Vec<_>>(),
             "pivots": self.pivots.iter().map(|f| json!({"file": f.rel, "pivot": f.value})).collect::<Vec<_>>(),
+            "navigation": self.navigation.iter().map(|f| json!({"file": f.rel, "content": f.value})).collect::<Vec<_>>(),
             "plots": self.plots.iter().map(|(r, _)| r.clone()).collect::<Vec<_>>(),
             "warnings": self.warnings,
         })
@@ -340,6 +362,7 @@ impl Session {
             && self.laser_reports.is_empty()
             && self.scan_reports.is_empty()
             && self.pivots.is_empty()
+            && self.navigation.is_empty()
         {
             let _ = writeln!(m, "Nothing to report: no run summary, dataset, calibration, diagnosis, laser, scan or pivot report found.\n");
         }
@@ -364,6 +387,9 @@ impl Session {
         for p in &self.pivots {
             md_pivot(&mut m, p);
         }
+        for f in &self.navigation {
+            md_navigation(&mut m, f);
+        }
         if !self.plots.is_empty() {
             let _ = writeln!(m, "## Plots\n");
             for (rel, _) in &self.plots {
@@ -380,6 +406,32 @@ impl Session {
         }
         m
     }
+}
+
+/// A navigation-chain / RCM file: its format and every top-level scalar figure (numbers to
+/// 4 decimals, strings, flags); nested tables are in the file (and in `--json`).
+fn md_navigation(m: &mut String, f: &Found<Value>) {
+    let title = match f.rel.rsplit('/').next().unwrap_or("") {
+        "registration.json" => "CT ↔ tracker registration",
+        "robot_world.json" => "Tracker ↔ robot base",
+        "chain.json" => "Navigation chain (CT target → tool tip)",
+        _ => "RCM endoscope hand-eye",
+    };
+    let _ = writeln!(m, "## {title} (`{}`)\n", f.rel);
+    if let Some(o) = f.value.as_object() {
+        for (k, v) in o {
+            let shown = match v {
+                Value::Number(n) => n
+                    .as_f64()
+                    .map_or_else(|| n.to_string(), |x| format!("{x:.4}")),
+                Value::String(t) => cell(t),
+                Value::Bool(b) => b.to_string(),
+                _ => continue,
+            };
+            let _ = writeln!(m, "- {}: {shown}", cell(k));
+        }
+    }
+    m.push('\n');
 }
 
 fn md_run(m: &mut String, r: &Found<RunSummaryFile>) {

@@ -25,9 +25,22 @@ pub fn python(venv: &str, what: &str) -> Option<PathBuf> {
         );
     }
     eprintln!(
-        "\n!!!!! SKIP {what}: {} missing (run .ci/peers.sh) !!!!!\n",
+        "\n*** SKIPPED: {what}: {} missing (run .ci/peers.sh) ***\n",
         py.display()
     );
+    // Listed by the README's test command (`.ci/test`) after its summary.
+    let dir = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace().join("target"));
+    let _ = std::fs::create_dir_all(&dir);
+    if let Ok(mut f) = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(dir.join("skipped-tests.txt"))
+    {
+        use std::io::Write;
+        let _ = writeln!(f, "{what}: {} missing (run .ci/peers.sh)", py.display());
+    }
     None
 }
 

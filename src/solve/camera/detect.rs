@@ -35,6 +35,8 @@ pub enum DetectError {
     NotFound,
     #[error("board seen in part ({found} of {expected} corners): a chessboard must be whole to be indexed")]
     Partial { found: usize, expected: usize },
+    #[error("the detected grid has {found} corners, more than the board's {expected}, and no single whole board in it (check the declared board size)")]
+    Extra { found: usize, expected: usize },
     #[error("the board's orientation is ambiguous (inner corners {cols}×{rows}: cols + rows must be odd)")]
     Symmetric { cols: usize, rows: usize },
     #[error("no grid labelling is consistent with the board's handedness and square colours")]
@@ -64,27 +66,42 @@ pub fn detect_chessboard(
     let det = detect::detect_chessboard_best(&img, &cfg, &ChessboardParams::sweep_default())
         .map_err(|_| DetectError::NotFound)?;
     let expected = board.cols * board.rows;
+    let mut corners = det.corners;
+    if corners.len() > expected {
+        // The detector's grid reaches past the board (a corner found on the board's margin or
+        // on the background): keep the one whole board-sized window in it, if there is one.
+        let cells: Vec<(i32, i32)> = corners.iter().map(|c| (c.grid.u, c.grid.v)).collect();
+        match whole_board_window(&cells, board) {
+            Some((u0, v0, w, h)) => corners
+                .retain(|c| (u0..u0 + w).contains(&c.grid.u) && (v0..v0 + h).contains(&c.grid.v)),
+            None => {
+                return Err(DetectError::Extra {
+                    found: corners.len(),
+                    expected,
+                })
+            }
+        }
+    }
     let (mut gw, mut gh) = (0i32, 0i32);
     let (mut mu, mut mv) = (i32::MAX, i32::MAX);
-    for c in &det.corners {
+    for c in &corners {
         mu = mu.min(c.grid.u);
         mv = mv.min(c.grid.v);
     }
-    for c in &det.corners {
+    for c in &corners {
         gw = gw.max(c.grid.u - mu + 1);
         gh = gh.max(c.grid.v - mv + 1);
     }
-    if det.corners.len() != expected
+    if corners.len() != expected
         || !((gw as usize == board.cols && gh as usize == board.rows)
             || (gw as usize == board.rows && gh as usize == board.cols))
     {
         return Err(DetectError::Partial {
-            found: det.corners.len(),
+            found: corners.len(),
             expected,
         });
     }
-    let grid: Vec<((usize, usize), [f64; 2])> = det
-        .corners
+    let grid: Vec<((usize, usize), [f64; 2])> = corners
         .iter()
         .map(|c| {
             (
@@ -113,6 +130,38 @@ pub fn detect_chessboard(
         super::subpix::refine(data, width, height, &mut out, &radius);
     }
     Ok(out)
+}
+
+/// The one window of the board's size (`cols × rows`, either way round) whose every cell is in
+/// `cells` (grid coordinates): `(u0, v0, width, height)`. `None` when there is none or more
+/// than one (which corners are the board's would be a guess).
+fn whole_board_window(cells: &[(i32, i32)], board: &BoardSpec) -> Option<(i32, i32, i32, i32)> {
+    if cells.is_empty() {
+        return None;
+    }
+    let set: std::collections::HashSet<(i32, i32)> = cells.iter().copied().collect();
+    let (u_min, u_max) = cells
+        .iter()
+        .fold((i32::MAX, i32::MIN), |a, c| (a.0.min(c.0), a.1.max(c.0)));
+    let (v_min, v_max) = cells
+        .iter()
+        .fold((i32::MAX, i32::MIN), |a, c| (a.0.min(c.1), a.1.max(c.1)));
+    let (c, r) = (board.cols as i32, board.rows as i32);
+    let mut sizes = vec![(c, r)];
+    if c != r {
+        sizes.push((r, c));
+    }
+    let mut found = vec![];
+    for (w, h) in sizes {
+        for u0 in u_min..=u_max - w + 1 {
+            for v0 in v_min..=v_max - h + 1 {
+                if (u0..u0 + w).all(|u| (v0..v0 + h).all(|v| set.contains(&(u, v)))) {
+                    found.push((u0, v0, w, h));
+                }
+            }
+        }
+    }
+    (found.len() == 1).then(|| found[0])
 }
 
 /// Sub-pixel window radius as a fraction of the corner spacing on a plain chessboard
@@ -288,6 +337,33 @@ pub fn label(
 #[cfg(test)]
 mod marker_tests {
     use super::*;
+
+    /// A detector grid one corner larger than the board (OpenCV's `left12.jpg`: 55 corners
+    /// for a 9×6 board) keeps the one whole board in it; a grid a whole column larger holds
+    /// two boards and is refused.
+    #[test]
+    fn whole_board_window_drops_an_extra_corner_only_when_unambiguous() {
+        let board = BoardSpec {
+            cols: 9,
+            rows: 6,
+            square_mm: 1.0,
+        };
+        let full = |w: i32, h: i32| -> Vec<(i32, i32)> {
+            (0..w).flat_map(|u| (0..h).map(move |v| (u, v))).collect()
+        };
+        let mut cells = full(9, 6);
+        cells.push((9, 2));
+        assert_eq!(whole_board_window(&cells, &board), Some((0, 0, 9, 6)));
+        // Turned a quarter: 6 wide, 9 high, one extra above.
+        let mut cells: Vec<(i32, i32)> = full(6, 9)
+            .into_iter()
+            .map(|(u, v)| (u + 3, v + 1))
+            .collect();
+        cells.push((4, 0));
+        assert_eq!(whole_board_window(&cells, &board), Some((3, 1, 6, 9)));
+        assert_eq!(whole_board_window(&full(10, 6), &board), None);
+        assert_eq!(whole_board_window(&full(8, 6), &board), None);
+    }
 
     /// An axis-aligned board of `cols × rows` inner corners, squares of `s` px from `(x0, y0)`,
     /// supersampled 4×4 per pixel; `marker` (largest fraction of the square) prints a

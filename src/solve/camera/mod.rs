@@ -23,6 +23,7 @@ pub mod data;
 pub mod detect;
 pub mod geom;
 pub mod handeye;
+pub mod intrinsics;
 pub mod posenoise;
 pub mod problem;
 pub mod realeval;
@@ -214,6 +215,10 @@ pub struct CameraResult {
     pub candidates: Vec<Estimate>,
     /// The robot's pose noise the data imply: rotation deg, translation mm (1σ per axis).
     pub pose_noise: Option<(f64, f64)>,
+    /// The board scale (printed / declared square size) the robot's motion implies, in closed
+    /// form from the board-only camera poses (NaN when it cannot be computed); evidence the
+    /// diagnosis shows beside its fitted `target_scale`.
+    pub implied_scale: f64,
 }
 
 fn obs_of(views: &[View], board: &detect::BoardSpec) -> Vec<Obs> {
@@ -560,6 +565,38 @@ fn target_from(g: &[Isometry3<f64>], x: &Isometry3<f64>, t: &[Isometry3<f64>]) -
     geom::mean_pose(&all)
 }
 
+/// Zhang's closed form from one homography per view (`per_view`: each view's corners), with
+/// a centred-principal-point fallback when the full form is implausible: the camera matrix
+/// and the distortion-free intrinsics.
+fn zhang_start(
+    data: &CameraData,
+    per_view: &[Vec<Obs>],
+) -> Result<(Matrix3<f64>, Intrinsics), CameraError> {
+    let hs: Vec<Matrix3<f64>> = per_view.iter().filter_map(|o| view_h(o)).collect();
+    let (w, h) = (data.width as f64, data.height as f64);
+    let (cx0, cy0) = (w / 2.0 - 0.5, h / 2.0 - 0.5);
+    let plausible = |k: &Matrix3<f64>| {
+        let f = (k[(0, 0)] * k[(1, 1)]).sqrt();
+        f > 0.1 * w
+            && f < 20.0 * w
+            && (k[(0, 0)] / k[(1, 1)] - 1.0).abs() < 0.2
+            && (k[(0, 2)] - cx0).abs() < 0.3 * w
+            && (k[(1, 2)] - cy0).abs() < 0.3 * h
+    };
+    let k0m = zhang::zhang_k(&hs, cx0, cy0, w)
+        .filter(plausible)
+        .or_else(|| zhang::focal_centered(&hs, cx0, cy0))
+        .ok_or_else(|| CameraError::Intrinsics("no focal length fits the homographies".into()))?;
+    let k0 = Intrinsics {
+        fx: k0m[(0, 0)],
+        fy: k0m[(1, 1)],
+        cx: k0m[(0, 2)],
+        cy: k0m[(1, 2)],
+        dist: [0.0; 5],
+    };
+    Ok((k0m, k0))
+}
+
 /// Calibrate intrinsics and hand-eye (see the module docs).
 pub fn calibrate(
     train: &CameraData,
@@ -588,30 +625,7 @@ pub fn calibrate(
         .iter()
         .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
         .collect();
-    let hs: Vec<Matrix3<f64>> = per_view.iter().filter_map(|o| view_h(o)).collect();
-    let (cx0, cy0) = (
-        train.width as f64 / 2.0 - 0.5,
-        train.height as f64 / 2.0 - 0.5,
-    );
-    let plausible = |k: &Matrix3<f64>| {
-        let f = (k[(0, 0)] * k[(1, 1)]).sqrt();
-        f > 0.1 * train.width as f64
-            && f < 20.0 * train.width as f64
-            && (k[(0, 0)] / k[(1, 1)] - 1.0).abs() < 0.2
-            && (k[(0, 2)] - cx0).abs() < 0.3 * train.width as f64
-            && (k[(1, 2)] - cy0).abs() < 0.3 * train.height as f64
-    };
-    let k0m = zhang::zhang_k(&hs, cx0, cy0, train.width as f64)
-        .filter(plausible)
-        .or_else(|| zhang::focal_centered(&hs, cx0, cy0))
-        .ok_or_else(|| CameraError::Intrinsics("no focal length fits the homographies".into()))?;
-    let k0 = Intrinsics {
-        fx: k0m[(0, 0)],
-        fy: k0m[(1, 1)],
-        cx: k0m[(0, 2)],
-        cy: k0m[(1, 2)],
-        dist: [0.0; 5],
-    };
+    let (k0m, k0) = zhang_start(train, &per_view)?;
     // 2. Intrinsics on up to 20 spread views, model by validation on the others.
     let n = views.len();
     let nsub = n.min(20);
@@ -810,7 +824,8 @@ pub fn calibrate(
     })?;
     // A square size a little off (31 mm for a 30 mm board) passes the 5 % check above but
     // shifts the focal length and the hand-eye translation by as much: warn from 1 % on.
-    let s = implied_board_scale(&g, &best.x.rotation, &t_list);
+    let implied_scale = implied_board_scale(&g, &best.x.rotation, &t_list);
+    let s = implied_scale;
     if s.is_finite() && s > 0.0 && (s - 1.0).abs() > 0.01 {
         tracing::warn!(
             "the robot's motion says the board squares are {:.3} mm, not the declared {:.3} mm \
@@ -860,6 +875,7 @@ pub fn calibrate(
         for c in [
             select::Candidate::MlBoardIntrinsics,
             select::Candidate::PoseNoise,
+            select::Candidate::PoseNoiseFull,
         ] {
             if let Some(f) = ctx.fit(c, &all) {
                 pose_noise = pose_noise.or(f.pose_noise);
@@ -948,6 +964,7 @@ pub fn calibrate(
         cv_scores,
         candidates,
         pose_noise,
+        implied_scale,
     })
 }
 

@@ -27,6 +27,9 @@ pub enum Candidate {
     MlBoardIntrinsics,
     /// X and target with the robot's pose noise estimated ([`super::posenoise`]).
     PoseNoise,
+    /// As [`Candidate::PoseNoise`] with the full 6×6 pose-noise covariance
+    /// ([`posenoise::fit_full`]).
+    PoseNoiseFull,
     /// [`Candidate::MlBoardIntrinsics`] refitted without the views whose reprojection RMS is
     /// beyond 2.5× the median (a flange pose wrong far beyond the arm's usual error).
     MlTrimmed,
@@ -39,6 +42,7 @@ impl Candidate {
             Candidate::Ml,
             Candidate::MlBoardIntrinsics,
             Candidate::PoseNoise,
+            Candidate::PoseNoiseFull,
             Candidate::MlTrimmed,
         ]);
         v
@@ -49,6 +53,7 @@ impl Candidate {
             Candidate::Ml => "ml".into(),
             Candidate::MlBoardIntrinsics => "ml (board-only intrinsics)".into(),
             Candidate::PoseNoise => "ml (robot pose noise)".into(),
+            Candidate::PoseNoiseFull => "ml (robot pose noise, full covariance)".into(),
             Candidate::MlTrimmed => "ml (board-only intrinsics, outlier poses out)".into(),
         }
     }
@@ -153,8 +158,12 @@ impl Ctx<'_> {
                 }
                 self.fit(Candidate::MlBoardIntrinsics, &keep)
             }
-            Candidate::PoseNoise => {
-                let f = posenoise::fit(&g, &t, &self.x0, &self.b0)?;
+            Candidate::PoseNoise | Candidate::PoseNoiseFull => {
+                let f = if c == Candidate::PoseNoise {
+                    posenoise::fit(&g, &t, &self.x0, &self.b0)?
+                } else {
+                    posenoise::fit_full(&g, &t, &self.x0, &self.b0)?
+                };
                 let sd = |i: usize| f.cov[(i, i)].max(0.0).sqrt();
                 Some(Fit {
                     sd_mm: [sd(3), sd(4), sd(5)],
