@@ -335,7 +335,7 @@ mod tests {
         (0..n)
             .map(|i| {
                 let a = i as f64 * 0.37;
-                let tilt = cone_deg.to_radians() * (0.5 + 0.5 * (i as f64 * 0.05).sin());
+                let tilt = cone_deg.to_radians() * (0.75 + 0.25 * (i as f64 * 0.05).sin());
                 let axis = Vector3::new(a.cos(), a.sin(), 0.0);
                 let r = UnitQuaternion::from_scaled_axis(axis * tilt);
                 ToolFrame {
