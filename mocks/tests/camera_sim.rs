@@ -521,7 +521,9 @@ async fn mid_stream_faults() {
     let (mut r, b) = open().await;
     ctl.inject(CAM, Fault::Truncated);
     let mut truncated = None;
-    for _ in 0..5 {
+    // Parts already in flight when the fault is injected arrive whole (more of them on a loaded
+    // machine): look further than the next few.
+    for _ in 0..40 {
         let p = r.part(&b).await.unwrap();
         if p.body.len() < p.content_length {
             truncated = Some(p);
