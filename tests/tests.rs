@@ -28,6 +28,7 @@ mod pivot;
 mod plan;
 mod rcm;
 mod rcm_images;
+mod rcm_session;
 mod real_handeye;
 mod realcam_io;
 mod report;

@@ -116,9 +116,31 @@ pub fn describe_scenario(
             tracker_rate_hz: t.map(|t| t.rate_hz),
             settle_s: Some(a.motion.settle_s),
             camera,
+            endoscope: endoscope(&one),
         },
         one,
     ))
+}
+
+/// An RCM cell's stated endoscope (a camera fixed in the base: its intrinsics as the
+/// endoscope's own prior calibration) and instrument shaft, when the scene has an instrument.
+fn endoscope(sc: &Scenario) -> Option<session::rcm::EndoscopeCell> {
+    let inst = sc.scene.instrument.as_ref()?;
+    let c = sc.cameras.iter().find(|c| c.arm.is_none())?;
+    Some(session::rcm::EndoscopeCell {
+        name: c.name.clone(),
+        camera: crate::dataset::endoscope::EndoscopeCamera {
+            kind: "endoscope".into(),
+            width: c.width,
+            height: c.height,
+            fx: c.fx,
+            fy: c.fy,
+            cx: c.cx,
+            cy: c.cy,
+            dist: [c.k1, c.k2, 0.0, 0.0, 0.0],
+        },
+        shaft_radius_mm: inst.radius_mm,
+    })
 }
 
 fn protocol_name<T: serde::Serialize>(p: &T) -> String {

@@ -99,10 +99,11 @@ pub struct Args {
     /// Do not record the session in the fleet history.
     #[arg(long, conflicts_with = "history")]
     pub no_history: bool,
-    /// What the session calibrates: `kinematic` (tracker), `camera` (board images) or `laser`
-    /// (range sensor on calibration planes, seed 000) [default: from the cell: kinematic with a
-    /// tracker, else camera].
-    #[arg(long, value_name = "KIND", value_parser = ["kinematic", "camera", "laser"])]
+    /// What the session calibrates: `kinematic` (tracker), `camera` (board images), `laser`
+    /// (range sensor on calibration planes, seed 000) or `rcm` (endoscope hand-eye from an
+    /// instrument pivoting about a trocar, seed 002) [default: from the cell: kinematic with a
+    /// tracker, else rcm with an instrument and a fixed camera, else camera].
+    #[arg(long, value_name = "KIND", value_parser = ["kinematic", "camera", "laser", "rcm"])]
     pub kind: Option<String>,
     /// Laser sessions: the arm's kinematic calibration of the same visit (a kinematic
     /// session's `deploy/calibration.json`): the laser spots go through the identified arm.
@@ -178,6 +179,7 @@ fn session_kind_name(k: SessionKind) -> &'static str {
         SessionKind::Kinematic => "kinematic",
         SessionKind::Camera => "camera",
         SessionKind::Laser => "laser",
+        SessionKind::Rcm => "rcm",
     }
 }
 
@@ -268,7 +270,10 @@ impl session::Cell for RunCell {
             in_process: self.in_process,
             // Camera sessions plan camera viewpoints (a shell): the run records an image per
             // pose by default; kinematic sessions never use the camera.
-            camera: if !resume && self.kind != SessionKind::Camera {
+            camera: if !resume && self.kind == SessionKind::Rcm {
+                // An endoscope image at every RCM pose.
+                crate::cell::CameraUse::Always
+            } else if !resume && self.kind != SessionKind::Camera {
                 crate::cell::CameraUse::Never
             } else {
                 crate::cell::CameraUse::Auto
@@ -312,6 +317,20 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                 one.trackers.clear();
                 one.cameras.clear();
                 SessionKind::Laser
+            } else if a.kind.as_deref() == Some("rcm")
+                || (a.kind.is_none() && one.trackers.is_empty() && cell.endoscope.is_some())
+            {
+                if cell.endoscope.is_none() {
+                    bail!(
+                        "{}: an RCM session needs an instrument (`[scene.instrument]`) and a \
+                         camera fixed in the base (the endoscope)",
+                        s.display()
+                    );
+                }
+                // The RCM session records images only.
+                one.trackers.clear();
+                one.lasers.clear();
+                SessionKind::Rcm
             } else if !one.trackers.is_empty() {
                 SessionKind::Kinematic
             } else if !one.cameras.is_empty() {
@@ -352,6 +371,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
     };
     let camera = kind == SessionKind::Camera;
     let laser = kind == SessionKind::Laser;
+    let rcm = kind == SessionKind::Rcm;
     if let Some(k) = a
         .kind
         .as_deref()
@@ -373,6 +393,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
         }
         None if camera => AcceptSpec::from_toml_str(CAMERA_ACCEPT, "accept/camera.toml")?,
         None if laser => AcceptSpec::from_toml_str(session::laser::ACCEPT, "accept/laser.toml")?,
+        None if rcm => AcceptSpec::from_toml_str(session::rcm::ACCEPT, "accept/rcm.toml")?,
         None => AcceptSpec::default_surgical(),
     };
     // Every motion option against the cell's own limits before anything is created (a NaN
@@ -406,6 +427,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
                 )
             })?,
         None if laser => session::laser::SPEC.to_string(),
+        None if rcm => session::rcm::SPEC.to_string(),
         None => DEFAULT_SPEC.to_string(),
     };
     let spec_name = a
@@ -420,6 +442,9 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
             .with_context(|| format!("plan spec {spec_name}"))?;
         if camera {
             session::camera::check_spec(&spec, &spec_name)?;
+        }
+        if rcm && spec.rcm.is_none() {
+            bail!("plan spec {spec_name}: an RCM session needs an [rcm] table (see plans/seed002-rcm.toml)");
         }
     }
     // The arm's calibration is read (and checked against the cell's robot) before anything
@@ -436,9 +461,15 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
             );
         }
     }
-    let poses = a.poses.unwrap_or(if camera { 24 } else { 120 });
-    let heldout_points = a.heldout_points.unwrap_or(if camera { 12 } else { 40 });
-    if camera {
+    let poses = a.poses.unwrap_or(if camera || rcm { 24 } else { 120 });
+    let heldout_points = a
+        .heldout_points
+        .unwrap_or(if camera || rcm { 12 } else { 40 });
+    if rcm {
+        if poses < 6 || heldout_points < 4 {
+            bail!("RCM session: --poses must be ≥ 6 and --heldout-points ≥ 4 (views)");
+        }
+    } else if camera {
         if poses < 6 || heldout_points < 3 {
             bail!("camera session: --poses must be ≥ 6 and --heldout-points ≥ 3 (views)");
         }
@@ -725,6 +756,10 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
             );
         } else if let Some(l) = &s.laser {
             for line in session::laser::lines(l, &s.measured) {
+                println!("{line}");
+            }
+        } else if let Some(r) = &s.rcm {
+            for line in session::rcm::lines(r, &s.measured) {
                 println!("{line}");
             }
         } else {

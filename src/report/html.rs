@@ -276,6 +276,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     if let Some(l) = &s.laser {
         h.push_str(&crate::session::laser::html(l, &s.measured));
     }
+    if let Some(r) = &s.rcm {
+        h.push_str(&crate::session::rcm::html(r, &s.measured));
+    }
     // Effects.
     h.push_str("<h2>What the diagnosis found</h2>");
     if s.effects.is_empty() {

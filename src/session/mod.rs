@@ -21,6 +21,7 @@ pub mod deploy;
 pub mod deploy_score;
 pub mod history;
 pub mod laser;
+pub mod rcm;
 pub mod svg;
 pub mod verify;
 
@@ -108,6 +109,9 @@ pub struct CellDescription {
     /// The camera and its board, for a camera session.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<camera::CameraCell>,
+    /// The endoscope (intrinsics) and the instrument's shaft, for an RCM session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub endoscope: Option<rcm::EndoscopeCell>,
 }
 
 /// How the session was started (everything `--resume` needs).
@@ -152,6 +156,9 @@ pub enum SessionKind {
     Camera,
     /// A laser range sensor's beam on the flange from calibration planes (seed 000).
     Laser,
+    /// An endoscope's hand-eye from the images of an instrument pivoting about a trocar
+    /// (seed 002).
+    Rcm,
 }
 
 /// One dataset of the session and its SHA-256.
@@ -280,6 +287,9 @@ pub struct SessionFile {
     /// seed's figures beside ours.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub laser: Option<laser::LaserSummary>,
+    /// RCM sessions: the endoscope hand-eye, held-out silhouettes, the detector's refusals.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm: Option<rcm::RcmSummary>,
 }
 
 impl SessionFile {
@@ -469,6 +479,7 @@ pub fn create(
         camera: None,
         verify: None,
         laser: None,
+        rcm: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -546,6 +557,9 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     let mut s = SessionFile::load(&path)?;
     if s.setup.kind == SessionKind::Laser {
         return laser::run(dir, s, cell, log);
+    }
+    if s.setup.kind == SessionKind::Rcm {
+        return rcm::run(dir, s, cell, log);
     }
     let mut work = Work::default();
     let step = |s: &mut SessionFile, st: Stage| stage_done(dir, s, st);
