@@ -227,6 +227,8 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         s.duration_s.map_or("—".into(), |d| format!("{d:.0} s")),
         if s.camera.is_some() {
             "views (with a board)"
+        } else if s.rcm.is_some() {
+            "endoscope views (lines detected)"
         } else {
             "poses"
         },
@@ -240,6 +242,12 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
                 m.heldout_reprojection_px_before,
                 m.heldout_reprojection_px_after
             ),
+        );
+    } else if s.rcm.is_some() {
+        let _ = write!(
+            h,
+            "<tr><th>held-out silhouette RMS (px), seed 002 two-step → ML</th><td>{}</td></tr>",
+            ba(m.rcm_heldout_px_before, m.rcm_heldout_px_after),
         );
     } else {
         let _ = write!(

@@ -365,16 +365,8 @@ pub fn run(
         validate_stage(dir, &mut s, &mut *log)?;
         stage_done(dir, &mut s, Stage::Validate)?;
     }
-    if !s.done(Stage::Verify) {
-        // Nothing is commanded with the beam: the held-out targets are the verification.
-        stage_done(dir, &mut s, Stage::Verify)?;
-    }
-    if !s.done(Stage::Report) {
-        stage_done(dir, &mut s, Stage::Report)?;
-        let html = crate::report::html::render_session(dir, &s)?;
-        write_atomic(&dir.join("report.html"), html.as_bytes())?;
-        s.save(&dir.join("session.json"))?;
-    }
+    // Nothing is commanded with the beam: the held-out targets are the verification.
+    super::close_without_verify(dir, &mut s)?;
     Ok(s)
 }
 

@@ -624,6 +624,21 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     Ok(s)
 }
 
+/// The last stages of a session whose held-out data are its verification (laser, RCM):
+/// `verify` commands nothing; `report` writes `report.html`.
+pub(crate) fn close_without_verify(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
+    if !s.done(Stage::Verify) {
+        stage_done(dir, s, Stage::Verify)?;
+    }
+    if !s.done(Stage::Report) {
+        stage_done(dir, s, Stage::Report)?;
+        let html = crate::report::html::render_session(dir, s)?;
+        write_atomic(&dir.join("report.html"), html.as_bytes())?;
+        s.save(&dir.join("session.json"))?;
+    }
+    Ok(())
+}
+
 /// Acquire (or resume) the plan `plan/{set}.json` into `run-{set}/` and record the dataset as
 /// role `set` in the session (skips, duration, SHA-256). Does not mark a stage done.
 pub(crate) fn acquire_set(

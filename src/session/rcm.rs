@@ -254,16 +254,8 @@ pub fn run(
         validate_stage(dir, &mut s, &mut *log)?;
         stage_done(dir, &mut s, Stage::Validate)?;
     }
-    if !s.done(Stage::Verify) {
-        // Nothing is commanded with the camera: the held-out views are the verification.
-        stage_done(dir, &mut s, Stage::Verify)?;
-    }
-    if !s.done(Stage::Report) {
-        stage_done(dir, &mut s, Stage::Report)?;
-        let html = crate::report::html::render_session(dir, &s)?;
-        write_atomic(&dir.join("report.html"), html.as_bytes())?;
-        s.save(&dir.join("session.json"))?;
-    }
+    // Nothing is commanded with the camera: the held-out views are the verification.
+    super::close_without_verify(dir, &mut s)?;
     Ok(s)
 }
 
@@ -476,21 +468,19 @@ pub fn html(r: &RcmSummary, m: &super::Measured) -> String {
         f(m.rcm_heldout_px_before),
         f(m.rcm_heldout_px_after)
     ));
-    out.push_str(&format!(
-        "<table id=\"rcm-hand-eye\"><tr><th></th><th>x</th><th>y</th><th>z</th></tr>\
-         <tr><td>endoscope in base (mm)</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td></tr>\
-         <tr><td>1σ (mm, bootstrap)</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td></tr>\
-         <tr><td>1σ rotation (deg)</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr></table>",
-        h.xyz_mm[0],
-        h.xyz_mm[1],
-        h.xyz_mm[2],
-        h.std_mm[0],
-        h.std_mm[1],
-        h.std_mm[2],
-        h.std_deg[0],
-        h.std_deg[1],
-        h.std_deg[2]
-    ));
+    out.push_str("<table id=\"rcm-hand-eye\"><tr><th></th><th>x</th><th>y</th><th>z</th></tr>");
+    for (what, v, digits) in [
+        ("endoscope in base (mm)", h.xyz_mm, 3),
+        ("1σ (mm, bootstrap)", h.std_mm, 3),
+        ("1σ rotation (deg)", h.std_deg, 4),
+    ] {
+        out.push_str(&format!("<tr><td>{what}</td>"));
+        for x in v {
+            out.push_str(&format!("<td>{x:.digits$}</td>"));
+        }
+        out.push_str("</tr>");
+    }
+    out.push_str("</table>");
     out.push_str(&format!(
         "<p id=\"rcm-check\">Seed two-step → ML moved {:.3} mm / {:.4}°. {}</p>",
         r.seed_to_ml[0],
