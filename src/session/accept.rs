@@ -197,7 +197,7 @@ impl AcceptSpec {
             return Err(invalid(
                 "session",
                 "missing: name the kind of session this spec judges, `session = \"kinematic\"` \
-                 (tracker, mm), `session = \"camera\"` (board images, px) or `session = \
+                 (tracker, mm), `session = \"camera\"` (board images, px), `session = \
                  \"laser\"` (range sensor on planes, mm) or `session = \"rcm\"` (endoscope \
                  under a trocar, px)"
                     .into(),
