@@ -74,8 +74,9 @@ pub struct RcmSummary {
     pub views_heldout: usize,
     /// Views the line detector refused (either set), with the reason.
     pub refused: Vec<String>,
-    /// The detector's end-point 1-σ over the training views (px): median, worst.
-    pub detector_sigma_px: [f64; 2],
+    /// The detector's end-point 1-σ over the training views (px): median, worst (none when
+    /// the lines came with the dataset instead of from images).
+    pub detector_sigma_px: Option<[f64; 2]>,
     /// RMS end-point distance of the training fit (px).
     pub train_rms_px: f64,
     /// Held-out RMS end-point distance (px): seed 002's two-step hand-eye, the ML hand-eye.
@@ -374,10 +375,12 @@ fn validate_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
         views_train: train.obs.len(),
         views_heldout: val.obs.len(),
         refused: train.refused.iter().chain(&val.refused).cloned().collect(),
-        detector_sigma_px: [
-            crate::solve::stats::quantile(&q, 0.5),
-            q.iter().fold(0.0f64, |a, b| a.max(*b)),
-        ],
+        detector_sigma_px: (!q.is_empty()).then(|| {
+            [
+                crate::solve::stats::quantile(&q, 0.5),
+                q.iter().fold(0.0f64, |a, b| a.max(*b)),
+            ]
+        }),
         train_rms_px: res.ml.rms_px,
         heldout_rms_px_seed: before,
         heldout_rms_px_ml: after,
@@ -446,13 +449,13 @@ pub fn html(r: &RcmSummary, m: &super::Measured) -> String {
     let mut out = format!(
         "<h2>Endoscope hand-eye under an RCM (seed 002)</h2><p id=\"rcm\">{} training and {} \
          held-out endoscope views; the shaft's two silhouette lines detected in each image \
-         (end-point 1-σ median {:.3} px, worst {:.3} px); {} views refused by the detector. \
+         (end-point 1-σ median, worst: {} px); {} views refused by the detector. \
          The RCM is at ({:.2}, {:.2}, {:.2}) mm in the base (instrument axes {:.3} mm RMS from \
          it).</p>",
         r.views_train,
         r.views_heldout,
-        r.detector_sigma_px[0],
-        r.detector_sigma_px[1],
+        r.detector_sigma_px
+            .map_or("—".into(), |d| format!("{:.3}, {:.3}", d[0], d[1])),
         r.refused.len(),
         r.rcm_base_mm[0],
         r.rcm_base_mm[1],
@@ -503,4 +506,81 @@ pub fn html(r: &RcmSummary, m: &super::Measured) -> String {
     }
     out.push('\n');
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solve::rcm::lines::{FittedLine, ShaftLines};
+
+    fn line(rms_px: f64) -> FittedLine {
+        FittedLine {
+            seg: [0.0, 0.0, 100.0, 100.0],
+            n_points: 100,
+            rms_px,
+            length_px: 141.0,
+            run_px: 141.0,
+            sigma_px: 2.0 * rms_px / 10.0,
+            contrast: 20.0,
+            polarity: 1.0,
+            abc: [0.0; 3],
+        }
+    }
+
+    fn data(rms: &[[f64; 2]]) -> RcmData {
+        let cam = EndoscopeCamera {
+            kind: "endoscope".into(),
+            width: 640,
+            height: 480,
+            fx: 500.0,
+            fy: 500.0,
+            cx: 320.0,
+            cy: 240.0,
+            dist: [0.0; 5],
+        };
+        let obs = (0..rms.len() as u64)
+            .map(|id| RcmObs {
+                id,
+                line: id as usize + 2,
+                flange: Isometry3::identity(),
+                segs: [[0.0, 0.0, 100.0, 100.0], [10.0, 0.0, 110.0, 100.0]],
+            })
+            .collect();
+        let mut d = RcmData::new(cam, 4.0, obs);
+        d.detected = rms
+            .iter()
+            .enumerate()
+            .map(|(id, r)| {
+                (
+                    id as u64,
+                    ShaftLines {
+                        lines: [line(r[0]), line(r[1])],
+                        candidates: 2,
+                        edge_points: 200,
+                    },
+                )
+            })
+            .collect();
+        d
+    }
+
+    /// A view whose line fits its points far worse than the set's lines is refused (named,
+    /// with the reason); a set of equally good lines keeps every view.
+    #[test]
+    fn a_badly_fitted_line_refuses_its_view_and_only_it() {
+        let mut d = data(&[[0.10, 0.12], [0.11, 0.13], [0.12, 0.54], [0.13, 0.10]]);
+        screen_lines(&mut d, "validation");
+        let ids: Vec<u64> = d.obs.iter().map(|o| o.id).collect();
+        assert_eq!(ids, [0, 1, 3]);
+        assert_eq!(d.detected.len(), 3);
+        assert_eq!(d.refused.len(), 1);
+        assert!(
+            d.refused[0].contains("validation pose 2"),
+            "{:?}",
+            d.refused
+        );
+        let mut d = data(&[[0.25, 0.29], [0.11, 0.13], [0.12, 0.14], [0.13, 0.10]]);
+        screen_lines(&mut d, "train");
+        assert_eq!(d.obs.len(), 4, "{:?}", d.refused);
+    }
 }
