@@ -70,11 +70,12 @@ pub struct Args {
     #[arg(long, value_name = "NAME")]
     pub arm: Option<String>,
     /// Training poses kept (greedy D-optimal selection); camera cells: training viewpoints
-    /// on the seed 004 shell [default: 120; camera cells 24].
+    /// on the seed 004 shell; RCM cells: pivots about the trocar [default: 120; camera and RCM
+    /// cells 24].
     #[arg(long)]
     pub poses: Option<usize>,
     /// Held-out validation points (separate plan, another seed); camera cells: held-out
-    /// viewpoints [default: 40; camera cells 12].
+    /// viewpoints; RCM cells: held-out pivots [default: 40; camera and RCM cells 12].
     #[arg(long)]
     pub heldout_points: Option<usize>,
     /// Tracker frames averaged per pose.
