@@ -87,6 +87,16 @@ fn rcm_session_runs_end_to_end_and_passes() {
     // The report shows the RCM section.
     let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
     assert!(html.contains("rcm-heldout"), "no RCM section in the report");
+    // `robocal report --dir` headlines the RCM held-out figure (issue 29: was "not available").
+    let g = robocal::report::gather(dir).unwrap();
+    let h = g.headline();
+    assert_eq!((h.before_px, h.after_px), (Some(b), Some(a)));
+    let line = g.headline_text();
+    println!("report --dir headline: {line}");
+    assert!(
+        line.contains("held-out silhouette error") && !line.contains("not available"),
+        "{line}"
+    );
 }
 
 /// Scored against the simulator's truth (here only): the deployed hand-eye is the scenario's

@@ -65,6 +65,9 @@ pub struct Session {
     /// Navigation-chain and RCM files (`registration.json`, `robot_world.json`, `chain.json`,
     /// `rcm_report.json`): JSON objects shown by their scalar figures.
     pub navigation: Vec<Found<Value>>,
+    /// `session.json` files of `robocal session` (JSON objects; the RCM session's held-out
+    /// silhouette figures are read from their `measured` block).
+    pub session_files: Vec<Found<Value>>,
     /// SVG plots: relative path and content.
     pub plots: Vec<(String, String)>,
     /// Files that could not be read or parsed.
@@ -150,6 +153,7 @@ pub fn gather(dir: &Path) -> anyhow::Result<Session> {
         let w = &mut s.warnings;
         match name.as_str() {
             "summary.json" => take(&p, &rel, &mut s.runs, w),
+            "session.json" => take_json(&p, &rel, &mut s.session_files, w),
             "calibration.json" => take(&p, &rel, &mut s.calibrations, w),
             "diagnosis.json" => take(&p, &rel, &mut s.diagnoses, w),
             "laser_report.json" => take(&p, &rel, &mut s.laser_reports, w),
@@ -212,6 +216,8 @@ pub struct Headline {
     /// `diagnosis.json`.
     pub before_px: Option<f64>,
     pub after_px: Option<f64>,
+    /// What the px figures measure: "reprojection" (camera) or "silhouette" (RCM endoscope).
+    pub px_what: &'static str,
     /// Effects found by the diagnoses (labels, every sensor), sorted.
     pub effects: Vec<String>,
     /// Poses skipped during acquisition (None without a run summary).
@@ -273,6 +279,23 @@ impl Session {
                 break;
             }
         }
+        // 3. an RCM session: held-out silhouette RMS, seed 002 two-step → ML hand-eye.
+        let mut px_what = "reprojection";
+        if before.is_none() && before_px.is_none() {
+            for f in &self.session_files {
+                let m = f.value.get("measured");
+                let b = num(m.and_then(|m| m.get("rcm_heldout_px_before")));
+                let a = num(m.and_then(|m| m.get("rcm_heldout_px_after")));
+                if let (Some(b), Some(a)) = (b, a) {
+                    (before_px, after_px, px_what) = (Some(b), Some(a), "silhouette");
+                    source = format!(
+                        "{} (RCM held-out silhouette, seed 002 two-step → ML hand-eye)",
+                        f.rel
+                    );
+                    break;
+                }
+            }
+        }
         let mut effects: Vec<String> = self
             .diagnoses
             .iter()
@@ -292,6 +315,7 @@ impl Session {
             source,
             before_px,
             after_px,
+            px_what,
             effects,
             skipped,
             recorded,
@@ -304,7 +328,7 @@ impl Session {
         let mut s = match (h.before_mm, h.after_mm, h.before_px, h.after_px) {
             (Some(b), Some(a), _, _) => format!("held-out error {b:.3} mm → {a:.3} mm"),
             (_, _, Some(b), Some(a)) => {
-                format!("held-out reprojection error {b:.4} px → {a:.4} px")
+                format!("held-out {} error {b:.4} px → {a:.4} px", h.px_what)
             }
             _ => "held-out error: not available".to_string(),
         };
