@@ -21,6 +21,7 @@ pub mod deploy;
 pub mod deploy_score;
 pub mod history;
 pub mod laser;
+pub mod survey;
 pub mod svg;
 pub mod verify;
 
@@ -139,6 +140,10 @@ pub struct SessionSetup {
     /// directory): the laser spots go through the identified arm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_calibration: Option<String>,
+    /// Locate the tracker and the marker with a few probe poses before planning
+    /// (`--survey`, [`survey`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub survey: bool,
 }
 
 /// What a session calibrates.
@@ -280,6 +285,9 @@ pub struct SessionFile {
     /// seed's figures beside ours.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub laser: Option<laser::LaserSummary>,
+    /// `--survey`: where the probe poses found the tracker and the marker (the plan uses it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub survey: Option<survey::SurveySummary>,
 }
 
 impl SessionFile {
@@ -324,6 +332,11 @@ pub trait Cell {
     /// Run the plan at `plan` into `run_dir`, resuming if `run_dir` already holds a run.
     /// Returns the summary of this invocation.
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary>;
+    /// The survey's probe poses ([`survey`]): as [`Cell::acquire`], but skipped poses are
+    /// expected (finding where the tracker sees is the point) and never stop the run early.
+    fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.acquire(plan, run_dir)
+    }
 }
 
 /// Write a file atomically and durably ([`crate::fsio::write_atomic`]), creating its directory.
@@ -469,6 +482,7 @@ pub fn create(
         camera: None,
         verify: None,
         laser: None,
+        survey: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -549,6 +563,9 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     }
     let mut work = Work::default();
     let step = |s: &mut SessionFile, st: Stage| stage_done(dir, s, st);
+    if s.setup.survey && !s.done(Stage::Plan) {
+        survey::run(dir, &mut s, cell, &mut *log)?;
+    }
     if !s.done(Stage::Plan) {
         log("plan: training and validation poses fitted to the cell");
         plan_stage(dir, &mut s, &mut *log)?;
