@@ -282,6 +282,12 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     }
     if let Some(c) = &s.camera {
         camera_section(&mut h, c);
+        // The held-out views: reprojection per view, residual map.
+        for p in &c.plots {
+            if let Some(svg) = inline_svg(&dir.join(p)) {
+                let _ = write!(h, "<figure class=\"plot-camera\">{svg}</figure>");
+            }
+        }
     }
     if let Some(l) = &s.laser {
         h.push_str(&crate::session::laser::html(l, &s.measured));

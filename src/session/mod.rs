@@ -17,6 +17,7 @@
 pub mod accept;
 pub mod briefing;
 pub mod camera;
+pub mod camera_plots;
 pub mod deploy;
 pub mod deploy_score;
 pub mod history;

@@ -91,8 +91,14 @@ fn tick(v: f64) -> String {
 }
 
 fn legend(s: &mut String, items: &[(&str, &str)]) {
+    // Wide enough for the longest label (about 6.2 px a character at 11 px).
+    let chars = items
+        .iter()
+        .map(|(l, _)| l.chars().count())
+        .max()
+        .unwrap_or(0);
+    let x = W - R - (20.0 + 6.2 * chars as f64).max(150.0);
     for (i, (label, colour)) in items.iter().enumerate() {
-        let x = W - R - 150.0;
         let y = T + 6.0 + 16.0 * i as f64;
         let _ = write!(
             s,
@@ -115,11 +121,10 @@ pub fn per_pose(before: &[f64], after: &[f64]) -> String {
 fn log_span(v: &[f64], ratio: f64) -> Option<(i32, i32)> {
     let pos = v.iter().copied().filter(|x| x.is_finite() && *x > 0.0);
     let (lo, hi) = pos.fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
+    // The top decade keeps room for the legend above the largest value.
     (lo.is_finite() && hi / lo > ratio).then(|| {
-        (
-            lo.log10().floor() as i32,
-            (hi.log10().ceil() as i32).max(lo.log10().floor() as i32 + 1),
-        )
+        let l = lo.log10().floor() as i32;
+        (l, ((hi.log10() + 0.4).ceil() as i32).max(l + 1))
     })
 }
 
@@ -136,12 +141,40 @@ fn frame_log(s: &mut String, title: &str, xlabel: &str, ylabel: &str, lo: i32, h
 /// axis when the errors span more than 20× (a calibration's "after" would sit on the floor
 /// of a linear one).
 pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) -> String {
+    before_after_unit(
+        title,
+        xlabel,
+        "mm",
+        "before (nominal)",
+        "after",
+        before,
+        after,
+    )
+}
+
+/// [`before_after`] in `unit`, with its own legend words.
+pub fn before_after_unit(
+    title: &str,
+    xlabel: &str,
+    unit: &str,
+    before_label: &str,
+    after_label: &str,
+    before: &[f64],
+    after: &[f64],
+) -> String {
     let n = before.len().max(1);
     let all: Vec<f64> = before.iter().chain(after).copied().collect();
     let mut s = String::new();
     let y: Box<dyn Fn(f64) -> f64> = match log_span(&all, 20.0) {
         Some((lo, hi)) => {
-            frame_log(&mut s, title, xlabel, "error (mm, log scale)", lo, hi);
+            frame_log(
+                &mut s,
+                title,
+                xlabel,
+                &format!("error ({unit}, log scale)"),
+                lo,
+                hi,
+            );
             let (a, b) = (lo as f64, hi as f64);
             Box::new(move |v: f64| {
                 let l = v.max(10f64.powf(a)).log10();
@@ -155,7 +188,7 @@ pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) ->
                     .filter(|x| x.is_finite())
                     .fold(0.0, f64::max),
             );
-            frame(&mut s, title, xlabel, "error (mm)", 0.0, ymax);
+            frame(&mut s, title, xlabel, &format!("error ({unit})"), 0.0, ymax);
             Box::new(move |v: f64| H - B - (H - B - T) * (v / ymax).clamp(0.0, 1.0))
         }
     };
@@ -175,9 +208,10 @@ pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) ->
             ya = y(*a)
         );
     }
-    let mut items = vec![("before (nominal)", "#999"), ("after", "#1f77b4")];
+    let worse = format!("{after_label}, WORSE");
+    let mut items = vec![(before_label, "#999"), (after_label, "#1f77b4")];
     if before.iter().zip(after).any(|(b, a)| a > b) {
-        items.push(("after, WORSE", "#d62728"));
+        items.push((worse.as_str(), "#d62728"));
     }
     legend(&mut s, &items);
     s.push_str("</svg>");
