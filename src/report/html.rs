@@ -150,9 +150,11 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     );
     row(&mut h, "Controller", c.controller.as_deref().unwrap_or("—"));
     row(&mut h, "Tracker", c.tracker.as_deref().unwrap_or("—"));
+    // The tracker's name in the cell file (the tracker does not report its serial number
+    // to robocal yet): not labelled a serial.
     row(
         &mut h,
-        "Tracker serial",
+        "Tracker name (cell file)",
         c.tracker_serial.as_deref().unwrap_or("—"),
     );
     row(
