@@ -110,6 +110,12 @@ pub struct Args {
     /// session's `deploy/calibration.json`): the laser spots go through the identified arm.
     #[arg(long, value_name = "CAL.json")]
     pub arm_calibration: Option<PathBuf>,
+    /// Before planning, locate the tracker (and the marker on the flange) with a few safe
+    /// probe poses that face the tracker's stated position; the plan then uses the surveyed
+    /// pose. For a device file whose `tracker_in_base` is rough or missing (kinematic
+    /// sessions; the probe poses are shown and confirmed like the plan).
+    #[arg(long, conflicts_with = "resume")]
+    pub survey: bool,
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -195,8 +201,10 @@ struct RunCell {
     yes: bool,
     /// The session directory (the briefing reads its plans).
     dir: PathBuf,
-    /// Live: the operator consented in this invocation (asked once, before the first move).
-    consented: bool,
+    /// Live: what the operator consented to in this invocation (asked before the first move
+    /// of the survey's probe poses, and again once the calibration plan is made):
+    /// `Some(true)` the calibration plan, `Some(false)` the survey only.
+    consented: Option<bool>,
     /// The accept spec's limit on skipped poses (the acquisition stops early past it).
     skipped_fraction_max: Option<f64>,
 }
@@ -206,7 +214,8 @@ impl RunCell {
     /// happen (poses left, duration, workspace, lowest flange height, speed cap, every plan
     /// warning) and ask for a typed `yes` (or take `--yes`).
     fn consent(&mut self) -> anyhow::Result<()> {
-        if self.mode != Mode::Live || self.consented {
+        let planned = self.dir.join("plan").join("train.json").is_file();
+        if self.mode != Mode::Live || self.consented == Some(planned) {
             return Ok(());
         }
         let s = session::SessionFile::load(&self.dir.join("session.json"))?;
@@ -232,7 +241,7 @@ impl RunCell {
         } else {
             eprintln!("--yes: moving the arm");
         }
-        self.consented = true;
+        self.consented = Some(planned);
         Ok(())
     }
 }
@@ -244,6 +253,23 @@ fn resume_hint(dir: &Path) -> String {
 
 impl session::Cell for RunCell {
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.run_plan(plan, run_dir, self.skipped_fraction_max)
+    }
+
+    fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.run_plan(plan, run_dir, None)
+    }
+}
+
+impl RunCell {
+    /// `robocal run`'s acquisition of `plan` into `run_dir` (consent first, when live),
+    /// stopping early once `max_skipped_fraction` of the poses are skipped.
+    fn run_plan(
+        &mut self,
+        plan: &Path,
+        run_dir: &Path,
+        max_skipped_fraction: Option<f64>,
+    ) -> anyhow::Result<RunSummary> {
         self.consent()?;
         let resume = run_dir.join("run.json").is_file();
         let live = self.mode == Mode::Live;
@@ -267,7 +293,7 @@ impl session::Cell for RunCell {
             frames: self.setup.frames,
             max_poses: None,
             // Stop early once the verdict cannot pass on skipped poses.
-            max_skipped_fraction: self.skipped_fraction_max,
+            max_skipped_fraction,
             in_process: self.in_process,
             // Camera sessions plan camera viewpoints (a shell): the run records an image per
             // pose by default; kinematic sessions never use the camera.
@@ -462,6 +488,16 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
             );
         }
     }
+    if a.survey {
+        if kind != SessionKind::Kinematic {
+            bail!(
+                "--survey locates a tracker: it is for kinematic sessions (a cell with a tracker)"
+            );
+        }
+        if mode == Mode::Live && !a.live {
+            bail!("--survey moves the arm to its probe poses: add --live");
+        }
+    }
     let poses = a.poses.unwrap_or(if camera || rcm { 24 } else { 120 });
     let heldout_points = a
         .heldout_points
@@ -493,6 +529,7 @@ fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
             .arm_calibration
             .as_ref()
             .map(|_| session::laser::ARM_CALIBRATION.to_string()),
+        survey: a.survey,
     };
     let src = cell_src;
     session::create(dir, setup, src, cell, &spec_text, accept)?;
@@ -669,8 +706,14 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         None => start(&a)?.0,
     };
     let s0 = session::SessionFile::load(&dir.join("session.json"))?;
-    let acquired = s0.stages_done.contains(&session::Stage::AcquireTrain)
-        && s0.stages_done.contains(&session::Stage::AcquireValidation);
+    // The verify stage commands the arm too.
+    let acquired = [
+        session::Stage::AcquireTrain,
+        session::Stage::AcquireValidation,
+        session::Stage::Verify,
+    ]
+    .iter()
+    .all(|st| s0.stages_done.contains(st));
     let moves = !(s0.setup.plan_only || acquired);
     match s0.setup.mode {
         Mode::Live if moves && !a.live => bail!(
@@ -693,7 +736,7 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         in_process: a.in_process,
         yes: a.yes,
         dir: dir.clone(),
-        consented: false,
+        consented: None,
         skipped_fraction_max: s0.accept.skipped_fraction_max,
     };
     let mut log = |m: &str| eprintln!("==> {m}");

@@ -10,6 +10,8 @@
 //! Numbers are shown in the files' units (mm, degrees, seconds).
 
 pub mod html;
+pub mod md_html;
+pub mod sessions;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -853,18 +855,21 @@ fn inline_svg(svg: &str) -> Option<&str> {
 }
 
 impl Session {
-    /// The report as one self-contained HTML page: the Markdown text (pre-formatted) with
-    /// every SVG plot inlined.
+    /// The report as one self-contained HTML page: the Markdown text as HTML (headings,
+    /// tables, lists) with every SVG plot inlined.
     pub fn html(&self) -> String {
         let mut h = String::new();
         h.push_str("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>robocal session report</title>\n");
-        h.push_str("<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}pre{white-space:pre-wrap;font-size:13px}h1.headline{font-size:1.3em}figure{margin:1em 0}</style>\n</head><body>\n");
+        h.push_str("<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}pre{white-space:pre-wrap;font-size:13px;background:#f6f6f6;padding:.5em}table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}code{background:#f4f4f4;padding:1px 4px}h1.headline{font-size:1.3em}figure{margin:1em 0}</style>\n</head><body>\n");
         let _ = writeln!(
             h,
             "<h1 class=\"headline\">{}</h1>",
             html_escape(&self.headline_text())
         );
-        let _ = writeln!(h, "<pre>{}</pre>", html_escape(&self.markdown()));
+        // The Markdown's own title and headline are the page's heading above.
+        let md = self.markdown();
+        let body = md.split_once("\n\n").map_or(md.as_str(), |(_, rest)| rest);
+        h.push_str(&md_html::to_html(body));
         for (rel, svg) in &self.plots {
             match inline_svg(svg) {
                 Some(s) => {

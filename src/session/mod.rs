@@ -17,11 +17,13 @@
 pub mod accept;
 pub mod briefing;
 pub mod camera;
+pub mod camera_plots;
 pub mod deploy;
 pub mod deploy_score;
 pub mod history;
 pub mod laser;
 pub mod rcm;
+pub mod survey;
 pub mod svg;
 pub mod verify;
 
@@ -143,6 +145,10 @@ pub struct SessionSetup {
     /// directory): the laser spots go through the identified arm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_calibration: Option<String>,
+    /// Locate the tracker and the marker with a few probe poses before planning
+    /// (`--survey`, [`survey`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub survey: bool,
 }
 
 /// What a session calibrates.
@@ -290,6 +296,8 @@ pub struct SessionFile {
     /// RCM sessions: the endoscope hand-eye, held-out silhouettes, the detector's refusals.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rcm: Option<rcm::RcmSummary>,
+    /// `--survey`: where the probe poses found the tracker and the marker (the plan uses it).
+    pub survey: Option<survey::SurveySummary>,
 }
 
 impl SessionFile {
@@ -334,6 +342,11 @@ pub trait Cell {
     /// Run the plan at `plan` into `run_dir`, resuming if `run_dir` already holds a run.
     /// Returns the summary of this invocation.
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary>;
+    /// The survey's probe poses ([`survey`]): as [`Cell::acquire`], but skipped poses are
+    /// expected (finding where the tracker sees is the point) and never stop the run early.
+    fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.acquire(plan, run_dir)
+    }
 }
 
 /// Write a file atomically and durably ([`crate::fsio::write_atomic`]), creating its directory.
@@ -480,6 +493,7 @@ pub fn create(
         verify: None,
         laser: None,
         rcm: None,
+        survey: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -563,6 +577,9 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     }
     let mut work = Work::default();
     let step = |s: &mut SessionFile, st: Stage| stage_done(dir, s, st);
+    if s.setup.survey && !s.done(Stage::Plan) {
+        survey::run(dir, &mut s, cell, &mut *log)?;
+    }
     if !s.done(Stage::Plan) {
         log("plan: training and validation poses fitted to the cell");
         plan_stage(dir, &mut s, &mut *log)?;
