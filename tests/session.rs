@@ -774,6 +774,21 @@ fn a_session_identifies_once_and_reads_each_dataset_once() {
     );
 }
 
+/// A default session on the shipped scenario `name` (in-process devices, no history) into `out`.
+fn default_sim_session(name: &str, out: &Path) -> (i32, String, String) {
+    let scen = root().join("mocks/scenarios").join(name);
+    let (scen, out) = (scen.to_str().unwrap(), out.to_str().unwrap());
+    robocal(&[
+        "session",
+        "--sim",
+        scen,
+        "--out",
+        out,
+        "--in-process",
+        "--no-history",
+    ])
+}
+
 /// Issue 30: the hospital cell's joint 1 has backlash, and two IK branches of one target share
 /// its angle, so the move between them is the correction alone, which the backlash it causes
 /// reverses. The verify stage reaches such a target through a back-off pose (a fixed approach
@@ -783,16 +798,7 @@ fn a_session_identifies_once_and_reads_each_dataset_once() {
 fn hospital_session_verifies_within_its_prediction_with_backlash() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s");
-    let scen = root().join("mocks/scenarios/hospital-vs060-vega.toml");
-    let (code, stdout, err) = robocal(&[
-        "session",
-        "--sim",
-        scen.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--in-process",
-        "--no-history",
-    ]);
+    let (code, stdout, err) = default_sim_session("hospital-vs060-vega.toml", &out);
     println!("{stdout}\n{err}");
     assert_eq!(code, 0, "{stdout}\n{err}");
     let s = SessionFile::load(&out.join("session.json")).unwrap();
