@@ -15,6 +15,7 @@
 //! URDF of the calibrated geometry), `report.html`.
 //! Units: mm, degrees, seconds in every file.
 pub mod accept;
+pub mod approach;
 pub mod briefing;
 pub mod camera;
 pub mod camera_plots;
