@@ -31,17 +31,37 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
         .par_iter()
         .map(|o| eval_pose(&state.model, &state.effects, &o.ctx))
         .collect();
-    for (k, (o, ev)) in obs.iter().zip(evals).enumerate() {
+    for (k, (o, ev)) in obs.iter().zip(&evals).enumerate() {
         let d = o.p - ev.pred;
         for a in 0..3 {
             r[3 * k + a] = d[a];
-            for (c, &fi) in free.iter().enumerate() {
-                j[(3 * k + a, c)] = ev.jac_model[(a, fi)];
-            }
-            for c in 0..ne {
-                j[(3 * k + a, free.len() + c)] = ev.jac_effects[(a, c)];
-            }
         }
+    }
+    // The Jacobian is column-major and may have ~1,000 columns (a round's candidates):
+    // filled a band of columns at a time (the bands in parallel), so that every write
+    // stream runs down its column instead of jumping a whole column per element.
+    const BAND: usize = 16;
+    let nrow = 3 * obs.len();
+    if nrow > 0 && p > 0 {
+        j.as_mut_slice()
+            .par_chunks_mut(nrow * BAND)
+            .enumerate()
+            .for_each(|(band, cols)| {
+                let c0 = band * BAND;
+                let nc = cols.len() / nrow;
+                for (k, ev) in evals.iter().enumerate() {
+                    for dc in 0..nc {
+                        let c = c0 + dc;
+                        for a in 0..3 {
+                            cols[dc * nrow + 3 * k + a] = if c < free.len() {
+                                ev.jac_model[(a, free[c])]
+                            } else {
+                                ev.jac_effects[(a, c - free.len())]
+                            };
+                        }
+                    }
+                }
+            });
     }
     (r, j)
 }

@@ -856,6 +856,9 @@ struct Chain {
     /// refit of the physical chain on each fold's complement, times the correction's
     /// out-of-fold ratio when a correction was added ([`chain_cv`]).
     cv_rms: f64,
+    /// The correction chosen by cross-validation and not fitted yet ([`add_correction`]):
+    /// under [`Policy::Best`] only the kept chain's is fitted ([`fit_correction`]).
+    pending: Option<nonparam::RbfCv>,
 }
 
 /// Select effects one at a time from `start` under the rules of `opt` (see the module doc).
@@ -986,6 +989,7 @@ fn select_chain(
         not_identifiable,
         nonparametric: None,
         cv_rms,
+        pending: None,
     }
 }
 
@@ -996,16 +1000,13 @@ fn select_chain(
 fn add_correction(
     chain: &mut Chain,
     train: &[PoseObs],
-    heldout: &[PoseObs],
     opt: &Options,
     geometric_cv: Option<&nonparam::RbfCv>,
 ) {
     if !opt.allow_nonparametric || train.len() < 40 {
         return;
     }
-    let state = &mut chain.state;
-    let r = residuals(state, train);
-    let (qs, rv) = np_data(state, train);
+    let (qs, rv) = np_data(&chain.state, train);
     let fo = folds(train, opt.n_folds);
     let cv = match geometric_cv {
         Some(c) if chain.steps.is_empty() => Some(c.clone()),
@@ -1029,7 +1030,27 @@ fn add_correction(
     if cv.cv_rms_after >= (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
         return;
     }
+    if cv.cv_rms_before > 0.0 {
+        chain.cv_rms *= cv.cv_rms_after / cv.cv_rms_before;
+    }
+    chain.pending = Some(cv);
+}
+
+/// Fit the correction [`add_correction`] chose for `chain` (the kernel system of every
+/// training pose: the costliest single solve of a diagnosis, so under [`Policy::Best`] only
+/// for the chain that is kept) and append it as the chain's last step. A system that cannot
+/// be solved leaves the chain without a correction.
+fn fit_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs]) {
+    let Some(cv) = chain.pending.take() else {
+        return;
+    };
+    let state = &mut chain.state;
+    let r = residuals(state, train);
+    let (qs, rv) = np_data(state, train);
     let Some(mut rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) else {
+        if cv.cv_rms_after > 0.0 {
+            chain.cv_rms *= cv.cv_rms_before / cv.cv_rms_after;
+        }
         return;
     };
     rbf.arm_frame = true;
@@ -1064,9 +1085,6 @@ fn add_correction(
         state_after: state.clone(),
     });
     chain.nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
-    if cv.cv_rms_before > 0.0 {
-        chain.cv_rms *= cv.cv_rms_after / cv.cv_rms_before;
-    }
 }
 
 /// Which chain the [`Policy::Best`] policy kept, and the evidence (time-blocked CV RMS of
@@ -1140,7 +1158,7 @@ pub fn diagnose(
             o,
             round0.as_deref(),
         );
-        add_correction(&mut c, train, heldout, o, np_cv.as_ref());
+        add_correction(&mut c, train, o, np_cv.as_ref());
         c
     };
     // No effect asked for (a geometric fit only): nothing to choose between.
@@ -1149,7 +1167,7 @@ pub fn diagnose(
     } else {
         opt.policy
     };
-    let (chain, policy_choice) = match policy {
+    let (mut chain, policy_choice) = match policy {
         Policy::Single => (single(opt), None),
         Policy::Best => {
             let pf = Options {
@@ -1178,9 +1196,13 @@ pub fn diagnose(
             };
             let (keep, other) = if use_pf { (pf, kb) } else { (kb, pf) };
             choice.other_chain = label(&other);
+            if other.pending.is_some() {
+                choice.other_chain.push("nonparametric".into());
+            }
             (keep, Some(choice))
         }
     };
+    fit_correction(&mut chain, train, heldout);
     let Chain {
         state,
         mut steps,
