@@ -959,63 +959,16 @@ pub fn effects_in_words(
         .enumerate()
         .map(|(i, st)| {
             let kind = st.kind.clone();
-            let j = st
-                .joint
-                .map_or("a joint".to_string(), |j| format!("joint {j}"));
-            let what = match kind.as_str() {
-                "joint_compliance" => format!("{j} bends under the gravity load it carries"),
-                "backlash" => format!("{j} has lost motion (backlash) when it reverses"),
-                "joint_eccentricity" => {
-                    format!("{j}'s angle error varies once per turn (eccentric encoder or gear)")
+            // A kinematic effect of the registry says itself what it found, with its size
+            // (read back from the entry it wrote into the calibration); the camera and
+            // laser findings by kind, with their parameters.
+            let (what, coefs) = match crate::diagnose::effects::Effect::from_cal(&st.calibration)
+            {
+                Ok(e) if crate::diagnose::effects::EffectModel::kind(&e.block) == kind => {
+                    (e.sentence(), vec![])
                 }
-                "thermal_drift" => "the robot drifts as it warms up".to_string(),
-                "tracker_scale" => "the tracker's distances are scaled".to_string(),
-                "base_shift" => {
-                    "the tracker or the robot base moved during the session".to_string()
-                }
-                "latency" => "the tracker and the robot clocks are offset".to_string(),
-                "transmission_ratio" => format!("{j}'s gear ratio differs from nominal"),
-                "nonparametric" => {
-                    "a residual no physical effect explains was learnt from the data".to_string()
-                }
-                "target_scale" => {
-                    "the board is printed at another scale than its declared square size"
-                        .to_string()
-                }
-                "target_flatness" => "the board is not flat (it sags or bows)".to_string(),
-                "arm_kinematics" => "the arm's joint zeros and link dimensions differ from \
-                                     nominal (identified through the camera, so the hand-eye \
-                                     no longer absorbs them)"
-                    .to_string(),
-                "distortion" => {
-                    "the lens distorts more than the chosen distortion model".to_string()
-                }
-                other => format!("effect {other}"),
+                _ => (sensor_effect_in_words(&kind), parameters_in_words(st)),
             };
-            let coefs: Vec<String> = st
-                .parameters
-                .iter()
-                .map(|p| {
-                    // Plain decimals for ordinary magnitudes, exponents for tiny / huge ones.
-                    let num = |x: f64, d: usize| {
-                        if x == 0.0 || (1e-3..1e5).contains(&x.abs()) {
-                            format!("{x:.d$}")
-                        } else {
-                            format!("{x:.d$e}")
-                        }
-                    };
-                    let unit = if p.unit == "1" { String::new() } else { format!(" {}", p.unit) };
-                    match p.std {
-                        Some(sd) => format!(
-                            "{} = {} ± {}{unit}",
-                            p.name,
-                            num(p.value, 4),
-                            num(1.96 * sd, 4)
-                        ),
-                        None => format!("{} = {}{unit}", p.name, num(p.value, 4)),
-                    }
-                })
-                .collect();
             let (unit, _, _, hb, ha) = st.rms_with_unit();
             let prec = if unit == "px" { 4 } else { 3 };
             let mut effect_on = match (hb, ha) {
@@ -1045,6 +998,56 @@ pub fn effects_in_words(
                 heldout_rms_px_before: if px { hb } else { None },
                 heldout_rms_px_after: if px { ha } else { None },
                 plot: plot.is_file().then(|| rel(dir, &plot)),
+            }
+        })
+        .collect()
+}
+
+/// What a camera or laser finding means, in plain words (kinematic effects have their own
+/// sentences: [`crate::diagnose::effects::EffectModel::sentence`]).
+fn sensor_effect_in_words(kind: &str) -> String {
+    match kind {
+        "target_scale" => {
+            "the board is printed at another scale than its declared square size".to_string()
+        }
+        "target_flatness" => "the board is not flat (it sags or bows)".to_string(),
+        "arm_kinematics" => "the arm's joint zeros and link dimensions differ from nominal \
+                             (identified through the camera, so the hand-eye no longer absorbs \
+                             them)"
+            .to_string(),
+        "distortion" => "the lens distorts more than the chosen distortion model".to_string(),
+        "laser_scale" => "the laser's range reading is scaled (it reads long or short in \
+                          proportion to the distance)"
+            .to_string(),
+        "laser_incidence" => "the laser's range reading is biased when the beam meets the \
+                              surface obliquely"
+            .to_string(),
+        "laser_nonlinearity" => "the laser's range reading bends away from a straight line \
+                                 over its measuring range"
+            .to_string(),
+        other => format!("effect {other}"),
+    }
+}
+
+/// The parameters of a finding: `name = value ± ci unit`.
+fn parameters_in_words(st: &crate::schema::DiagnosedEffect) -> Vec<String> {
+    st.parameters
+        .iter()
+        .map(|p| {
+            let num = crate::diagnose::effects::plain_number;
+            let unit = if p.unit == "1" {
+                String::new()
+            } else {
+                format!(" {}", p.unit)
+            };
+            match p.std {
+                Some(sd) => format!(
+                    "{} = {} ± {}{unit}",
+                    p.name,
+                    num(p.value, 4),
+                    num(1.96 * sd, 4)
+                ),
+                None => format!("{} = {}{unit}", p.name, num(p.value, 4)),
             }
         })
         .collect()
