@@ -14,9 +14,11 @@ fn esc(s: &str) -> String {
 /// Inline markup of one line: `code` spans first (their content is literal), then **bold**.
 pub fn inline(s: &str) -> String {
     let mut out = String::new();
+    let parts = s.split('`').count();
+    let even = s.matches('`').count().is_multiple_of(2);
     for (i, part) in s.split('`').enumerate() {
         // An unpaired backtick leaves an odd count: the last part is text, with its backtick.
-        let paired = s.matches('`').count() % 2 == 0 || i + 1 < s.split('`').count();
+        let paired = even || i + 1 < parts;
         if i % 2 == 1 && paired {
             let _ = write!(out, "<code>{}</code>", esc(part));
         } else {

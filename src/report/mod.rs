@@ -860,7 +860,7 @@ impl Session {
     pub fn html(&self) -> String {
         let mut h = String::new();
         h.push_str("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>robocal session report</title>\n");
-        h.push_str("<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}pre{white-space:pre-wrap;font-size:13px;background:#f6f6f6;padding:.5em}table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}code{background:#f4f4f4;padding:1px 4px}h1.headline{font-size:1.3em}figure{margin:1em 0}</style>\n</head><body>\n");
+        h.push_str("<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}pre{white-space:pre-wrap;font-size:13px;background:#f6f6f6;padding:.5em}table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}code{background:#f4f4f4;padding:1px 4px;overflow-wrap:anywhere}h1.headline{font-size:1.3em}figure{margin:1em 0}</style>\n</head><body>\n");
         let _ = writeln!(
             h,
             "<h1 class=\"headline\">{}</h1>",
@@ -868,7 +868,7 @@ impl Session {
         );
         // The Markdown's own title and headline are the page's heading above.
         let md = self.markdown();
-        let body = md.split_once("\n\n").map_or(md.as_str(), |(_, rest)| rest);
+        let body = md.splitn(3, "\n\n").nth(2).unwrap_or(md.as_str());
         h.push_str(&md_html::to_html(body));
         for (rel, svg) in &self.plots {
             match inline_svg(svg) {
