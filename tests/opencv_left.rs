@@ -130,7 +130,8 @@ fn left_images() -> Option<Vec<PathBuf>> {
 }
 
 fn l1(k: &Intrinsics, kk: [f64; 4], d: [f64; 5]) -> (f64, f64) {
-    let l1_k = (k.fx - kk[0]).abs() + (k.fy - kk[1]).abs() + (k.cx - kk[2]).abs() + (k.cy - kk[3]).abs();
+    let l1_k =
+        (k.fx - kk[0]).abs() + (k.fy - kk[1]).abs() + (k.cx - kk[2]).abs() + (k.cy - kk[3]).abs();
     (l1_k, k.dist.iter().zip(d).map(|(a, b)| (a - b).abs()).sum())
 }
 
@@ -158,7 +159,10 @@ fn opencv_left_opencvs_corners_through_robocals_solver() {
         .spawn()
         .and_then(|mut c| {
             use std::io::Write;
-            c.stdin.take().unwrap().write_all(job.to_string().as_bytes())?;
+            c.stdin
+                .take()
+                .unwrap()
+                .write_all(job.to_string().as_bytes())?;
             c.wait_with_output()
         })
         .unwrap();
@@ -213,7 +217,10 @@ fn opencv_left_opencvs_corners_through_robocals_solver() {
     assert!(lk < 10.0 && ld < 0.05, "L1(K) {lk}, L1(dist) {ld}");
     // The same minimum as OpenCV's on the same corners.
     assert!((fit.rms_px - f(&v["rms"])).abs() < 1e-3);
-    assert!(sk < 0.01 && sd < 1e-4, "robocal vs OpenCV on its corners: L1(K) {sk}, L1(dist) {sd}");
+    assert!(
+        sk < 0.01 && sd < 1e-4,
+        "robocal vs OpenCV on its corners: L1(K) {sk}, L1(dist) {sd}"
+    );
     // The image robocal refuses (left12) carries the k2/k3 split: OpenCV's corners of the 12
     // images robocal accepts, through the same solver.
     let twelve = CameraData {

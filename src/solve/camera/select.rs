@@ -284,7 +284,6 @@ impl Ctx<'_> {
         Some(out)
     }
 
-
     /// View jackknife 1σ of X (translation mm, rotation deg about `centre`).
     pub fn jackknife(&self, c: Candidate) -> Option<([f64; 3], [f64; 3])> {
         let n = self.data.views.len();
