@@ -9,8 +9,6 @@ use std::path::Path;
 use robocal::dataset::{CalibrationFile, PoseRecord};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::session_observations;
-use robocal_mocks::synth::{synthesize, SynthConfig};
-use robocal_mocks::WorldHandle;
 
 use crate::common::{cli, s};
 use crate::diagnose::table;
@@ -30,15 +28,7 @@ fn predicted_rms(cal: &Path, train: &Path, held: &Path, out: &Path) -> (f64, usi
         s(out),
     ]);
     assert_eq!(code, 0, "predict with {}", cal.display());
-    let mut rd = csv::Reader::from_path(out).unwrap();
-    let got: HashMap<u64, [f64; 3]> = rd
-        .records()
-        .map(|r| {
-            let r = r.unwrap();
-            let f = |i: usize| r[i].parse::<f64>().unwrap();
-            (r[0].parse().unwrap(), [f(1), f(2), f(3)])
-        })
-        .collect();
+    let got: HashMap<u64, [f64; 3]> = crate::diagnose_predict::points(out).into_iter().collect();
     let ds = |p: &Path| robocal::dataset::read_dataset(p).unwrap().dataset;
     let (tr, he) = (ds(train), ds(held));
     let dof = KinematicModel::from_robot_block(&tr.header.robot)
@@ -64,19 +54,7 @@ fn navchain_network_trains_stores_predicts_and_is_compared_with_the_diagnosis() 
         .expect("a compliance j2 world");
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let seed = 3;
-    let wh = WorldHandle::from_scenario(&table::scenario(&w, seed)).unwrap();
-    let cfg = SynthConfig {
-        n_train: table::SMALL.n_train,
-        n_heldout: table::SMALL.n_heldout,
-        seed,
-        frames_per_pose: 1,
-        ..SynthConfig::default()
-    };
-    let syn = synthesize(&wh, &cfg).unwrap();
-    let (train, held) = (dir.join("train.jsonl"), dir.join("heldout.jsonl"));
-    std::fs::write(&train, table::strip(&syn.train_jsonl, w.strip)).unwrap();
-    std::fs::write(&held, table::strip(&syn.heldout_jsonl, w.strip)).unwrap();
+    let (train, held) = crate::diagnose_predict::synth_files(&w, 3, dir);
     // 1. The geometric calibration the network corrects.
     let geo = dir.join("geo");
     assert_eq!(
