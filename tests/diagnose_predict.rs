@@ -5,7 +5,7 @@
 //! predict` on the held-out file alone gives the diagnosis' own held-out predictions
 //! (`heldout_predictions.csv`) and its held-out RMS (`heldout_rms.final_mm`).
 use std::collections::{HashMap, HashSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use robocal::dataset::PoseRecord;
 use robocal::model::KinematicModel;
@@ -18,7 +18,7 @@ use crate::common::{cli, s};
 use crate::diagnose::table;
 
 /// `id → point` of a CSV `id,x_mm,y_mm,z_mm`.
-fn points(path: &Path) -> Vec<(u64, [f64; 3])> {
+pub(crate) fn points(path: &Path) -> Vec<(u64, [f64; 3])> {
     let mut rd = csv::Reader::from_path(path).unwrap();
     rd.records()
         .map(|r| {
@@ -27,6 +27,24 @@ fn points(path: &Path) -> Vec<(u64, [f64; 3])> {
             (r[0].parse().unwrap(), [f(1), f(2), f(3)])
         })
         .collect()
+}
+
+/// Synthesises `w` (the table's small size, one frame per pose) into `dir/train.jsonl` and
+/// `dir/heldout.jsonl` (the world's stripped fields left out).
+pub(crate) fn synth_files(w: &table::World, seed: u64, dir: &Path) -> (PathBuf, PathBuf) {
+    let wh = WorldHandle::from_scenario(&table::scenario(w, seed)).unwrap();
+    let cfg = SynthConfig {
+        n_train: table::SMALL.n_train,
+        n_heldout: table::SMALL.n_heldout,
+        seed,
+        frames_per_pose: 1,
+        ..SynthConfig::default()
+    };
+    let syn = synthesize(&wh, &cfg).unwrap();
+    let (train, held) = (dir.join("train.jsonl"), dir.join("heldout.jsonl"));
+    std::fs::write(&train, table::strip(&syn.train_jsonl, w.strip)).unwrap();
+    std::fs::write(&held, table::strip(&syn.heldout_jsonl, w.strip)).unwrap();
+    (train, held)
 }
 
 /// Synthesise the world named `world` (a prefix of a `table::worlds()` name), diagnose it
@@ -41,19 +59,7 @@ fn check(world: &str, kind: &str, session: bool) {
         .unwrap_or_else(|| panic!("no world {world}"));
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let seed = 1;
-    let wh = WorldHandle::from_scenario(&table::scenario(&w, seed)).unwrap();
-    let cfg = SynthConfig {
-        n_train: table::SMALL.n_train,
-        n_heldout: table::SMALL.n_heldout,
-        seed,
-        frames_per_pose: 1,
-        ..SynthConfig::default()
-    };
-    let syn = synthesize(&wh, &cfg).unwrap();
-    let (train, held) = (dir.join("train.jsonl"), dir.join("heldout.jsonl"));
-    std::fs::write(&train, table::strip(&syn.train_jsonl, w.strip)).unwrap();
-    std::fs::write(&held, table::strip(&syn.heldout_jsonl, w.strip)).unwrap();
+    let (train, held) = synth_files(&w, 1, dir);
     let out = dir.join("diag");
     let args = robocal::diagnose::stage::DiagnoseRequest {
         data: train.clone(),

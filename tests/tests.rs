@@ -22,6 +22,7 @@ mod laser_world;
 mod live_session;
 mod model;
 mod navchain;
+mod navchain_cmd;
 mod opencv_left;
 mod perf;
 mod pivot;

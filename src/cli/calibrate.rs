@@ -3,6 +3,7 @@
 pub mod camera;
 pub mod kinematics;
 pub mod laser;
+pub mod navchain;
 pub mod nominal;
 pub mod pivot;
 pub mod rcm;
@@ -37,6 +38,9 @@ pub enum What {
     /// Tool (marker) on the flange and base with the identified arm fixed (seed 001 §2.3),
     /// and the guide tool's frame from the pin forward / reversed (§2.4), with uncertainty.
     Tool(tool::Args),
+    /// Seed 003's 6-n-6 correction network on top of a kinematic calibration (stored in the
+    /// calibration file, applied by `predict`).
+    Navchain(navchain::Args),
 }
 
 /// Run `robocal calibrate`.
@@ -50,5 +54,6 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::RobotWorld(a) => robot_world::exec(a),
         What::Camera(a) => camera::exec(a),
         What::Tool(a) => tool::exec(a),
+        What::Navchain(a) => navchain::exec(a),
     }
 }

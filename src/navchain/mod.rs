@@ -18,6 +18,7 @@
 //! Carlo through the exact transforms (they must agree), gives the 95 % ellipsoid and each
 //! link's share of the variance. It is the library entry `robocal chain` and a session's
 //! closing chain report call.
+pub mod correction;
 pub mod nn;
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};

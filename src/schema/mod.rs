@@ -21,6 +21,7 @@ use std::path::Path;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub mod navnet;
 pub mod points_csv;
 
 pub use crate::acquire::summary::RunSummary;

@@ -44,11 +44,30 @@ enum Engine {
 #[derive(Debug, Clone)]
 pub struct Predictor {
     engine: Engine,
+    /// Seed 003's correction network of the file (kinematic calibrations), added last.
+    net: Option<Box<crate::schema::navnet::NavNetBlock>>,
 }
 
 impl Predictor {
     /// Builds the predictor of a calibration file.
     pub fn new(cal: &CalibrationFile) -> anyhow::Result<Predictor> {
+        let mut p = Self::new_engine(cal)?;
+        p.net = crate::navchain::correction::from_calibration(cal)?.map(Box::new);
+        if p.net.is_some() && !matches!(p.engine, Engine::Kinematic { .. }) {
+            bail!("a correction network (`navchain_net`) is only valid in a kinematic calibration");
+        }
+        Ok(p)
+    }
+
+    /// The point plus the correction network's offset, when the file has one.
+    fn corrected(&self, model: &KinematicModel, q_rad: &[f64], p: Point3<f64>) -> Point3<f64> {
+        match &self.net {
+            Some(b) => p + crate::navchain::correction::correction(b, model, q_rad),
+            None => p,
+        }
+    }
+
+    fn new_engine(cal: &CalibrationFile) -> anyhow::Result<Predictor> {
         match cal.kind() {
             CalibrationKind::Kinematic => {
                 let mut model = KinematicModel::from_robot_block(&cal.robot)
@@ -61,6 +80,7 @@ impl Predictor {
                         model: Box::new(model),
                         effects: cal.effects.clone(),
                     },
+                    net: None,
                 })
             }
             // Dispatch point of the laser (range sensor) calibration: `crate::solve::laser`.
@@ -75,6 +95,7 @@ impl Predictor {
                         effects: cal.effects.clone(),
                         model,
                     },
+                    net: None,
                 })
             }
             CalibrationKind::Other(k) => bail!(
@@ -104,12 +125,14 @@ impl Predictor {
                         model.dof()
                     );
                 }
-                if !effects.is_empty() {
-                    // Effects on top of the kinematics (owned by the diagnosis).
-                    return crate::diagnose::effects::predict_record(model, effects, rec, ds);
-                }
                 let q_rad: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
-                Ok(model.measured_point(&q_rad))
+                let p = if !effects.is_empty() {
+                    // Effects on top of the kinematics (owned by the diagnosis).
+                    crate::diagnose::effects::predict_record(model, effects, rec, ds)?
+                } else {
+                    model.measured_point(&q_rad)
+                };
+                Ok(self.corrected(model, &q_rad, p))
             }
             Engine::Laser {
                 beam,
@@ -181,8 +204,8 @@ impl Predictor {
         let mut rows = Vec::with_capacity(recs.len());
         for rec in recs {
             self.check_joints(rec)?;
+            let q_rad: Vec<f64> = rec.q.iter().flatten().map(|d| d.to_radians()).collect();
             let p = if parsed.is_empty() {
-                let q_rad: Vec<f64> = rec.q.iter().flatten().map(|d| d.to_radians()).collect();
                 model.measured_point(&q_rad)
             } else {
                 let c = by_key
@@ -192,6 +215,7 @@ impl Predictor {
                     })?;
                 crate::diagnose::effects::apply_effects(model, &parsed, c)
             };
+            let p = self.corrected(model, &q_rad, p);
             rows.push(PredictedPoint { id: rec.id, p });
         }
         Ok((rows, warnings))
