@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of every wire decoder and file reader (dataset, calibration, plan,
 # plan spec, scenario, device file, RCM / robot-world / camera datasets, registration, mesh,
-# accept spec), a short fixed time each (18 targets, total < ~9 min).
+# accept spec, point tables, laser datasets, session record), a short fixed time each.
 # Installs cargo-fuzz when missing. `--sanitizer none` works on the stable toolchain.
 # Usage: bash .ci/fuzz.sh [seconds-per-target]   (default 25)
 set -euo pipefail
@@ -35,6 +35,9 @@ seed robot_world ../tests/data/*/train.jsonl
 seed camera_dataset ../tests/data/*/train.jsonl
 seed rcm ../tests/data/*/train.jsonl
 seed registration ../tests/data/*/*.csv
+seed points_csv ../tests/data/*/*.csv
+seed laser ../tests/data/laser-planes/*.jsonl
+seed session seeds/session/*
 # Build every target in one cargo invocation (links run in parallel), then run each.
 echo "== fuzz build (all targets)"
 cargo fuzz build --sanitizer none > ../target/fuzz-build.log 2>&1 || { tail -40 ../target/fuzz-build.log; echo "fuzz build FAILED"; exit 1; }
