@@ -313,6 +313,9 @@ pub fn cv_of(v: Option<&[(f64, usize)]>) -> f64 {
     (se / nc.max(1) as f64).sqrt()
 }
 
+/// A candidate's CV squared errors and corner counts, one entry per predicted view.
+pub type PerView = Vec<(f64, usize)>;
+
 /// The written candidate: the lowest CV error, unless candidates earlier in
 /// [`Candidate::preference`] order are within one standard error of it (the difference of
 /// mean square errors, paired by view: the same views predicted by both) — then the first of
@@ -320,7 +323,7 @@ pub fn cv_of(v: Option<&[(f64, usize)]>) -> f64 {
 /// among them by that noise makes the written estimate jump between estimators from one
 /// subset of views to another (the split-half instability on a real KUKA: Horaud on one half,
 /// the pose-noise fit on the other).
-pub fn choose(scores: &[(Candidate, Option<Vec<(f64, usize)>>)]) -> Option<Candidate> {
+pub fn choose(scores: &[(Candidate, Option<PerView>)]) -> Option<Candidate> {
     let (best, bv) = scores
         .iter()
         .filter_map(|(c, v)| v.as_ref().map(|v| (*c, v)))
