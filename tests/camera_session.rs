@@ -293,6 +293,51 @@ fn camera_session_resumes_at_the_stage_that_stopped() {
     let _ = std::fs::remove_dir_all(&copy);
 }
 
+/// A camera session calibrates its training views once and reads (and detects the boards of)
+/// each dataset once: the calibrate stage's views and result go to the diagnosis and the
+/// validation in memory. Counted in this thread on a session resumed after its acquisition
+/// (every stage that reads data runs; the library's command-line entry runs in this thread):
+/// two calibrations (the training views; the held-out views alone, the independent hand-eye
+/// check), two dataset reads (training, held-out), and the figures of the first run.
+#[test]
+fn a_camera_session_calibrates_once_and_reads_each_dataset_once() {
+    let (dir, first_code, _) = camera_session();
+    let copy = std::env::temp_dir().join(format!(
+        "robocal-session-camera-count-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&copy);
+    copy_dir(dir, &copy);
+    let p = copy.join("session.json");
+    let mut s = SessionFile::load(&p).unwrap();
+    let before = s.clone();
+    s.stages_done.truncate(3);
+    s.camera = None;
+    s.save(&p).unwrap();
+    let (cals0, reads0) = (
+        robocal::solve::camera::calibrations_on_this_thread(),
+        robocal::dataset::dataset_parses_on_this_thread(),
+    );
+    let code = robocal::main_with_args([
+        "robocal",
+        "session",
+        "--resume",
+        copy.to_str().unwrap(),
+        "--no-history",
+    ]);
+    assert_eq!(code, *first_code);
+    let cals = robocal::solve::camera::calibrations_on_this_thread() - cals0;
+    let reads = robocal::dataset::dataset_parses_on_this_thread() - reads0;
+    assert_eq!(
+        cals, 2,
+        "camera calibrations (training views; held-out views alone)"
+    );
+    assert_eq!(reads, 2, "dataset reads (training, held-out)");
+    let after = SessionFile::load(&p).unwrap();
+    assert_eq!(after.measured, before.measured);
+    let _ = std::fs::remove_dir_all(&copy);
+}
+
 fn copy_dir(a: &Path, b: &Path) {
     std::fs::create_dir_all(b).unwrap();
     for e in std::fs::read_dir(a).unwrap() {

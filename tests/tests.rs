@@ -28,6 +28,9 @@ mod pivot;
 mod plan;
 mod rcm;
 mod rcm_images;
+/// The RCM image trials (an evaluation harness kept beside the examples).
+#[path = "../examples/common/rcm_trials.rs"]
+mod rcm_trials;
 mod real_handeye;
 mod realcam_io;
 mod report;
