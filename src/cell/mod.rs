@@ -15,6 +15,10 @@
 //!   speed / acceleration caps within its limits).
 //!
 //! The acquisition engine ([`crate::acquire`]) sees only the device traits.
+// Every public item of the cell says what it is: the cell is where a scenario or a device file
+// becomes hardware, and an undocumented field there is a guess at the safety of a move.
+#![warn(missing_docs)]
+
 pub mod checks;
 pub mod describe;
 pub mod live;
