@@ -109,21 +109,28 @@ fn main() {
             .iter()
             .min_by(|a, b| a.heldout_px.total_cmp(&b.heldout_px));
         println!(
-            "written: {} held-out {:.3} px; held-out floor (X, target fitted to the held-out views) {:.3} px",
-            r.written.method, r.written.heldout_px, r.floor_px
+            "written: {} held-out {:.3} px; held-out floor (X, target fitted to the held-out views) {:.3} px, with the intrinsics free too {:.3} px",
+            r.written.method, r.written.heldout_px, r.floor_px, r.floor_free_px
         );
         if let Some(b) = best_cv {
             println!(
-                "best OpenCV ({}, OpenCV {}): {:.3} px -> written / best OpenCV = {:.3}",
+                "best OpenCV ({}, OpenCV {}): {:.3} px -> written / best OpenCV = {:.3}; 0.85x = {:.3} px against the floors {:.3} ({:.3}x) / {:.3} ({:.3}x)",
                 b.method,
                 r.opencv_version,
                 b.heldout_px,
-                r.written.heldout_px / b.heldout_px
+                r.written.heldout_px / b.heldout_px,
+                0.85 * b.heldout_px,
+                r.floor_px,
+                r.floor_px / b.heldout_px,
+                r.floor_free_px,
+                r.floor_free_px / b.heldout_px
             );
         }
         let s = &r.split;
         println!(
-            "split half: written X differs {:.2} mm / {:.3} deg; OpenCV Park {}",
+            "split half: written X ({} / {}) differs {:.2} mm / {:.3} deg; OpenCV Park {}",
+            s.methods[0],
+            s.methods[1],
             s.dx_mm,
             s.dr_deg,
             s.opencv_park

@@ -121,11 +121,11 @@ fn ablation(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], plots:
         // One representative per group: the linear drift of a warm-up grid, the middle of
         // a change-point grid; the best-scored harmonic of a ripple group.
         let picks: Vec<Block> = match g.first() {
-            Some(Block::BaseShift { .. }) => vec![g[g.len() / 2].clone()],
-            Some(Block::JointDrift { .. }) | Some(Block::LengthDrift { .. }) => {
+            Some(Block::BaseShift(_)) => vec![g[g.len() / 2].clone()],
+            Some(Block::JointDrift(_)) | Some(Block::LengthDrift(_)) => {
                 vec![g[0].clone()]
             }
-            Some(Block::Coupling { .. }) | Some(Block::Ripple { .. }) => g
+            Some(Block::Coupling(_)) | Some(Block::Ripple(_)) => g
                 .iter()
                 .find(|b| round0.contains(&b.label()))
                 .or(g.first())

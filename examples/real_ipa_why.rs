@@ -463,11 +463,11 @@ fn periodogram(model: &KinematicModel, geo: &State, train: &[PoseObs]) -> anyhow
     let opt = Options::default();
     for j in 1..=model.dof() {
         let groups: Vec<Vec<robocal::diagnose::effects::Block>> = (1..=kmax)
-            .map(|harmonic| vec![robocal::diagnose::effects::Block::Ripple { joint: j, harmonic }])
+            .map(|harmonic| vec![robocal::diagnose::effects::Ripple { joint: j, harmonic }.into()])
             .collect();
         let scores = diagnose::score_round(geo, train, &groups, &opt);
         let k_of = |s: &diagnose::Score| match s.block {
-            robocal::diagnose::effects::Block::Ripple { harmonic, .. } => harmonic,
+            robocal::diagnose::effects::Block::Ripple(ref r) => r.harmonic,
             _ => 0,
         };
         let top: Vec<String> = scores

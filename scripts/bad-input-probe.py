@@ -458,6 +458,13 @@ def issue26_round3(P, j, small, good, cal, lgood, lheldp):
                 ["diagnose", "--data", xyzw, "--out", k("o")]):
         b(f"{' '.join(cmd[:2]) if cmd[0] == 'calibrate' else cmd[0]}: marker quaternions scalar-last", cmd, ["[x, y, z, w]"], timeout=120)
     b("ctl calibrate robot-world", ["calibrate", "robot-world", "--data", good, "--out", k("rw-ok.json")], good=True)
+    # Pivot records only (no robot rotation to compare with): the pivot fit tells the order.
+    def pivot_xyzw(rows):
+        for r in rows[1:]:
+            q = r["marker"]["quat"]
+            r["marker"]["quat"] = [q[1], q[2], q[3], q[0]]
+    b("calibrate pivot: quaternions scalar-last", ["calibrate", "pivot", "--data", pivot_dataset(k("pxyzw.jsonl"), bad=pivot_xyzw)], ["[x, y, z, w]"])
+    b("ctl calibrate pivot", ["calibrate", "pivot", "--data", pivot_dataset(k("pok.jsonl"))], good=True)
 
     # ---- 0 usable poses: the likely cause (§6)
     for name, g, exp in [("markers not seen", lambda r: r.update(marker={"visible": False}), ["did not see"]),

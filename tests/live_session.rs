@@ -375,3 +375,142 @@ fn probe_names_http_on_the_bcap_port() {
         "{stdout}"
     );
 }
+
+/// `--survey` (issue 28 §1): a device file whose tracker pose is wrong by ~310 mm / 20°.
+/// Without the survey the plan puts poses where the tracker does not see the marker and the
+/// acquisition stops early on the accept spec's skipped fraction; with it, a few probe poses
+/// (shown and confirmed like the plan) locate the tracker and the marker, the plan uses the
+/// surveyed pose, and the session ends with a verdict and few poses skipped.
+#[test]
+fn live_survey_locates_a_misplaced_tracker() {
+    let serve = SimServe::start(&root().join("mocks/scenarios/hospital-vs060-vega.toml"));
+    let bcap = serve.endpoint("bcap", "addr").expect("bcap endpoint");
+    let ndi = serve.endpoint("ndi-tcp", "addr").expect("ndi-tcp endpoint");
+    let tmp = tempfile::tempdir().unwrap();
+    // The scenario's tracker stands at (1700, 80, 650) mm, rpy (180, -80, 0)°.
+    let wrong = "tools = [\"tools/flange-marker.rom\"]\n\
+        tracker_in_base = { xyz_mm = [1480.0, 280.0, 560.0], rpy_deg = [180.0, -100.0, 0.0] }\n\
+        marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }\n\
+        volume = \"polaris-pyramid\"";
+    let file = cell(tmp.path(), &bcap, &ndi, wrong);
+    let accept = root().join("accept/research.toml");
+    let args = |out: &Path, extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = [
+            "session",
+            "--devices",
+            p(&file),
+            "--live",
+            "--out",
+            p(out),
+            "--poses",
+            "20",
+            "--heldout-points",
+            "40",
+            "--frames",
+            "3",
+            "--speed-deg-s",
+            "120",
+            "--accept",
+            p(&accept),
+            "--no-history",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let run_v = |v: Vec<String>| {
+        let r: Vec<&str> = v.iter().map(String::as_str).collect();
+        run(&r)
+    };
+    // 1. Without the survey: poses skipped, the acquisition stops early.
+    let plain = tmp.path().join("plain");
+    let (code, stdout, stderr) = run_v(args(&plain, &["--yes"]));
+    println!("without --survey: {code:?}\n{stdout}\n{stderr}");
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("stopped early"), "{stderr}");
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(plain.join("run-train/summary.json")).unwrap(),
+    )
+    .unwrap();
+    let (skipped, recorded) = (
+        summary["skipped"].as_array().map_or(0, Vec::len),
+        summary["recorded"].as_u64().unwrap(),
+    );
+    println!("without --survey: {recorded} recorded, {skipped} skipped before the early stop");
+    assert!(skipped >= 2, "{summary}");
+    // 2. With the survey, no --yes and no terminal: the probe poses are shown, nothing moves.
+    let out = tmp.path().join("survey");
+    let (code, _, stderr) = run_v(args(&out, &["--survey"]));
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("confirmation needed"), "{stderr}");
+    assert!(stderr.contains("first a survey"), "{stderr}");
+    assert!(stderr.contains("survey poses: "), "{stderr}");
+    assert!(!out.join("run-survey").exists(), "something moved");
+    assert!(out.join("plan/survey.json").is_file());
+    assert!(
+        !out.join("plan/train.json").exists(),
+        "planned before the survey"
+    );
+    // 3. Resume with consent: survey, then the plan from the surveyed pose (shown again
+    //    before it moves), acquisition, verdict.
+    let (code, stdout, stderr) = run(&[
+        "session",
+        "--resume",
+        p(&out),
+        "--live",
+        "--yes",
+        "--no-history",
+    ]);
+    println!("with --survey: {code:?}\n{stdout}\n{stderr}");
+    assert!(matches!(code, Some(0) | Some(2)), "{stdout}\n{stderr}");
+    let first = stdout.lines().next().unwrap_or_default();
+    assert!(
+        first.starts_with("PASS") || first.starts_with("FAIL"),
+        "verdict not first: {stdout}"
+    );
+    assert_eq!(
+        stderr.matches("LIVE session").count(),
+        2,
+        "the survey and the plan each shown before they move: {stderr}"
+    );
+    assert!(
+        stderr.contains("survey: the tracker saw the marker at"),
+        "{stderr}"
+    );
+    let s = robocal::session::SessionFile::load(&out.join("session.json")).unwrap();
+    let v = s.survey.as_ref().expect("the survey in session.json");
+    let t = &v.tracker_surveyed;
+    let off =
+        ((t.xyz[0] - 1700.0).powi(2) + (t.xyz[1] - 80.0).powi(2) + (t.xyz[2] - 650.0).powi(2))
+            .sqrt();
+    println!(
+        "survey: {} of {} probes seen; tracker {off:.1} mm from the scenario's; stated was {:.0} mm / {:.1}° off",
+        v.seen,
+        v.probes,
+        v.tracker_moved_mm.unwrap(),
+        v.tracker_turned_deg.unwrap()
+    );
+    assert!(v.seen >= 4 && v.seen <= v.probes);
+    assert!(off < 15.0, "surveyed tracker {off:.1} mm off");
+    assert!((v.tracker_moved_mm.unwrap() - 310.0).abs() < 20.0);
+    assert!((v.tracker_turned_deg.unwrap() - 20.0).abs() < 2.0);
+    // The plan used the surveyed pose; the file written loads back.
+    assert_eq!(
+        s.cell.geometry.as_ref().unwrap().tracker_pose,
+        v.tracker_surveyed
+    );
+    robocal::register::robot_world::RobotWorldFile::load(&out.join(&v.file)).unwrap();
+    assert!(
+        s.poses_skipped * 10 <= s.poses_planned,
+        "{} of {} skipped with the survey",
+        s.poses_skipped,
+        s.poses_planned
+    );
+    println!(
+        "with --survey: {} of {} poses skipped; {}",
+        s.poses_skipped, s.poses_planned, s.verdict_line
+    );
+    drop(serve);
+}

@@ -28,6 +28,7 @@ mod pivot;
 mod plan;
 mod rcm;
 mod rcm_images;
+mod rcm_session;
 /// The RCM image trials (an evaluation harness kept beside the examples).
 #[path = "../examples/common/rcm_trials.rs"]
 mod rcm_trials;

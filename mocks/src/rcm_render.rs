@@ -334,8 +334,8 @@ fn undistort_px(cell: &RcmCell, u: f64, v: f64) -> (f64, f64) {
 /// The endoscope renderer of one cell: the pixel rays and the static background (tissue,
 /// blobs: the camera is fixed in the base) are computed once; [`Self::render`] then casts only
 /// the instrument.
-pub struct RcmRenderer<'a> {
-    cell: &'a RcmCell,
+pub struct RcmRenderer {
+    cell: RcmCell,
     cfg: RcmRenderConfig,
     /// Unit rays through the pixel corners `(i − ½, j − ½)`, `(w+1) × (h+1)`, camera frame.
     rays: Vec<Vector3<f64>>,
@@ -345,9 +345,10 @@ pub struct RcmRenderer<'a> {
     bg: Vec<f64>,
 }
 
-impl<'a> RcmRenderer<'a> {
-    /// Precomputes the rays and the background of `cell` under `cfg`.
-    pub fn new(cell: &'a RcmCell, cfg: &RcmRenderConfig) -> RcmRenderer<'a> {
+impl RcmRenderer {
+    /// Precomputes the rays and the background of `cell` under `cfg` (the renderer keeps its
+    /// own copy of the cell: a simulated camera holds it for the whole session).
+    pub fn new(cell: &RcmCell, cfg: &RcmRenderConfig) -> RcmRenderer {
         let sc = &cell.scenario;
         let (w, h) = (sc.camera.width as usize, sc.camera.height as usize);
         let rays: Vec<Vector3<f64>> = (0..=h)
@@ -358,7 +359,7 @@ impl<'a> RcmRenderer<'a> {
             })
             .collect();
         let mut r = RcmRenderer {
-            cell,
+            cell: cell.clone(),
             cfg: cfg.clone(),
             rays,
             bg_corner: Vec::new(),

@@ -530,6 +530,19 @@ pub struct InstrumentConfig {
     pub radius_mm: f64,
     /// Shaft length (mm), from the flange along the flange z axis.
     pub length_mm: f64,
+    /// Nominal insertion direction (into the body), base frame: orients the tissue texture
+    /// of the endoscope image.
+    #[serde(default = "d_insertion_dir")]
+    pub insertion_dir: [f64; 3],
+    /// How a fixed camera renders the instrument through the trocar (the endoscope view of
+    /// seed 002: body cavity, tissue blobs, specular shaft; `crate::rcm_render`). The camera's
+    /// `blur_px` and `noise_grey` replace the table's.
+    #[serde(default)]
+    pub render: crate::rcm_render::RcmRenderConfig,
+}
+
+fn d_insertion_dir() -> [f64; 3] {
+    [0.0, 0.0, -1.0]
 }
 
 /// A chessboard (board frame: squares in its xy plane, origin at an outer corner).

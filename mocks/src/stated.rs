@@ -160,6 +160,18 @@ pub struct StatedCamera {
     pub height: u32,
     /// The arm carrying it (eye-in-hand); `None`: fixed in the base frame.
     pub arm: Option<String>,
+    /// Its own prior intrinsics (px): fx, fy, cx, cy (what an endoscope's data sheet or
+    /// earlier calibration states).
+    pub intrinsics: [f64; 4],
+    /// Its radial distortion k1, k2 (the same prior).
+    pub radial: [f64; 2],
+}
+
+/// A surgical instrument's shaft as stated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StatedInstrument {
+    /// Shaft radius (mm).
+    pub radius_mm: f64,
 }
 
 /// The calibration board as stated (a printed target: its layout and where it lies).
@@ -192,6 +204,8 @@ pub struct StatedScenario {
     pub cameras: Vec<StatedCamera>,
     /// The calibration board, if the scene has one.
     pub board: Option<StatedBoard>,
+    /// The instrument of an RCM cell, if the scene has one.
+    pub instrument: Option<StatedInstrument>,
 }
 
 impl StatedScenario {
@@ -286,9 +300,14 @@ impl StatedScenario {
                     width: c.width,
                     height: c.height,
                     arm: c.arm.clone(),
+                    intrinsics: [c.fx, c.fy, c.cx, c.cy],
+                    radial: [c.k1, c.k2],
                 })
                 .collect(),
             board,
+            instrument: s.scene.instrument.as_ref().map(|i| StatedInstrument {
+                radius_mm: i.radius_mm,
+            }),
         }
     }
 
@@ -312,23 +331,36 @@ impl StatedScenario {
     }
 }
 
+/// Which devices of an arm's cell a session keeps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Only {
+    /// Every device on the arm (and the fixed cameras).
+    All,
+    /// The laser range sensors (trackers and cameras removed).
+    Ranges,
+    /// The cameras (trackers and lasers removed).
+    Images,
+}
+
 /// The scenario file at `path` cut to one arm (as [`StatedScenario::one_arm`] cuts its stated
-/// facts), as TOML text: the file a single-arm session runs on. `ranges_only`: the tracker
-/// and cameras removed too (a session that records laser ranges only).
-pub fn one_arm_scenario_toml(
-    path: &Path,
-    arm: &str,
-    ranges_only: bool,
-) -> Result<String, ScenarioError> {
+/// facts) and to the devices `only` keeps, as TOML text: the file a single-arm session runs on.
+pub fn one_arm_scenario_toml(path: &Path, arm: &str, only: Only) -> Result<String, ScenarioError> {
     let mut one = Scenario::load(path)?;
     one.arms.retain(|a| a.name == arm);
     one.trackers.retain(|t| t.arm == arm);
     one.lasers.retain(|l| l.arm == arm);
     one.cameras
         .retain(|c| c.arm.as_deref().is_none_or(|n| n == arm));
-    if ranges_only {
-        one.trackers.clear();
-        one.cameras.clear();
+    match only {
+        Only::All => {}
+        Only::Ranges => {
+            one.trackers.clear();
+            one.cameras.clear();
+        }
+        Only::Images => {
+            one.trackers.clear();
+            one.lasers.clear();
+        }
     }
     toml::to_string(&one).map_err(|e| ScenarioError::Invalid(e.to_string()))
 }

@@ -410,7 +410,8 @@ fn acquire_in(
             "stopped early: {why}{top}. The tracker does not see the marker where the plan puts \
              it: check where the tracker stands (`tracker_in_base`) and the marker \
              (`marker_on_flange`) in the device file, then start a new session (its plan is \
-             fitted to them); `{}` continues this one as it is",
+             fitted to them; `robocal session --survey` locates the tracker with a few probe \
+             poses first); `{}` continues this one as it is",
             crate::fsio::resume_command(dir)
         );
     }

@@ -34,6 +34,9 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// A whole calibration session: plan, acquire, calibrate, diagnose, validate, verdict, report.
+    // First in `--help`: the main command.
+    Session(session::Args),
     /// Generate, check and export a pose plan (never opens a device).
     Plan(plan::Args),
     /// Acquire a dataset: on real hardware with --live, or a dry run with --sim.
@@ -58,8 +61,6 @@ pub enum Command {
     Register(register::Args),
     /// Predicted tool-tip error at CT targets and each link's share.
     Chain(chain::Args),
-    /// A whole calibration session: plan, acquire, calibrate, diagnose, validate, verdict, report.
-    Session(session::Args),
     /// Fleet history of one robot: accuracy and parameter drift over its sessions.
     History(history::Args),
     /// Turn measurement files (IPA layout, generic CSV) into a robocal dataset.

@@ -5,7 +5,9 @@
 //! DIR itself is a `robocal diagnose` output, whose own `report.md` is kept), to `--out` when
 //! it ends in `.md`, and beside the HTML with the same stem when `--out` ends in `.html`
 //! (`x.html` → `x.md`: never another file that happens to be called `report.md`).
-//! The headline is printed last (or the whole report as JSON with `--json`).
+//! The headline is printed last (or the whole report as JSON with `--json`). The HTML of a
+//! folder that holds sessions is each session's own page ([`crate::report::sessions`]);
+//! otherwise the Markdown as HTML with the plots inlined.
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _};
@@ -75,8 +77,19 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         (Some(p), _) => bail!("--out {}: give a .html or .md path", p.display()),
     };
     write(&md_path, &session.markdown())?;
+    // A folder of sessions: each session's own page (one report per session).
+    let sessions = crate::report::sessions::sessions_in(&args.dir);
+    let mut written = Vec::new();
     if let Some(h) = &html_path {
-        write(h, &session.html())?;
+        if sessions.is_empty() {
+            write(h, &session.html())?;
+            written.push(h.clone());
+        } else {
+            for page in crate::report::sessions::pages(&sessions, h)? {
+                write(&page.path, &page.html)?;
+                written.push(page.path);
+            }
+        }
     }
     for w in &session.warnings {
         eprintln!("warning: {w}");
@@ -85,7 +98,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&session.to_json())?);
     } else {
         println!("wrote {}", md_path.display());
-        if let Some(h) = &html_path {
+        for h in &written {
             println!("wrote {}", h.display());
         }
         println!("{}", session.headline_text());

@@ -54,11 +54,12 @@ pub struct Args {
     #[arg(long, value_name = "NAME")]
     pub arm: Option<String>,
     /// Training poses kept (greedy D-optimal selection); camera cells: training viewpoints
-    /// on the seed 004 shell [default: 120; camera cells 24].
+    /// on the seed 004 shell; RCM cells: pivots about the trocar [default: 120; camera and RCM
+    /// cells 24].
     #[arg(long)]
     pub poses: Option<usize>,
     /// Held-out validation points (separate plan, another seed); camera cells: held-out
-    /// viewpoints [default: 40; camera cells 12].
+    /// viewpoints; RCM cells: held-out pivots [default: 40; camera and RCM cells 12].
     #[arg(long)]
     pub heldout_points: Option<usize>,
     /// Tracker frames averaged per pose.
@@ -83,15 +84,22 @@ pub struct Args {
     /// Do not record the session in the fleet history.
     #[arg(long, conflicts_with = "history")]
     pub no_history: bool,
-    /// What the session calibrates: `kinematic` (tracker), `camera` (board images) or `laser`
-    /// (range sensor on calibration planes, seed 000) [default: from the cell: kinematic with a
-    /// tracker, else camera].
-    #[arg(long, value_name = "KIND", value_parser = ["kinematic", "camera", "laser"])]
+    /// What the session calibrates: `kinematic` (tracker), `camera` (board images), `laser`
+    /// (range sensor on calibration planes, seed 000) or `rcm` (endoscope hand-eye from an
+    /// instrument pivoting about a trocar, seed 002) [default: from the cell: kinematic with a
+    /// tracker, else rcm with an instrument and a fixed camera, else camera].
+    #[arg(long, value_name = "KIND", value_parser = ["kinematic", "camera", "laser", "rcm"])]
     pub kind: Option<String>,
     /// Laser sessions: the arm's kinematic calibration of the same visit (a kinematic
     /// session's `deploy/calibration.json`): the laser spots go through the identified arm.
     #[arg(long, value_name = "CAL.json")]
     pub arm_calibration: Option<PathBuf>,
+    /// Before planning, locate the tracker (and the marker on the flange) with a few safe
+    /// probe poses that face the tracker's stated position; the plan then uses the surveyed
+    /// pose. For a device file whose `tracker_in_base` is rough or missing (kinematic
+    /// sessions; the probe poses are shown and confirmed like the plan).
+    #[arg(long, conflicts_with = "resume")]
+    pub survey: bool,
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -168,8 +176,10 @@ struct RunCell {
     yes: bool,
     /// The session directory (the briefing reads its plans).
     dir: PathBuf,
-    /// Live: the operator consented in this invocation (asked once, before the first move).
-    consented: bool,
+    /// Live: what the operator consented to in this invocation (asked before the first move
+    /// of the survey's probe poses, and again once the calibration plan is made):
+    /// `Some(true)` the calibration plan, `Some(false)` the survey only.
+    consented: Option<bool>,
     /// The accept spec's limit on skipped poses (the acquisition stops early past it).
     skipped_fraction_max: Option<f64>,
 }
@@ -179,7 +189,8 @@ impl RunCell {
     /// happen (poses left, duration, workspace, lowest flange height, speed cap, every plan
     /// warning) and ask for a typed `yes` (or take `--yes`).
     fn consent(&mut self) -> anyhow::Result<()> {
-        if self.mode != Mode::Live || self.consented {
+        let planned = self.dir.join("plan").join("train.json").is_file();
+        if self.mode != Mode::Live || self.consented == Some(planned) {
             return Ok(());
         }
         let s = session::SessionFile::load(&self.dir.join("session.json"))?;
@@ -199,7 +210,7 @@ impl RunCell {
         if self.yes {
             eprintln!("--yes: moving the arm");
         }
-        self.consented = true;
+        self.consented = Some(planned);
         Ok(())
     }
 }
@@ -211,6 +222,23 @@ fn resume_hint(dir: &Path) -> String {
 
 impl session::Cell for RunCell {
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.run_plan(plan, run_dir, self.skipped_fraction_max)
+    }
+
+    fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.run_plan(plan, run_dir, None)
+    }
+}
+
+impl RunCell {
+    /// `robocal run`'s acquisition of `plan` into `run_dir` (consent first, when live),
+    /// stopping early once `max_skipped_fraction` of the poses are skipped.
+    fn run_plan(
+        &mut self,
+        plan: &Path,
+        run_dir: &Path,
+        max_skipped_fraction: Option<f64>,
+    ) -> anyhow::Result<RunSummary> {
         self.consent()?;
         let resume = run_dir.join("run.json").is_file();
         let live = self.mode == Mode::Live;
@@ -234,11 +262,14 @@ impl session::Cell for RunCell {
             frames: self.setup.frames,
             max_poses: None,
             // Stop early once the verdict cannot pass on skipped poses.
-            max_skipped_fraction: self.skipped_fraction_max,
+            max_skipped_fraction,
             in_process: self.in_process,
             // Camera sessions plan camera viewpoints (a shell): the run records an image per
             // pose by default; kinematic sessions never use the camera.
-            camera: if !resume && self.kind != SessionKind::Camera {
+            camera: if !resume && self.kind == SessionKind::Rcm {
+                // An endoscope image at every RCM pose.
+                crate::cell::CameraUse::Always
+            } else if !resume && self.kind != SessionKind::Camera {
                 crate::cell::CameraUse::Never
             } else {
                 crate::cell::CameraUse::Auto
@@ -423,6 +454,7 @@ fn start_options(a: &Args) -> session::start::StartOptions {
         note: a.note.clone(),
         kind: a.kind.clone(),
         arm_calibration: a.arm_calibration.clone(),
+        survey: a.survey,
     }
 }
 
@@ -433,8 +465,14 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         None => session::start::start(&start_options(&a))?.0,
     };
     let s0 = session::SessionFile::load(&dir.join("session.json"))?;
-    let acquired = s0.stages_done.contains(&session::Stage::AcquireTrain)
-        && s0.stages_done.contains(&session::Stage::AcquireValidation);
+    // The verify stage commands the arm too.
+    let acquired = [
+        session::Stage::AcquireTrain,
+        session::Stage::AcquireValidation,
+        session::Stage::Verify,
+    ]
+    .iter()
+    .all(|st| s0.stages_done.contains(st));
     let moves = !(s0.setup.plan_only || acquired);
     match s0.setup.mode {
         Mode::Live if moves && !a.live => bail!(
@@ -457,7 +495,7 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         in_process: a.in_process,
         yes: a.yes,
         dir: dir.clone(),
-        consented: false,
+        consented: None,
         skipped_fraction_max: s0.accept.skipped_fraction_max,
     };
     let mut log = |m: &str| eprintln!("==> {m}");
@@ -537,6 +575,10 @@ fn print_result(
             );
         } else if let Some(l) = &s.laser {
             for line in session::laser::lines(l, &s.measured) {
+                println!("{line}");
+            }
+        } else if let Some(r) = &s.rcm {
+            for line in session::rcm::lines(r, &s.measured) {
                 println!("{line}");
             }
         } else {

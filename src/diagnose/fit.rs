@@ -3,8 +3,8 @@
 //! registration by [`crate::solve::rigid::register_points`], then base + tool position).
 use nalgebra::{DMatrix, DVector, Isometry3, Point3};
 
-use super::effects::{eval_pose, Effect, EffectModel};
 use super::stats::{lstsq, normal_inverse};
+use crate::diagnose::effects::{eval_pose, Effect, EffectModel};
 use crate::model::{KinematicModel, ParamGroup};
 use crate::solve::lm::{minimize, LmOptions, LsqProblem};
 use crate::solve::obs::PoseObs;
@@ -31,17 +31,37 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
         .par_iter()
         .map(|o| eval_pose(&state.model, &state.effects, &o.ctx))
         .collect();
-    for (k, (o, ev)) in obs.iter().zip(evals).enumerate() {
+    for (k, (o, ev)) in obs.iter().zip(&evals).enumerate() {
         let d = o.p - ev.pred;
         for a in 0..3 {
             r[3 * k + a] = d[a];
-            for (c, &fi) in free.iter().enumerate() {
-                j[(3 * k + a, c)] = ev.jac_model[(a, fi)];
-            }
-            for c in 0..ne {
-                j[(3 * k + a, free.len() + c)] = ev.jac_effects[(a, c)];
-            }
         }
+    }
+    // The Jacobian is column-major and may have ~1,000 columns (a round's candidates):
+    // filled a band of columns at a time (the bands in parallel), so that every write
+    // stream runs down its column instead of jumping a whole column per element.
+    const BAND: usize = 16;
+    let nrow = 3 * obs.len();
+    if nrow > 0 && p > 0 {
+        j.as_mut_slice()
+            .par_chunks_mut(nrow * BAND)
+            .enumerate()
+            .for_each(|(band, cols)| {
+                let c0 = band * BAND;
+                let nc = cols.len() / nrow;
+                for (k, ev) in evals.iter().enumerate() {
+                    for dc in 0..nc {
+                        let c = c0 + dc;
+                        for a in 0..3 {
+                            cols[dc * nrow + 3 * k + a] = if c < free.len() {
+                                ev.jac_model[(a, free[c])]
+                            } else {
+                                ev.jac_effects[(a, c - free.len())]
+                            };
+                        }
+                    }
+                }
+            });
     }
     (r, j)
 }
@@ -50,7 +70,7 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
 pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
     let mut r = DVector::zeros(3 * obs.len());
     for (k, o) in obs.iter().enumerate() {
-        let p = super::effects::apply_effects(&state.model, &state.effects, &o.ctx);
+        let p = crate::diagnose::effects::apply_effects(&state.model, &state.effects, &o.ctx);
         let d = o.p - p;
         for a in 0..3 {
             r[3 * k + a] = d[a];
@@ -285,92 +305,107 @@ mod tests {
             tau_s: 1500.0,
         };
         let exact = vec![
-            effect(Block::Backlash { joint: 2 }, vec![3e-4]),
             effect(
-                Block::Eccentricity { joint: 3 },
-                vec![2e-4, -1e-4, 5e-5, 1e-4],
-            ),
-            effect(Block::Transmission { joint: 4 }, vec![4e-4]),
-            effect(
-                Block::Ripple {
-                    joint: 2,
-                    harmonic: 3,
-                },
-                vec![2e-4, -1e-4],
-            ),
-            effect(
-                Block::JointDrift {
-                    joint: 2,
-                    driver: Driver::Time { t0_s: 0.0 },
-                },
-                vec![2e-4],
-            ),
-            effect(
-                Block::JointDrift {
-                    joint: 3,
-                    driver: tw,
-                },
+                Block::Backlash(crate::diagnose::effects::Backlash { joint: 2 }),
                 vec![3e-4],
             ),
             effect(
-                Block::JointDrift {
+                Block::Eccentricity(crate::diagnose::effects::Eccentricity { joint: 3 }),
+                vec![2e-4, -1e-4, 5e-5, 1e-4],
+            ),
+            effect(
+                Block::Transmission(crate::diagnose::effects::Transmission { joint: 4 }),
+                vec![4e-4],
+            ),
+            effect(
+                Block::Ripple(crate::diagnose::effects::Ripple {
+                    joint: 2,
+                    harmonic: 3,
+                }),
+                vec![2e-4, -1e-4],
+            ),
+            effect(
+                Block::JointDrift(crate::diagnose::effects::JointDrift {
+                    joint: 2,
+                    driver: Driver::Time { t0_s: 0.0 },
+                }),
+                vec![2e-4],
+            ),
+            effect(
+                Block::JointDrift(crate::diagnose::effects::JointDrift {
+                    joint: 3,
+                    driver: tw,
+                }),
+                vec![3e-4],
+            ),
+            effect(
+                Block::JointDrift(crate::diagnose::effects::JointDrift {
                     joint: 1,
                     driver: Driver::Temp { t0_c: 22.0 },
-                },
+                }),
                 vec![1e-4],
             ),
-            effect(Block::LengthDrift { driver: tw }, vec![2e-4]),
-            effect(Block::TrackerScale, vec![3e-4]),
             effect(
-                Block::BaseShift { t_change: 1000.0 },
+                Block::LengthDrift(crate::diagnose::effects::LengthDrift { driver: tw }),
+                vec![2e-4],
+            ),
+            effect(
+                Block::TrackerScale(crate::diagnose::effects::TrackerScale),
+                vec![3e-4],
+            ),
+            effect(
+                Block::BaseShift(crate::diagnose::effects::BaseShift { t_change: 1000.0 }),
                 vec![0.2, -0.1, 0.3, 1e-4, -2e-4, 5e-5],
             ),
-            effect(Block::Latency, vec![0.004]),
             effect(
-                Block::Coupling {
+                Block::Latency(crate::diagnose::effects::Latency),
+                vec![0.004],
+            ),
+            effect(
+                Block::Coupling(crate::diagnose::effects::Coupling {
                     joint: 5,
                     driver: 4,
-                },
+                }),
                 vec![2e-4, -3e-4],
             ),
             effect(
-                Block::WaveGenerator {
+                Block::WaveGenerator(crate::diagnose::effects::WaveGenerator {
                     joint: 3,
                     ratio: 101.0,
                     harmonic: 2,
-                },
+                }),
                 vec![1e-4, 5e-5],
             ),
             effect(
-                Block::TempDrift { t0_c: 22.0 },
+                Block::TempDrift(crate::diagnose::effects::TempDrift { t0_c: 22.0 }),
                 vec![3e-5, 1e-4, -2e-4, 5e-5, 1e-4, -1e-4, 2e-4],
             ),
         ];
         let compliance = vec![
             effect(
-                Block::Compliance {
+                Block::Compliance(crate::diagnose::effects::Compliance {
                     joint: 2,
                     points: mass_points(&model, 2),
-                },
+                }),
                 vec![6e-4; mass_points(&model, 2).len()],
             ),
             effect(
-                Block::LinkDeflection {
+                Block::LinkDeflection(crate::diagnose::effects::LinkDeflection {
                     joint: 3,
                     points: mass_points(&model, 3),
                     anisotropic: false,
-                },
+                }),
                 vec![4e-4; mass_points(&model, 3).len()],
             ),
         ];
         // Anisotropic bending of the base (two link-fixed axes), on its own: its neglected
         // geometry cross term adds to that of the set above.
         let bending = vec![effect(
-            Block::LinkDeflection {
+            Block::LinkDeflection(crate::diagnose::effects::LinkDeflection {
                 joint: 1,
                 points: mass_points(&model, 1),
                 anisotropic: true,
-            },
+            }),
             (0..2 * mass_points(&model, 1).len())
                 .map(|k| if k % 2 == 0 { 4e-4 } else { -2e-4 })
                 .collect(),

@@ -31,7 +31,7 @@ pub mod transfer;
 pub use crate::solve::inference as stats;
 
 use crate::solve::obs::PoseObs;
-use effects::{mass_points, Block, Driver, Effect, EffectModel};
+use effects::{Block, Driver, Effect, EffectModel};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
 use stats::{f_sf, independence, orth_basis, project_out, CvBase};
 
@@ -299,113 +299,8 @@ pub fn candidates_with(
     train: &[PoseObs],
     opt: &Options,
 ) -> (Vec<Vec<Block>>, Vec<(String, String)>) {
-    let n = model.dof();
-    let mut groups: Vec<Vec<Block>> = Vec::new();
-    for j in 1..=n {
-        groups.push(vec![Block::Compliance {
-            joint: j,
-            points: mass_points(model, j),
-        }]);
-        groups.push(vec![Block::Backlash { joint: j }]);
-        groups.push(vec![Block::Eccentricity { joint: j }]);
-        groups.push(vec![Block::Transmission { joint: j }]);
-        // Transmission ripple: harmonics ≥ 3 of the joint's rotation (1 and 2 are
-        // eccentricity); a group, so every harmonic counts as a test.
-        groups.push(
-            opt.ripple_harmonics
-                .iter()
-                .map(|&harmonic| Block::Ripple { joint: j, harmonic })
-                .collect(),
-        );
-        // Link / bearing bending under the gravity moment at the joint: isotropic, or with
-        // separate compliances about the two link-fixed bending axes (both count as tests;
-        // ΔBIC charges the anisotropic variant its extra coefficients).
-        groups.push(
-            [false, true]
-                .iter()
-                .map(|&anisotropic| Block::LinkDeflection {
-                    joint: j,
-                    points: mass_points(model, j),
-                    anisotropic,
-                })
-                .collect(),
-        );
-        // Joint-coupled errors: joint j's error driven by another joint's angle (one group
-        // per affected joint; every driver counts as a test).
-        groups.push(
-            (1..=n)
-                .filter(|&d| d != j)
-                .map(|driver| Block::Coupling { joint: j, driver })
-                .collect(),
-        );
-        if opt.wave_gear_ratio > 0.0 {
-            groups.push(
-                WAVE_HARMONICS
-                    .iter()
-                    .map(|&harmonic| Block::WaveGenerator {
-                        joint: j,
-                        ratio: opt.wave_gear_ratio,
-                        harmonic,
-                    })
-                    .collect(),
-            );
-        }
-    }
-    let t0 = train.iter().map(|o| o.t).fold(f64::INFINITY, f64::min);
-    let t1 = train.iter().map(|o| o.t).fold(f64::NEG_INFINITY, f64::max);
-    let mut drivers = vec![Driver::Time { t0_s: t0 }];
-    if train.iter().any(|o| o.temp_c.is_some()) {
-        let lo = train
-            .iter()
-            .filter_map(|o| o.temp_c)
-            .fold(f64::INFINITY, f64::min);
-        drivers.push(Driver::Temp { t0_c: lo });
-        groups.push(vec![Block::TempDrift { t0_c: lo }]);
-    }
-    // A time-driven drift is either linear or an exponential warm-up with an unknown time
-    // constant: one group per (kind, joint) holding the linear drift and a log grid of τ
-    // (every grid point counts as a test); the accepted τ is refined by [`refine_tau`].
-    let taus = tau_grid(t1 - t0);
-    for d in &drivers {
-        let variants: Vec<Driver> = match d {
-            Driver::Time { t0_s } => std::iter::once(*d)
-                .chain(
-                    taus.iter()
-                        .map(|&tau_s| Driver::WarmUp { t0_s: *t0_s, tau_s }),
-                )
-                .collect(),
-            _ => vec![*d],
-        };
-        for j in 1..=n {
-            groups.push(
-                variants
-                    .iter()
-                    .map(|&driver| Block::JointDrift { joint: j, driver })
-                    .collect(),
-            );
-        }
-        groups.push(
-            variants
-                .iter()
-                .map(|&driver| Block::LengthDrift { driver })
-                .collect(),
-        );
-    }
-    groups.push(vec![Block::TrackerScale]);
-    if train.len() >= 20 && t1 > t0 {
-        let mut ts: Vec<f64> = train.iter().map(|o| o.t).collect();
-        ts.sort_by(|a, b| a.total_cmp(b));
-        let grid: Vec<Block> = (2..=18)
-            .map(|k| {
-                let i = k * (ts.len() - 1) / 20;
-                // change point half-way between two consecutive poses
-                let t = 0.5 * (ts[i] + ts[(i + 1).min(ts.len() - 1)]);
-                Block::BaseShift { t_change: t }
-            })
-            .collect();
-        groups.push(grid);
-    }
-    groups.push(vec![Block::Latency]);
+    // Every family's candidates, registry order (per joint, then the global groups).
+    let mut groups = effects::registry_candidates(model, train, opt);
     groups.retain(|g| {
         g.first()
             .is_none_or(|b| !opt.exclude_kinds.iter().any(|k| k == b.kind()))
@@ -420,7 +315,7 @@ pub fn candidates_with(
                 Ok(()) => true,
                 Err(e) => {
                     let name = match b {
-                        Block::Compliance { .. } | Block::Backlash { .. } => b.label(),
+                        Block::Compliance(_) | Block::Backlash(_) => b.label(),
                         _ => b.kind().to_string(),
                     };
                     reason.get_or_insert((name, e));
@@ -450,22 +345,21 @@ pub fn tau_grid(span_s: f64) -> Vec<f64> {
 
 fn set_tau(e: &mut Effect, tau: f64) {
     match &mut e.block {
-        Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => {
-            *driver = driver.with_tau(tau)
-        }
+        Block::JointDrift(effects::JointDrift { driver, .. })
+        | Block::LengthDrift(effects::LengthDrift { driver }) => *driver = driver.with_tau(tau),
         _ => {}
     }
 }
 
 fn warm_up_tau(e: &Effect) -> Option<f64> {
     match &e.block {
-        Block::JointDrift {
+        Block::JointDrift(effects::JointDrift {
             driver: Driver::WarmUp { tau_s, .. },
             ..
-        }
-        | Block::LengthDrift {
+        })
+        | Block::LengthDrift(effects::LengthDrift {
             driver: Driver::WarmUp { tau_s, .. },
-        } => Some(*tau_s),
+        }) => Some(*tau_s),
         _ => None,
     }
 }
@@ -604,7 +498,7 @@ pub fn score_round(
         // consecutive poses (each one counts as a test).
         if let Some((
             Score {
-                block: Block::BaseShift { t_change },
+                block: Block::BaseShift(effects::BaseShift { t_change }),
                 ..
             },
             _,
@@ -614,7 +508,7 @@ pub fn score_round(
             let grid: Vec<f64> = group
                 .iter()
                 .filter_map(|b| match b {
-                    Block::BaseShift { t_change } => Some(*t_change),
+                    Block::BaseShift(b) => Some(b.t_change),
                     _ => None,
                 })
                 .collect();
@@ -639,7 +533,7 @@ pub fn score_round(
             let tests = group.len() + fine.len();
             let fine: Vec<Block> = fine
                 .into_iter()
-                .map(|t_change| Block::BaseShift { t_change })
+                .map(|t_change| effects::BaseShift { t_change }.into())
                 .collect();
             for (b, g) in fine.iter().zip(candidate_columns(state, train, &fine)) {
                 consider(eval_block(b, g, tests), &mut best);
@@ -704,17 +598,15 @@ fn block_conditioning(q: &DMatrix<f64>, g: &DMatrix<f64>) -> f64 {
 /// The block with mass points `pts` (same kind and joint as `b`).
 fn with_points(b: &Block, pts: Vec<effects::MassPoint>) -> Block {
     match b {
-        Block::Compliance { joint, .. } => Block::Compliance {
-            joint: *joint,
+        Block::Compliance(c) => Block::Compliance(effects::Compliance {
+            joint: c.joint,
             points: pts,
-        },
-        Block::LinkDeflection {
-            joint, anisotropic, ..
-        } => Block::LinkDeflection {
-            joint: *joint,
+        }),
+        Block::LinkDeflection(d) => Block::LinkDeflection(effects::LinkDeflection {
+            joint: d.joint,
             points: pts,
-            anisotropic: *anisotropic,
-        },
+            anisotropic: d.anisotropic,
+        }),
         other => other.clone(),
     }
 }
@@ -732,9 +624,8 @@ fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>])
     let q = orth_basis(&j);
     for b in cands.iter_mut().flatten() {
         let pts = match b {
-            Block::Compliance { points, .. } | Block::LinkDeflection { points, .. } => {
-                points.clone()
-            }
+            Block::Compliance(c) => c.points.clone(),
+            Block::LinkDeflection(d) => d.points.clone(),
             _ => continue,
         };
         let mut pts = pts;
@@ -817,7 +708,7 @@ fn ambiguous(
 ) -> (Vec<schema::AmbiguousPose>, Vec<String>) {
     let mut out = Vec::new();
     for st in steps {
-        let Block::BaseShift { t_change } = st.effect.block else {
+        let Block::BaseShift(effects::BaseShift { t_change }) = st.effect.block else {
             continue;
         };
         let lo = train
@@ -856,6 +747,9 @@ struct Chain {
     /// refit of the physical chain on each fold's complement, times the correction's
     /// out-of-fold ratio when a correction was added ([`chain_cv`]).
     cv_rms: f64,
+    /// The correction chosen by cross-validation and not fitted yet ([`add_correction`]):
+    /// under [`Policy::Best`] only the kept chain's is fitted ([`fit_correction`]).
+    pending: Option<nonparam::RbfCv>,
 }
 
 /// Select effects one at a time from `start` under the rules of `opt` (see the module doc).
@@ -913,8 +807,8 @@ fn select_chain(
                     .iter()
                     .find(|s| {
                         g.iter().any(|b| b.label() == s.label)
-                            || (matches!(s.block, Block::BaseShift { .. })
-                                && matches!(g[0], Block::BaseShift { .. }))
+                            || (matches!(s.block, Block::BaseShift(_))
+                                && matches!(g[0], Block::BaseShift(_)))
                     })
                     .map(|s| s.tests)
                     .unwrap_or(g.len())
@@ -960,7 +854,7 @@ fn select_chain(
         });
         // Drop the group the accepted block came from (one base shift, one per kind+joint);
         // of a ripple group only the accepted harmonic (a joint may carry several).
-        if matches!(best.block, Block::Ripple { .. }) {
+        if matches!(best.block, Block::Ripple(_)) {
             for g in remaining.iter_mut() {
                 g.retain(|b| b.label() != best.block.label());
             }
@@ -969,8 +863,8 @@ fn select_chain(
         remaining.retain(|g| {
             !g.iter().any(|b| {
                 b.label() == best.block.label()
-                    || (matches!(b, Block::BaseShift { .. })
-                        && matches!(best.block, Block::BaseShift { .. }))
+                    || (matches!(b, Block::BaseShift(_))
+                        && matches!(best.block, Block::BaseShift(_)))
             })
         });
     }
@@ -986,6 +880,7 @@ fn select_chain(
         not_identifiable,
         nonparametric: None,
         cv_rms,
+        pending: None,
     }
 }
 
@@ -996,16 +891,13 @@ fn select_chain(
 fn add_correction(
     chain: &mut Chain,
     train: &[PoseObs],
-    heldout: &[PoseObs],
     opt: &Options,
     geometric_cv: Option<&nonparam::RbfCv>,
 ) {
     if !opt.allow_nonparametric || train.len() < 40 {
         return;
     }
-    let state = &mut chain.state;
-    let r = residuals(state, train);
-    let (qs, rv) = np_data(state, train);
+    let (qs, rv) = np_data(&chain.state, train);
     let fo = folds(train, opt.n_folds);
     let cv = match geometric_cv {
         Some(c) if chain.steps.is_empty() => Some(c.clone()),
@@ -1029,7 +921,27 @@ fn add_correction(
     if cv.cv_rms_after >= (1.0 - opt.nonparam_min_gain) * cv.cv_rms_before {
         return;
     }
+    if cv.cv_rms_before > 0.0 {
+        chain.cv_rms *= cv.cv_rms_after / cv.cv_rms_before;
+    }
+    chain.pending = Some(cv);
+}
+
+/// Fit the correction [`add_correction`] chose for `chain` (the kernel system of every
+/// training pose: the costliest single solve of a diagnosis, so under [`Policy::Best`] only
+/// for the chain that is kept) and append it as the chain's last step. A system that cannot
+/// be solved leaves the chain without a correction.
+fn fit_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs]) {
+    let Some(cv) = chain.pending.take() else {
+        return;
+    };
+    let state = &mut chain.state;
+    let r = residuals(state, train);
+    let (qs, rv) = np_data(state, train);
     let Some(mut rbf) = nonparam::Rbf::fit(&qs, &rv, cv.length_scale, cv.lambda) else {
+        if cv.cv_rms_after > 0.0 {
+            chain.cv_rms *= cv.cv_rms_before / cv.cv_rms_after;
+        }
         return;
     };
     rbf.arm_frame = true;
@@ -1064,9 +976,6 @@ fn add_correction(
         state_after: state.clone(),
     });
     chain.nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
-    if cv.cv_rms_before > 0.0 {
-        chain.cv_rms *= cv.cv_rms_after / cv.cv_rms_before;
-    }
 }
 
 /// Which chain the [`Policy::Best`] policy kept, and the evidence (time-blocked CV RMS of
@@ -1140,7 +1049,7 @@ pub fn diagnose(
             o,
             round0.as_deref(),
         );
-        add_correction(&mut c, train, heldout, o, np_cv.as_ref());
+        add_correction(&mut c, train, o, np_cv.as_ref());
         c
     };
     // No effect asked for (a geometric fit only): nothing to choose between.
@@ -1149,7 +1058,7 @@ pub fn diagnose(
     } else {
         opt.policy
     };
-    let (chain, policy_choice) = match policy {
+    let (mut chain, policy_choice) = match policy {
         Policy::Single => (single(opt), None),
         Policy::Best => {
             let pf = Options {
@@ -1178,9 +1087,13 @@ pub fn diagnose(
             };
             let (keep, other) = if use_pf { (pf, kb) } else { (kb, pf) };
             choice.other_chain = label(&other);
+            if other.pending.is_some() {
+                choice.other_chain.push("nonparametric".into());
+            }
             (keep, Some(choice))
         }
     };
+    fit_correction(&mut chain, train, heldout);
     let Chain {
         state,
         mut steps,
@@ -1457,7 +1370,7 @@ impl Diagnosis {
                     "## Absorbed by the geometric parameters (cannot be detected from this data)\n"
                 );
                 for x in absorbed {
-                    let hint = if matches!(x.block, Block::TrackerScale) {
+                    let hint = if matches!(x.block, Block::TrackerScale(_)) {
                         " A tracker scale error is collinear with scaling every link length: the calibration reproduces the scaled readings and is wrong by the scale in absolute terms. Only an independent length standard (calibrated bar, CMM artefact) in the data can reveal it."
                     } else {
                         ""
@@ -1572,15 +1485,15 @@ mod tests {
             model: model.clone(),
             effects: vec![],
         };
-        let full = mass_points(&model, 2);
+        let full = effects::mass_points(&model, 2);
         assert!(full.len() > 2, "{full:?}");
         let n_kept = |obs: &[PoseObs]| {
-            let mut c = vec![vec![Block::Compliance {
+            let mut c = vec![vec![Block::Compliance(effects::Compliance {
                 joint: 2,
                 points: full.clone(),
-            }]];
+            })]];
             prune_mass_points(&state, obs, &mut c);
-            let Block::Compliance { points, .. } = &c[0][0] else {
+            let Block::Compliance(effects::Compliance { points, .. }) = &c[0][0] else {
                 unreachable!()
             };
             assert!(points.iter().all(|p| full.contains(p)));
@@ -1628,7 +1541,7 @@ mod tests {
                 o
             })
             .collect();
-        let mut fitted = Effect::zero(Block::Backlash { joint: 3 });
+        let mut fitted = Effect::zero(Block::Backlash(effects::Backlash { joint: 3 }));
         fitted.coefs = vec![2e-4];
         let state = State {
             model: model.clone(),
@@ -1636,8 +1549,8 @@ mod tests {
         };
         let (mut blocks, _) = candidates(&model, &obs);
         let mut all: Vec<Block> = blocks.iter_mut().map(|g| g.remove(0)).collect();
-        all.push(Block::Latency);
-        all.push(Block::BaseShift { t_change: 1500.0 });
+        all.push(Block::Latency(effects::Latency));
+        all.push(Block::BaseShift(effects::BaseShift { t_change: 1500.0 }));
         let cols = candidate_columns(&state, &obs, &all);
         let mut worst = 0.0f64;
         for (b, g) in all.iter().zip(&cols) {
@@ -1680,7 +1593,7 @@ mod tests {
         use nalgebra::Matrix3xX;
         let model = KinematicModel::preset("denso-vs060").unwrap();
         let truth_b = 0.02f64.to_radians();
-        let mut truth = Effect::zero(Block::Backlash { joint: 2 });
+        let mut truth = Effect::zero(Block::Backlash(effects::Backlash { joint: 2 }));
         truth.coefs = vec![truth_b];
         let mut noise = lcg_noise(11, 0.01);
         let mut pose = |k: u64| {
@@ -1709,7 +1622,11 @@ mod tests {
         // Jacobian of the correction for a block of every kind, at nonzero coefficients.
         let (groups, _) = candidates(&model, &train);
         let mut worst = 0.0f64;
-        for b in groups.iter().map(|g| g[0].clone()).chain([Block::Latency]) {
+        for b in groups
+            .iter()
+            .map(|g| g[0].clone())
+            .chain([Block::Latency(effects::Latency)])
+        {
             let le = LibraryEffect::new(b.clone());
             let th: Vec<f64> = (0..b.n_params()).map(|k| 1e-4 * (k as f64 + 1.0)).collect();
             let o = &train[5];
@@ -1729,7 +1646,9 @@ mod tests {
             }
         }
         let opts = IdentOptions {
-            effects: vec![Arc::new(LibraryEffect::new(Block::Backlash { joint: 2 }))],
+            effects: vec![Arc::new(LibraryEffect::new(Block::Backlash(
+                effects::Backlash { joint: 2 },
+            )))],
             kfold: 0,
             ..Default::default()
         };
@@ -1754,19 +1673,19 @@ mod tests {
         model.fix_point_redundancies();
         let truth = [
             Effect {
-                block: Block::Ripple {
+                block: Block::Ripple(effects::Ripple {
                     joint: 2,
                     harmonic: 5,
-                },
+                }),
                 coefs: vec![0.012f64.to_radians(), -0.006f64.to_radians()],
                 std: vec![f64::NAN; 2],
                 tau_std: f64::NAN,
             },
             Effect {
-                block: Block::Ripple {
+                block: Block::Ripple(effects::Ripple {
                     joint: 2,
                     harmonic: 17,
-                },
+                }),
                 coefs: vec![0.004f64.to_radians(), 0.008f64.to_radians()],
                 std: vec![f64::NAN; 2],
                 tau_std: f64::NAN,
@@ -1823,7 +1742,7 @@ mod tests {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
         model.fix_point_redundancies();
         let shift = Effect {
-            block: Block::BaseShift { t_change: 601.0 },
+            block: Block::BaseShift(effects::BaseShift { t_change: 601.0 }),
             coefs: vec![0.4, -0.3, 0.35, 3e-4, -2e-4, 2.5e-4],
             std: vec![f64::NAN; 6],
             tau_std: f64::NAN,

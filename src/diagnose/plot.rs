@@ -9,9 +9,7 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use std::path::Path;
 
-use super::effects::{
-    apply_effects, deflection_terms, gravity_torques, Block, Effect, EffectModel,
-};
+use super::effects::{apply_effects, Block, Effect, EffectModel};
 use super::fit::State;
 use crate::solve::obs::PoseObs;
 
@@ -34,7 +32,7 @@ pub fn partial_residual(
     let joint = e
         .block
         .joint()
-        .filter(|_| !matches!(e.block, Block::LinkDeflection { .. }));
+        .filter(|_| !matches!(e.block, Block::LinkDeflection(_)));
     let mut pts = Vec::with_capacity(obs.len());
     for o in obs {
         let full = apply_effects(&state.model, &state.effects, &o.ctx);
@@ -137,55 +135,7 @@ pub fn write_svg(
 /// The driver of an effect at one pose (the quantity its regressor is a function of) and
 /// its axis label: joint angle, harmonic phase, temperature, gravity torque, bending moment.
 pub fn driver_value(state: &State, e: &Effect, o: &PoseObs) -> (f64, String) {
-    let q = |j: usize| o.ctx.q.get(j.wrapping_sub(1)).copied().unwrap_or(f64::NAN);
-    let wrap = |a: f64| a.to_degrees().rem_euclid(360.0);
-    match &e.block {
-        Block::Compliance { joint, points } => (
-            gravity_torques(&state.model, &o.ctx.q, *joint, points)
-                .iter()
-                .sum(),
-            format!("gravity torque about joint {joint} (N·m per kg, summed over mass points)"),
-        ),
-        Block::LinkDeflection { joint, points, .. } => {
-            let (_, _, m) = deflection_terms(&state.model, &o.ctx.q, *joint, points, false);
-            (
-                m.iter().sum::<nalgebra::Vector3<f64>>().norm(),
-                format!("bending moment at joint {joint} (N·m per kg, summed)"),
-            )
-        }
-        Block::Backlash { joint } => (
-            o.ctx.approach.get(joint - 1).copied().unwrap_or(f64::NAN),
-            format!("approach direction of joint {joint}"),
-        ),
-        Block::Eccentricity { joint } | Block::Transmission { joint } => {
-            (q(*joint).to_degrees(), format!("q{joint} (deg)"))
-        }
-        Block::Ripple { joint, harmonic } => (
-            wrap(f64::from(*harmonic) * q(*joint)),
-            format!("phase {harmonic}·q{joint} (deg, mod 360)"),
-        ),
-        Block::WaveGenerator {
-            joint,
-            ratio,
-            harmonic,
-        } => (
-            wrap(f64::from(*harmonic) * ratio * q(*joint)),
-            format!("wave-generator phase {harmonic}·{ratio}·q{joint} (deg, mod 360)"),
-        ),
-        Block::Coupling { driver, .. } => (q(*driver).to_degrees(), format!("q{driver} (deg)")),
-        Block::JointDrift { driver, .. } | Block::LengthDrift { driver } => (
-            driver.value(&o.ctx),
-            format!("{} ({})", driver.label(), driver.unit()),
-        ),
-        Block::TempDrift { .. } => (
-            o.ctx.temp_c.unwrap_or(f64::NAN),
-            "temperature temp_c (°C)".into(),
-        ),
-        Block::TrackerScale => (o.p.coords.norm(), "distance from the tracker (mm)".into()),
-        Block::BaseShift { .. } | Block::Latency | Block::Nonparametric(_) => {
-            (o.ctx.t, "time (s)".into())
-        }
-    }
+    e.block.plot_driver(&state.model, o)
 }
 
 /// Residual against the driver of `state.effects[idx]`: per pose (driver, partial residual,

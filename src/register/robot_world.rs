@@ -84,8 +84,107 @@ fn check_obs(obs: &[RwObs], need: usize, what: &str) -> Result<(), RegisterError
     Ok(())
 }
 
-/// Shah (2013). Returns `(X, Y)`.
+/// The likely cause of a degenerate robot-world estimate, read from the poses: a flange that
+/// barely turns between poses while the marker does (radians read as degrees) or at all (one
+/// held orientation); marker rotations that do not follow the flange's up to a fixed mounting
+/// ([`crate::plausible::quat::order_mismatch_deg`]: quaternion order, another frame, a marker
+/// that moved); rotations about one axis only.
+pub fn rotation_cause(obs: &[RwObs]) -> String {
+    let Some(first) = obs.first() else {
+        return "likely cause: no pose".into();
+    };
+    let (mut ta, mut tb, mut axes) = (Vec::new(), Vec::new(), Vec::new());
+    // The rotation angle between two poses is the same for the flange and the marker.
+    for o in &obs[1..] {
+        let ra = first.a.rotation.inverse() * o.a.rotation;
+        let rb = first.b.rotation.inverse() * o.b.rotation;
+        ta.push(ra.angle().to_degrees());
+        tb.push(rb.angle().to_degrees());
+        if let Some(ax) = ra.axis().filter(|_| ra.angle() > 1f64.to_radians()) {
+            axes.push(ax.into_inner());
+        }
+    }
+    let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
+    let (amax, bmax) = (max(&ta), max(&tb));
+    if bmax >= 10.0 && amax < 0.2 * bmax {
+        return format!(
+            "likely cause: the flange turns at most {amax:.2}° between poses while the marker \
+             turns up to {bmax:.1}°: the robot's rotations are likely in radians where degrees \
+             are expected, or the flange poses are not the robot's"
+        );
+    }
+    if amax < 2.0 {
+        return format!(
+            "likely cause: the flange turns at most {amax:.2}° between poses; record poses \
+             turned by 30° or more about at least two different axes"
+        );
+    }
+    let robot: Vec<UnitQuaternion<f64>> = obs.iter().map(|o| o.a.rotation).collect();
+    let file: Vec<[f64; 4]> = obs
+        .iter()
+        .map(|o| {
+            let q = o.b.rotation.into_inner();
+            [q.w, q.i, q.j, q.k]
+        })
+        .collect();
+    let (decl, alt) = crate::plausible::quat::order_mismatch_deg(&robot, &file);
+    if decl > crate::plausible::quat::ORDER_MISMATCH_DEG {
+        return if alt < 0.25 * decl {
+            format!(
+                "likely cause: the marker's quaternions look like [x, y, z, w] (scalar last): \
+                 read as [w, x, y, z] their rotations between poses differ from the flange's by \
+                 {decl:.1}° (median), read scalar-last by {alt:.3}°; files use [w, x, y, z]"
+            )
+        } else {
+            format!(
+                "likely cause: the marker's rotations between poses do not follow the flange's \
+                 (median difference {decl:.1}°): the marker poses are in another frame, belong \
+                 to other robot poses, or the marker moved on the flange"
+            )
+        };
+    }
+    let mut scatter = Matrix3::zeros();
+    for a in &axes {
+        scatter += a * a.transpose();
+    }
+    let eig = scatter.symmetric_eigen();
+    let mut ev: Vec<(f64, Vector3<f64>)> = eig
+        .eigenvalues
+        .iter()
+        .zip(eig.eigenvectors.column_iter())
+        .map(|(l, v)| (*l, v.into_owned()))
+        .collect();
+    ev.sort_by(|a, b| b.0.total_cmp(&a.0));
+    if !axes.is_empty() && ev[1].0 < 0.02 * ev[0].0 {
+        let v = ev[0].1;
+        return format!(
+            "likely cause: every rotation between poses is about one axis (flange \
+             ({:.2}, {:.2}, {:.2})); turn the flange about a second axis by 30° or more",
+            v.x, v.y, v.z
+        );
+    }
+    format!(
+        "likely cause: the rotations between poses (up to {amax:.1}°) are too small or too \
+         alike; add poses turned by 30° or more about different axes"
+    )
+}
+
+fn with_cause(e: RegisterError, obs: &[RwObs]) -> RegisterError {
+    match e {
+        RegisterError::Degenerate(m) => {
+            RegisterError::Degenerate(format!("{m}; {}", rotation_cause(obs)))
+        }
+        e => e,
+    }
+}
+
+/// Shah (2013). Returns `(X, Y)`; a degenerate set of poses is refused with its likely cause
+/// ([`rotation_cause`]).
 pub fn shah(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
+    shah_closed(obs).map_err(|e| with_cause(e, obs))
+}
+
+fn shah_closed(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
     check_obs(obs, 3, "Shah")?;
     let mut k = SMatrix::<f64, 9, 9>::zeros();
     for o in obs {
@@ -123,8 +222,13 @@ pub fn shah(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterE
     Ok((iso(&c, &ctg).inverse(), iso(&w, &wtb).inverse()))
 }
 
-/// Li, Wang & Wu (2010). Returns `(X, Y)`.
+/// Li, Wang & Wu (2010). Returns `(X, Y)`; a degenerate set of poses is refused with its
+/// likely cause ([`rotation_cause`]).
 pub fn li(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
+    li_closed(obs).map_err(|e| with_cause(e, obs))
+}
+
+fn li_closed(obs: &[RwObs]) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
     check_obs(obs, 3, "Li")?;
     let n = obs.len();
     let mut am = DMatrix::zeros(12 * n, 24);
@@ -204,7 +308,7 @@ pub fn tsai_route_min_motion(
 ) -> Result<(Isometry3<f64>, Isometry3<f64>), RegisterError> {
     let hg: Vec<_> = obs.iter().map(|o| o.a.inverse()).collect();
     let hc: Vec<_> = obs.iter().map(|o| o.b).collect();
-    let y = tsai_lenz_min_motion(&hg, &hc, min_motion)?;
+    let y = tsai_lenz_min_motion(&hg, &hc, min_motion).map_err(|e| with_cause(e, obs))?;
     let xs: Vec<_> = obs.iter().map(|o| o.a.inverse() * y * o.b).collect();
     Ok((crate::solve::rigid::mean_isometry(&xs), y))
 }
@@ -679,6 +783,63 @@ mod tests {
             })
             .collect();
         (obs, x, y)
+    }
+
+    /// Issue 26 §6: a degenerate set of poses names its likely cause, not "too little
+    /// rotation": rotations about one axis, quaternions in the wrong order, radians.
+    #[test]
+    fn degenerate_poses_name_their_likely_cause() {
+        let (obs, x, y) = synth(12, 0.0, 3);
+        // One axis: every flange orientation about the base z axis.
+        let one: Vec<RwObs> = obs
+            .iter()
+            .enumerate()
+            .map(|(i, o)| {
+                let mut a = o.a;
+                a.rotation = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3 * i as f64);
+                RwObs {
+                    id: o.id,
+                    a,
+                    b: y.inverse() * a * x,
+                }
+            })
+            .collect();
+        let c = rotation_cause(&one);
+        assert!(c.contains("about one axis"), "{c}");
+        let err = li(&one).unwrap_err().to_string();
+        assert!(
+            err.contains("likely cause") && err.contains("one axis"),
+            "{err}"
+        );
+        // The marker's quaternions read scalar-first as scalar-last.
+        let swapped: Vec<RwObs> = obs
+            .iter()
+            .map(|o| {
+                let q = o.b.rotation.into_inner().coords;
+                let mut b = o.b;
+                b.rotation = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                    q[0], q[1], q[2], q[3],
+                ));
+                RwObs { b, ..o.clone() }
+            })
+            .collect();
+        let c = rotation_cause(&swapped);
+        assert!(c.contains("[x, y, z, w]"), "{c}");
+        // Flange rotations in radians read as degrees: the flange barely turns.
+        let rad: Vec<RwObs> = obs
+            .iter()
+            .map(|o| {
+                let mut a = o.a;
+                a.rotation = UnitQuaternion::from_scaled_axis(
+                    o.a.rotation.scaled_axis() * std::f64::consts::PI / 180.0,
+                );
+                RwObs { a, ..o.clone() }
+            })
+            .collect();
+        let c = rotation_cause(&rad);
+        assert!(c.contains("radians"), "{c}");
+        // Good poses: only the generic advice (never called on them by the solvers).
+        assert!(shah(&obs).is_ok());
     }
 
     #[test]

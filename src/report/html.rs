@@ -150,9 +150,11 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     );
     row(&mut h, "Controller", c.controller.as_deref().unwrap_or("—"));
     row(&mut h, "Tracker", c.tracker.as_deref().unwrap_or("—"));
+    // The tracker's name in the cell file (the tracker does not report its serial number
+    // to robocal yet): not labelled a serial.
     row(
         &mut h,
-        "Tracker serial",
+        "Tracker name (cell file)",
         c.tracker_serial.as_deref().unwrap_or("—"),
     );
     row(
@@ -172,6 +174,11 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
         s.setup.operator_note.as_deref().unwrap_or("—"),
     );
     row(&mut h, "Acceptance spec", &s.accept.name);
+    if let Some(v) = &s.survey {
+        // `--survey`: the plan was made from where the probe poses found the tracker.
+        let w = crate::session::survey::words(v);
+        row(&mut h, "Tracker survey", w.trim_start_matches("survey: "));
+    }
     h.push_str("</table>\n");
     // Criteria.
     if let Some(j) = &s.judgement {
@@ -219,14 +226,21 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     let _ = write!(
         h,
         "<tr><th>poses planned</th><td>{}</td></tr><tr><th>poses skipped</th><td>{}</td></tr>\
-         <tr><th>predicted / measured acquisition time</th><td>{:.0} s / {}</td></tr>\
+         <tr><th>predicted / measured acquisition time</th><td>{:.0} s / {}{}</td></tr>\
          <tr><th>held-out {}</th><td>{}</td></tr>",
         s.poses_planned,
         s.poses_skipped,
         s.predicted_duration_s,
         s.duration_s.map_or("—".into(), |d| format!("{d:.0} s")),
+        if s.setup.mode == Mode::Sim {
+            " (simulated clock)"
+        } else {
+            ""
+        },
         if s.camera.is_some() {
             "views (with a board)"
+        } else if s.rcm.is_some() {
+            "endoscope views (lines detected)"
         } else {
             "poses"
         },
@@ -240,6 +254,12 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
                 m.heldout_reprojection_px_before,
                 m.heldout_reprojection_px_after
             ),
+        );
+    } else if s.rcm.is_some() {
+        let _ = write!(
+            h,
+            "<tr><th>held-out silhouette RMS (px), seed 002 two-step → ML</th><td>{}</td></tr>",
+            ba(m.rcm_heldout_px_before, m.rcm_heldout_px_after),
         );
     } else {
         let _ = write!(
@@ -272,9 +292,18 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     }
     if let Some(c) = &s.camera {
         camera_section(&mut h, c);
+        // The held-out views: reprojection per view, residual map.
+        for p in &c.plots {
+            if let Some(svg) = inline_svg(&dir.join(p)) {
+                let _ = write!(h, "<figure class=\"plot-camera\">{svg}</figure>");
+            }
+        }
     }
     if let Some(l) = &s.laser {
         h.push_str(&crate::session::laser::html(l, &s.measured));
+    }
+    if let Some(r) = &s.rcm {
+        h.push_str(&crate::session::rcm::html(r, &s.measured));
     }
     // Effects.
     h.push_str("<h2>What the diagnosis found</h2>");
@@ -325,16 +354,18 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
                 );
             }
         }
-        h.push_str("<table id=\"params\"><tr><th>parameter</th><th>nominal</th><th>calibrated</th><th>change</th><th>95 % ±</th></tr>");
+        h.push_str("<table id=\"params\"><tr><th>parameter</th><th>nominal</th><th>calibrated</th><th>change</th><th>95 % interval (±)</th></tr>");
+        // -0.00000 prints as 0.00000.
+        let z = |v: f64| if v.abs() < 5e-6 { 0.0 } else { v };
         for p in &s.params {
             let _ = write!(
                 h,
-                "<tr><td>{}</td><td>{:.5} {u}</td><td>{:.5} {u}</td><td>{:+.5}</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{:.5} {u}</td><td>{:.5} {u}</td><td>{:+.5} {u}</td><td>{}</td></tr>",
                 esc(&p.name),
-                p.nominal,
-                p.value,
-                p.value - p.nominal,
-                p.ci95.map_or("—".into(), |c| format!("{c:.5}")),
+                z(p.nominal),
+                z(p.value),
+                z(p.value - p.nominal),
+                p.ci95.map_or("—".into(), |c| format!("{c:.5} {}", esc(&p.unit))),
                 u = esc(&p.unit)
             );
         }
@@ -388,7 +419,12 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
             } else {
                 "the calibration file (robocal-calibration/1: geometry and effects, mm / degrees): `robocal predict --calibration` applies it"
             };
-            let _ = write!(h, "<li><code>{}</code>: {}", esc(d), esc(what));
+            let _ = write!(
+                h,
+                "<li><code>{}</code>: {}",
+                esc(d),
+                crate::report::md_html::inline(what)
+            );
             // The accuracy this file delivers on its own, and a warning when that fails the
             // spec (the verdict was earned by the diagnosed model).
             if let Some(a) = s.deploy_accuracy.iter().find(|a| &a.artifact == d) {

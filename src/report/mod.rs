@@ -10,6 +10,8 @@
 //! Numbers are shown in the files' units (mm, degrees, seconds).
 
 pub mod html;
+pub mod md_html;
+pub mod sessions;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -65,6 +67,9 @@ pub struct Session {
     /// Navigation-chain and RCM files (`registration.json`, `robot_world.json`, `chain.json`,
     /// `rcm_report.json`): JSON objects shown by their scalar figures.
     pub navigation: Vec<Found<Value>>,
+    /// `session.json` files of `robocal session` (JSON objects; the RCM session's held-out
+    /// silhouette figures are read from their `measured` block).
+    pub session_files: Vec<Found<Value>>,
     /// SVG plots: relative path and content.
     pub plots: Vec<(String, String)>,
     /// Files that could not be read or parsed.
@@ -150,6 +155,7 @@ pub fn gather(dir: &Path) -> anyhow::Result<Session> {
         let w = &mut s.warnings;
         match name.as_str() {
             "summary.json" => take(&p, &rel, &mut s.runs, w),
+            "session.json" => take_json(&p, &rel, &mut s.session_files, w),
             "calibration.json" => take(&p, &rel, &mut s.calibrations, w),
             "diagnosis.json" => take(&p, &rel, &mut s.diagnoses, w),
             "laser_report.json" => take(&p, &rel, &mut s.laser_reports, w),
@@ -212,6 +218,8 @@ pub struct Headline {
     /// `diagnosis.json`.
     pub before_px: Option<f64>,
     pub after_px: Option<f64>,
+    /// What the px figures measure: "reprojection" (camera) or "silhouette" (RCM endoscope).
+    pub px_what: &'static str,
     /// Effects found by the diagnoses (labels, every sensor), sorted.
     pub effects: Vec<String>,
     /// Poses skipped during acquisition (None without a run summary).
@@ -273,6 +281,23 @@ impl Session {
                 break;
             }
         }
+        // 3. an RCM session: held-out silhouette RMS, seed 002 two-step → ML hand-eye.
+        let mut px_what = "reprojection";
+        if before.is_none() && before_px.is_none() {
+            for f in &self.session_files {
+                let m = f.value.get("measured");
+                let b = num(m.and_then(|m| m.get("rcm_heldout_px_before")));
+                let a = num(m.and_then(|m| m.get("rcm_heldout_px_after")));
+                if let (Some(b), Some(a)) = (b, a) {
+                    (before_px, after_px, px_what) = (Some(b), Some(a), "silhouette");
+                    source = format!(
+                        "{} (RCM held-out silhouette, seed 002 two-step → ML hand-eye)",
+                        f.rel
+                    );
+                    break;
+                }
+            }
+        }
         let mut effects: Vec<String> = self
             .diagnoses
             .iter()
@@ -292,6 +317,7 @@ impl Session {
             source,
             before_px,
             after_px,
+            px_what,
             effects,
             skipped,
             recorded,
@@ -304,7 +330,7 @@ impl Session {
         let mut s = match (h.before_mm, h.after_mm, h.before_px, h.after_px) {
             (Some(b), Some(a), _, _) => format!("held-out error {b:.3} mm → {a:.3} mm"),
             (_, _, Some(b), Some(a)) => {
-                format!("held-out reprojection error {b:.4} px → {a:.4} px")
+                format!("held-out {} error {b:.4} px → {a:.4} px", h.px_what)
             }
             _ => "held-out error: not available".to_string(),
         };
@@ -829,18 +855,21 @@ fn inline_svg(svg: &str) -> Option<&str> {
 }
 
 impl Session {
-    /// The report as one self-contained HTML page: the Markdown text (pre-formatted) with
-    /// every SVG plot inlined.
+    /// The report as one self-contained HTML page: the Markdown text as HTML (headings,
+    /// tables, lists) with every SVG plot inlined.
     pub fn html(&self) -> String {
         let mut h = String::new();
         h.push_str("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>robocal session report</title>\n");
-        h.push_str("<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}pre{white-space:pre-wrap;font-size:13px}h1.headline{font-size:1.3em}figure{margin:1em 0}</style>\n</head><body>\n");
+        h.push_str("<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}pre{white-space:pre-wrap;font-size:13px;background:#f6f6f6;padding:.5em}table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:2px 8px;text-align:left}code{background:#f4f4f4;padding:1px 4px}h1.headline{font-size:1.3em}figure{margin:1em 0}</style>\n</head><body>\n");
         let _ = writeln!(
             h,
             "<h1 class=\"headline\">{}</h1>",
             html_escape(&self.headline_text())
         );
-        let _ = writeln!(h, "<pre>{}</pre>", html_escape(&self.markdown()));
+        // The Markdown's own title and headline are the page's heading above.
+        let md = self.markdown();
+        let body = md.split_once("\n\n").map_or(md.as_str(), |(_, rest)| rest);
+        h.push_str(&md_html::to_html(body));
         for (rel, svg) in &self.plots {
             match inline_svg(svg) {
                 Some(s) => {

@@ -98,6 +98,19 @@ pub struct AcceptSpec {
     /// Laser sessions: the calibration data's point-to-plane RMS must be ≤ this (mm).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub laser_plane_rms_mm_max: Option<f64>,
+    /// RCM sessions: held-out RMS distance of the detected silhouette end points from the
+    /// silhouettes the deployed hand-eye predicts (px).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_heldout_px_max: Option<f64>,
+    /// RCM sessions: the largest 95 % half-interval of the endoscope's position (mm) and
+    /// rotation (deg) in the base.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_hand_eye_ci95_mm_max: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_hand_eye_ci95_deg_max: Option<f64>,
+    /// RCM sessions: views the line detector refused / views acquired (0..1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_refused_fraction_max: Option<f64>,
 }
 
 fn kind_name(k: super::SessionKind) -> &'static str {
@@ -105,6 +118,7 @@ fn kind_name(k: super::SessionKind) -> &'static str {
         super::SessionKind::Kinematic => "kinematic",
         super::SessionKind::Camera => "camera",
         super::SessionKind::Laser => "laser",
+        super::SessionKind::Rcm => "rcm",
     }
 }
 
@@ -158,6 +172,22 @@ impl AcceptSpec {
         check("coincidence_mm_max", spec.coincidence_mm_max, 1e4)?;
         check("laser_spread_mm_max", spec.laser_spread_mm_max, 1e4)?;
         check("laser_plane_rms_mm_max", spec.laser_plane_rms_mm_max, 1e4)?;
+        check("rcm_heldout_px_max", spec.rcm_heldout_px_max, 1e3)?;
+        check(
+            "rcm_hand_eye_ci95_mm_max",
+            spec.rcm_hand_eye_ci95_mm_max,
+            1e4,
+        )?;
+        check(
+            "rcm_hand_eye_ci95_deg_max",
+            spec.rcm_hand_eye_ci95_deg_max,
+            360.0,
+        )?;
+        check(
+            "rcm_refused_fraction_max",
+            spec.rcm_refused_fraction_max,
+            1.0,
+        )?;
         let invalid = |field: &str, message: String| AcceptError::Invalid {
             path: path.into(),
             field: field.into(),
@@ -167,8 +197,9 @@ impl AcceptSpec {
             return Err(invalid(
                 "session",
                 "missing: name the kind of session this spec judges, `session = \"kinematic\"` \
-                 (tracker, mm), `session = \"camera\"` (board images, px) or `session = \
-                 \"laser\"` (range sensor on planes, mm)"
+                 (tracker, mm), `session = \"camera\"` (board images, px), `session = \
+                 \"laser\"` (range sensor on planes, mm) or `session = \"rcm\"` (endoscope \
+                 under a trocar, px)"
                     .into(),
             ));
         };
@@ -192,6 +223,7 @@ impl AcceptSpec {
                 }
                 super::SessionKind::Camera => "heldout_reprojection_px_max",
                 super::SessionKind::Laser => "laser_spread_mm_max",
+                super::SessionKind::Rcm => "rcm_heldout_px_max",
             };
             return Err(invalid(
                 "session",
@@ -246,11 +278,18 @@ impl AcceptSpec {
             ("laser_spread_mm_max", self.laser_spread_mm_max),
             ("laser_plane_rms_mm_max", self.laser_plane_rms_mm_max),
         ];
+        let rcm = [
+            ("rcm_heldout_px_max", self.rcm_heldout_px_max),
+            ("rcm_hand_eye_ci95_mm_max", self.rcm_hand_eye_ci95_mm_max),
+            ("rcm_hand_eye_ci95_deg_max", self.rcm_hand_eye_ci95_deg_max),
+            ("rcm_refused_fraction_max", self.rcm_refused_fraction_max),
+        ];
         use super::SessionKind as K;
         let all = [
             (K::Kinematic, set(&kin, 4)),
             (K::Camera, set(&cam, 1)),
             (K::Laser, set(&las, 1)),
+            (K::Rcm, set(&rcm, 1)),
         ];
         let own = all
             .iter()
@@ -281,12 +320,14 @@ impl AcceptSpec {
                         super::SessionKind::Kinematic => "tracker",
                         super::SessionKind::Camera => "camera without tracker",
                         super::SessionKind::Laser => "laser on calibration planes",
+                        super::SessionKind::Rcm => "endoscope and instrument through a trocar",
                     },
                     kind_name(kind),
                     match kind {
                         super::SessionKind::Kinematic => "surgical",
                         super::SessionKind::Camera => "camera",
                         super::SessionKind::Laser => "laser",
+                        super::SessionKind::Rcm => "rcm",
                     }
                 ),
             }),
@@ -377,6 +418,14 @@ pub struct Measured {
     /// Laser: point-to-plane RMS of the calibration data with the calibrated beam (mm).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub laser_plane_rms_mm: Option<f64>,
+    /// RCM: held-out silhouette RMS (px) with seed 002's two-step hand-eye (before) and the
+    /// ML hand-eye (after); views refused by the line detector / views acquired.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_heldout_px_before: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_heldout_px_after: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm_refused_fraction: Option<f64>,
 }
 
 impl Measured {
@@ -414,6 +463,11 @@ impl Measured {
             "held-out five-direction spread (mm)",
             self.laser_spread_mm_before,
             self.laser_spread_mm_after,
+        );
+        push(
+            "held-out silhouette RMS (px)",
+            self.rcm_heldout_px_before,
+            self.rcm_heldout_px_after,
         );
         v
     }
@@ -536,12 +590,15 @@ pub fn judge_kind(
 ) -> Verdict {
     let camera = kind == super::SessionKind::Camera;
     let laser = kind == super::SessionKind::Laser;
+    let rcm = kind == super::SessionKind::Rcm;
     let mut c = Vec::new();
     let mut incomplete = incomplete;
     if camera {
         camera_criteria(spec, m, &mut c, &mut incomplete);
     } else if laser {
         laser_criteria(spec, m, &mut c, &mut incomplete);
+    } else if rcm {
+        rcm_criteria(spec, m, &mut c, &mut incomplete);
     } else {
         kinematic_criteria(spec, m, &mut c);
     }
@@ -551,6 +608,8 @@ pub fn judge_kind(
             m.heldout_reprojection_px_before.is_some() && m.heldout_reprojection_px_after.is_some()
         } else if laser {
             m.laser_spread_mm_before.is_some() && m.laser_spread_mm_after.is_some()
+        } else if rcm {
+            m.rcm_heldout_px_before.is_some() && m.rcm_heldout_px_after.is_some()
         } else {
             m.heldout_rms_mm_before.is_some() && m.heldout_rms_mm_after.is_some()
         };
@@ -559,6 +618,8 @@ pub fn judge_kind(
                 "no held-out metric worse after the diagnosis".into()
             } else if laser {
                 "held-out spread no worse than with the nominal beam mounting".into()
+            } else if rcm {
+                "held-out silhouettes no worse than with seed 002's two-step hand-eye".into()
             } else {
                 "no held-out metric worse than nominal".into()
             },
@@ -593,7 +654,7 @@ pub fn judge_kind(
             ok: frac.map(|f| f <= lim),
         });
     }
-    if !camera && !laser {
+    if !camera && !laser && !rcm {
         le(
             "parameter 95 % half-interval (lengths)",
             "mm",
@@ -711,6 +772,60 @@ fn laser_criteria(
         "mm",
         m.laser_plane_rms_mm,
         spec.laser_plane_rms_mm_max,
+        c,
+    );
+}
+
+/// The RCM criteria: held-out silhouettes, the endoscope hand-eye's interval (confirmed by
+/// the held-out views on their own), the line detector's refusals.
+fn rcm_criteria(
+    spec: &AcceptSpec,
+    m: &Measured,
+    c: &mut Vec<Criterion>,
+    incomplete: &mut Vec<String>,
+) {
+    if spec.rcm_heldout_px_max.is_none() {
+        incomplete.push(format!(
+            "the acceptance spec {:?} has no RCM criterion (rcm_heldout_px_max): see \
+             accept/rcm.toml",
+            spec.name
+        ));
+    }
+    le(
+        "held-out silhouette RMS (deployed hand-eye)",
+        "px",
+        m.rcm_heldout_px_after,
+        spec.rcm_heldout_px_max,
+        c,
+    );
+    le(
+        "endoscope hand-eye 95 % half-interval (translation)",
+        "mm",
+        m.hand_eye_ci95_mm,
+        spec.rcm_hand_eye_ci95_mm_max,
+        c,
+    );
+    le(
+        "endoscope hand-eye 95 % half-interval (rotation)",
+        "deg",
+        m.hand_eye_ci95_deg,
+        spec.rcm_hand_eye_ci95_deg_max,
+        c,
+    );
+    if spec.rcm_hand_eye_ci95_mm_max.is_some() || spec.rcm_hand_eye_ci95_deg_max.is_some() {
+        le(
+            "hand-eye confirmed by the held-out views (difference / combined 95 % bound)",
+            "×",
+            m.hand_eye_heldout_ratio,
+            Some(1.0),
+            c,
+        );
+    }
+    le(
+        "views refused by the line detector",
+        "",
+        m.rcm_refused_fraction,
+        spec.rcm_refused_fraction_max,
         c,
     );
 }

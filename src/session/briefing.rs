@@ -29,13 +29,20 @@ pub struct PlanBrief {
 pub fn plans(dir: &Path, s: &SessionFile) -> anyhow::Result<Vec<PlanBrief>> {
     let mut out = Vec::new();
     for (stage, set) in [
-        (super::Stage::AcquireTrain, "train"),
-        (super::Stage::AcquireValidation, "validation"),
+        (None, "survey"),
+        (Some(super::Stage::AcquireTrain), "train"),
+        (Some(super::Stage::AcquireValidation), "validation"),
     ] {
-        if s.stages_done.contains(&stage) {
+        let path = dir.join("plan").join(format!("{set}.json"));
+        let done = match stage {
+            Some(st) => s.stages_done.contains(&st),
+            // The survey's probe poses (`--survey`): shown until the survey is done; the
+            // calibration plans are made after it, from what it found.
+            None => s.survey.is_some() || !path.is_file(),
+        };
+        if done || (stage.is_some() && s.setup.survey && s.survey.is_none()) {
             continue;
         }
-        let path = dir.join("plan").join(format!("{set}.json"));
         let plan = PlanFile::read(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let journal = dir.join(format!("run-{set}")).join("dataset.jsonl");
         let done_ids = if journal.is_file() {
@@ -77,11 +84,24 @@ pub fn text(dir: &Path, s: &SessionFile) -> anyhow::Result<String> {
         .robot_serial
         .as_deref()
         .unwrap_or(&s.cell.robot_model);
-    let _ = writeln!(
-        t,
-        "LIVE session {}: the plan is made; before anything moves:",
-        dir.display()
-    );
+    if s.setup.survey && s.survey.is_none() {
+        let _ = writeln!(
+            t,
+            "LIVE session {}: first a survey — probe poses that locate the tracker and the \
+             marker; the calibration plan is made from what they find and shown before it \
+             moves. Before anything moves:",
+            dir.display()
+        );
+    } else {
+        let _ = writeln!(
+            t,
+            "LIVE session {}: the plan is made; before anything moves:",
+            dir.display()
+        );
+    }
+    if let Some(v) = &s.survey {
+        let _ = writeln!(t, "  {}", super::survey::words(v));
+    }
     let _ = writeln!(
         t,
         "  arm: {arm} ({}{}){}",

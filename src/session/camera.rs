@@ -93,6 +93,9 @@ pub struct CameraSummary {
     pub hand_eye_heldout_diff_mm: Option<f64>,
     #[serde(default)]
     pub hand_eye_heldout_diff_deg: Option<f64>,
+    /// Plots of the held-out views (relative paths: reprojection per view, residual map).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub plots: Vec<String>,
 }
 
 /// Shell strata `[n_r, n_θ, n_α]` for about `n` viewpoints with `n_r` radii and 2 polar
@@ -219,6 +222,7 @@ pub fn calibrate_stage(
         calibration_s: t_total,
         hand_eye_heldout_diff_mm: None,
         hand_eye_heldout_diff_deg: None,
+        plots: vec![],
     });
     for (id, why) in train.no_board.iter().chain(&held.no_board) {
         s.warnings
@@ -310,7 +314,16 @@ pub fn validate_stage(
         );
     }
     // The hand-eye on independent data: the held-out views calibrated on their own.
+    let vp = work.dataset(dir, s, "validation")?.0.clone();
     let held = camera_set(work, dir, s, "validation")?;
+    let plots = super::camera_plots::write(
+        dir,
+        &vp,
+        &held.data.views,
+        held.data.width,
+        held.data.height,
+    )
+    .context("plotting the held-out views")?;
     // Calibrated alone, but with what the deployed calibration says about the arm and the
     // board (its identified arm kinematics and board scale): the hand-eyes then differ only by
     // noise when that model is complete.
@@ -338,6 +351,7 @@ pub fn validate_stage(
             Ok((mm, deg, r.uncertainty.x_mm, r.uncertainty.x_deg))
         });
     let c = s.camera.as_mut().expect("checked above");
+    c.plots = plots;
     match diff {
         Ok((mm, deg, held_mm, held_deg)) => {
             c.hand_eye_heldout_diff_mm = Some(mm);

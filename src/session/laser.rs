@@ -187,17 +187,21 @@ fn session_spec(dir: &Path, s: &SessionFile) -> anyhow::Result<(PlanSpec, PlanSp
     let text =
         crate::fsio::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
     let (mut planes, mut plate) = parse_spec(&text).with_context(|| format!("{}", p.display()))?;
-    let settle = crate::acquire::SettleOptions::default();
-    for spec in [&mut planes, &mut plate] {
-        if let Some(h) = &s.cell.home_deg {
-            spec.timing.home_deg = Some(h.clone());
-        }
-        spec.timing.speed_deg_s = vec![s.setup.speed_deg_s];
-        spec.timing.accel_deg_s2 = vec![s.setup.accel_deg_s2];
-        spec.timing.settle_s =
-            s.cell.settle_s.unwrap_or(0.3) + settle.poll_s * settle.window as f64;
-    }
+    fit_timing(&mut planes, s);
+    fit_timing(&mut plate, s);
     Ok((planes, plate))
+}
+
+/// A tracker-less session's plan timing fitted to the cell: home, speed caps, the arm's
+/// settling and the settle detector's window (laser and RCM sessions).
+pub(super) fn fit_timing(spec: &mut PlanSpec, s: &SessionFile) {
+    let settle = crate::acquire::SettleOptions::default();
+    if let Some(h) = &s.cell.home_deg {
+        spec.timing.home_deg = Some(h.clone());
+    }
+    spec.timing.speed_deg_s = vec![s.setup.speed_deg_s];
+    spec.timing.accel_deg_s2 = vec![s.setup.accel_deg_s2];
+    spec.timing.settle_s = s.cell.settle_s.unwrap_or(0.3) + settle.poll_s * settle.window as f64;
 }
 
 fn robot(s: &SessionFile) -> RobotBlock {
@@ -211,7 +215,7 @@ fn robot(s: &SessionFile) -> RobotBlock {
 }
 
 /// Plans `spec` and writes `plan/{name}.json` and `.txt`; returns the pose count.
-fn plan_set(
+pub(super) fn plan_set(
     dir: &Path,
     s: &mut SessionFile,
     spec: &PlanSpec,
@@ -361,16 +365,8 @@ pub fn run(
         validate_stage(dir, &mut s, &mut *log)?;
         stage_done(dir, &mut s, Stage::Validate)?;
     }
-    if !s.done(Stage::Verify) {
-        // Nothing is commanded with the beam: the held-out targets are the verification.
-        stage_done(dir, &mut s, Stage::Verify)?;
-    }
-    if !s.done(Stage::Report) {
-        stage_done(dir, &mut s, Stage::Report)?;
-        let html = crate::report::html::render_session(dir, &s)?;
-        write_atomic(&dir.join("report.html"), html.as_bytes())?;
-        s.save(&dir.join("session.json"))?;
-    }
+    // Nothing is commanded with the beam: the held-out targets are the verification.
+    super::close_without_verify(dir, &mut s)?;
     Ok(s)
 }
 

@@ -15,13 +15,17 @@
 //! URDF of the calibrated geometry), `report.html`.
 //! Units: mm, degrees, seconds in every file.
 pub mod accept;
+pub mod approach;
 pub mod briefing;
 pub mod camera;
+pub mod camera_plots;
 pub mod deploy;
 pub mod deploy_score;
 pub mod history;
 pub mod laser;
+pub mod rcm;
 pub mod start;
+pub mod survey;
 pub mod svg;
 pub mod verify;
 
@@ -109,6 +113,9 @@ pub struct CellDescription {
     /// The camera and its board, for a camera session.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<camera::CameraCell>,
+    /// The endoscope (intrinsics) and the instrument's shaft, for an RCM session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub endoscope: Option<rcm::EndoscopeCell>,
 }
 
 /// How the session was started (everything `--resume` needs).
@@ -140,6 +147,10 @@ pub struct SessionSetup {
     /// directory): the laser spots go through the identified arm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arm_calibration: Option<String>,
+    /// Locate the tracker and the marker with a few probe poses before planning
+    /// (`--survey`, [`survey`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub survey: bool,
 }
 
 /// What a session calibrates.
@@ -153,6 +164,9 @@ pub enum SessionKind {
     Camera,
     /// A laser range sensor's beam on the flange from calibration planes (seed 000).
     Laser,
+    /// An endoscope's hand-eye from the images of an instrument pivoting about a trocar
+    /// (seed 002).
+    Rcm,
 }
 
 /// One dataset of the session and its SHA-256.
@@ -281,6 +295,11 @@ pub struct SessionFile {
     /// seed's figures beside ours.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub laser: Option<laser::LaserSummary>,
+    /// RCM sessions: the endoscope hand-eye, held-out silhouettes, the detector's refusals.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rcm: Option<rcm::RcmSummary>,
+    /// `--survey`: where the probe poses found the tracker and the marker (the plan uses it).
+    pub survey: Option<survey::SurveySummary>,
 }
 
 impl SessionFile {
@@ -325,6 +344,11 @@ pub trait Cell {
     /// Run the plan at `plan` into `run_dir`, resuming if `run_dir` already holds a run.
     /// Returns the summary of this invocation.
     fn acquire(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary>;
+    /// The survey's probe poses ([`survey`]): as [`Cell::acquire`], but skipped poses are
+    /// expected (finding where the tracker sees is the point) and never stop the run early.
+    fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
+        self.acquire(plan, run_dir)
+    }
 }
 
 /// Write a file atomically and durably ([`crate::fsio::write_atomic`]), creating its directory.
@@ -470,6 +494,8 @@ pub fn create(
         camera: None,
         verify: None,
         laser: None,
+        rcm: None,
+        survey: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -549,8 +575,14 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     if s.setup.kind == SessionKind::Laser {
         return laser::run(dir, s, cell, log);
     }
+    if s.setup.kind == SessionKind::Rcm {
+        return rcm::run(dir, s, cell, log);
+    }
     let mut work = Work::default();
     let step = |s: &mut SessionFile, st: Stage| stage_done(dir, s, st);
+    if s.setup.survey && !s.done(Stage::Plan) {
+        survey::run(dir, &mut s, cell, &mut *log)?;
+    }
     if !s.done(Stage::Plan) {
         log("plan: training and validation poses fitted to the cell");
         plan_stage(dir, &mut s, &mut *log)?;
@@ -610,6 +642,21 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
         s.save(&path)?;
     }
     Ok(s)
+}
+
+/// The last stages of a session whose held-out data are its verification (laser, RCM):
+/// `verify` commands nothing; `report` writes `report.html`.
+pub(crate) fn close_without_verify(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
+    if !s.done(Stage::Verify) {
+        stage_done(dir, s, Stage::Verify)?;
+    }
+    if !s.done(Stage::Report) {
+        stage_done(dir, s, Stage::Report)?;
+        let html = crate::report::html::render_session(dir, s)?;
+        write_atomic(&dir.join("report.html"), html.as_bytes())?;
+        s.save(&dir.join("session.json"))?;
+    }
+    Ok(())
 }
 
 /// Acquire (or resume) the plan `plan/{set}.json` into `run-{set}/` and record the dataset as
@@ -924,63 +971,16 @@ pub fn effects_in_words(
         .enumerate()
         .map(|(i, st)| {
             let kind = st.kind.clone();
-            let j = st
-                .joint
-                .map_or("a joint".to_string(), |j| format!("joint {j}"));
-            let what = match kind.as_str() {
-                "joint_compliance" => format!("{j} bends under the gravity load it carries"),
-                "backlash" => format!("{j} has lost motion (backlash) when it reverses"),
-                "joint_eccentricity" => {
-                    format!("{j}'s angle error varies once per turn (eccentric encoder or gear)")
+            // A kinematic effect of the registry says itself what it found, with its size
+            // (read back from the entry it wrote into the calibration); the camera and
+            // laser findings by kind, with their parameters.
+            let (what, coefs) = match crate::diagnose::effects::Effect::from_cal(&st.calibration)
+            {
+                Ok(e) if crate::diagnose::effects::EffectModel::kind(&e.block) == kind => {
+                    (e.sentence(), vec![])
                 }
-                "thermal_drift" => "the robot drifts as it warms up".to_string(),
-                "tracker_scale" => "the tracker's distances are scaled".to_string(),
-                "base_shift" => {
-                    "the tracker or the robot base moved during the session".to_string()
-                }
-                "latency" => "the tracker and the robot clocks are offset".to_string(),
-                "transmission_ratio" => format!("{j}'s gear ratio differs from nominal"),
-                "nonparametric" => {
-                    "a residual no physical effect explains was learnt from the data".to_string()
-                }
-                "target_scale" => {
-                    "the board is printed at another scale than its declared square size"
-                        .to_string()
-                }
-                "target_flatness" => "the board is not flat (it sags or bows)".to_string(),
-                "arm_kinematics" => "the arm's joint zeros and link dimensions differ from \
-                                     nominal (identified through the camera, so the hand-eye \
-                                     no longer absorbs them)"
-                    .to_string(),
-                "distortion" => {
-                    "the lens distorts more than the chosen distortion model".to_string()
-                }
-                other => format!("effect {other}"),
+                _ => (sensor_effect_in_words(&kind), parameters_in_words(st)),
             };
-            let coefs: Vec<String> = st
-                .parameters
-                .iter()
-                .map(|p| {
-                    // Plain decimals for ordinary magnitudes, exponents for tiny / huge ones.
-                    let num = |x: f64, d: usize| {
-                        if x == 0.0 || (1e-3..1e5).contains(&x.abs()) {
-                            format!("{x:.d$}")
-                        } else {
-                            format!("{x:.d$e}")
-                        }
-                    };
-                    let unit = if p.unit == "1" { String::new() } else { format!(" {}", p.unit) };
-                    match p.std {
-                        Some(sd) => format!(
-                            "{} = {} ± {}{unit}",
-                            p.name,
-                            num(p.value, 4),
-                            num(1.96 * sd, 4)
-                        ),
-                        None => format!("{} = {}{unit}", p.name, num(p.value, 4)),
-                    }
-                })
-                .collect();
             let (unit, _, _, hb, ha) = st.rms_with_unit();
             let prec = if unit == "px" { 4 } else { 3 };
             let mut effect_on = match (hb, ha) {
@@ -1010,6 +1010,56 @@ pub fn effects_in_words(
                 heldout_rms_px_before: if px { hb } else { None },
                 heldout_rms_px_after: if px { ha } else { None },
                 plot: plot.is_file().then(|| rel(dir, &plot)),
+            }
+        })
+        .collect()
+}
+
+/// What a camera or laser finding means, in plain words (kinematic effects have their own
+/// sentences: [`crate::diagnose::effects::EffectModel::sentence`]).
+fn sensor_effect_in_words(kind: &str) -> String {
+    match kind {
+        "target_scale" => {
+            "the board is printed at another scale than its declared square size".to_string()
+        }
+        "target_flatness" => "the board is not flat (it sags or bows)".to_string(),
+        "arm_kinematics" => "the arm's joint zeros and link dimensions differ from nominal \
+                             (identified through the camera, so the hand-eye no longer absorbs \
+                             them)"
+            .to_string(),
+        "distortion" => "the lens distorts more than the chosen distortion model".to_string(),
+        "laser_scale" => "the laser's range reading is scaled (it reads long or short in \
+                          proportion to the distance)"
+            .to_string(),
+        "laser_incidence" => "the laser's range reading is biased when the beam meets the \
+                              surface obliquely"
+            .to_string(),
+        "laser_nonlinearity" => "the laser's range reading bends away from a straight line \
+                                 over its measuring range"
+            .to_string(),
+        other => format!("effect {other}"),
+    }
+}
+
+/// The parameters of a finding: `name = value ± ci unit`.
+fn parameters_in_words(st: &crate::schema::DiagnosedEffect) -> Vec<String> {
+    st.parameters
+        .iter()
+        .map(|p| {
+            let num = crate::diagnose::effects::plain_number;
+            let unit = if p.unit == "1" {
+                String::new()
+            } else {
+                format!(" {}", p.unit)
+            };
+            match p.std {
+                Some(sd) => format!(
+                    "{} = {} ± {}{unit}",
+                    p.name,
+                    num(p.value, 4),
+                    num(1.96 * sd, 4)
+                ),
+                None => format!("{} = {}{unit}", p.name, num(p.value, 4)),
             }
         })
         .collect()

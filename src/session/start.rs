@@ -58,6 +58,8 @@ pub struct StartOptions {
     pub kind: Option<String>,
     /// Laser sessions: the arm's calibration of the same visit.
     pub arm_calibration: Option<PathBuf>,
+    /// Locate the tracker with a few probe poses before planning (kinematic sessions).
+    pub survey: bool,
 }
 
 fn session_kind_name(k: SessionKind) -> &'static str {
@@ -65,6 +67,7 @@ fn session_kind_name(k: SessionKind) -> &'static str {
         SessionKind::Kinematic => "kinematic",
         SessionKind::Camera => "camera",
         SessionKind::Laser => "laser",
+        SessionKind::Rcm => "rcm",
     }
 }
 
@@ -88,6 +91,8 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             let (cell, one) = describe_scenario(s, a.arm.as_deref())?;
             let arm = one.arms[0].name.clone();
             let laser = a.kind.as_deref() == Some("laser");
+            let rcm = a.kind.as_deref() == Some("rcm")
+                || (a.kind.is_none() && one.trackers.is_empty() && cell.endoscope.is_some());
             let kind = if laser {
                 if one.lasers.is_empty() {
                     bail!(
@@ -96,6 +101,15 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
                     );
                 }
                 SessionKind::Laser
+            } else if rcm {
+                if cell.endoscope.is_none() {
+                    bail!(
+                        "{}: an RCM session needs an instrument (`[scene.instrument]`) and a \
+                         camera fixed in the base (the endoscope)",
+                        s.display()
+                    );
+                }
+                SessionKind::Rcm
             } else if !one.trackers.is_empty() {
                 SessionKind::Kinematic
             } else if !one.cameras.is_empty() {
@@ -108,8 +122,16 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
                 );
             };
             // The laser session records ranges only: the tracker and cameras stay off (a
-            // marker out of view must not skip a laser pose).
-            let text = crate::cell::simulated::one_arm_scenario(s, &arm, laser)?;
+            // marker out of view must not skip a laser pose); the RCM session records images
+            // only: the tracker and lasers stay off.
+            let only = if laser {
+                crate::cell::simulated::Only::Ranges
+            } else if kind == SessionKind::Rcm {
+                crate::cell::simulated::Only::Images
+            } else {
+                crate::cell::simulated::Only::All
+            };
+            let text = crate::cell::simulated::one_arm_scenario(s, &arm, only)?;
             (Mode::Sim, cell, "scenario.toml", Some(text), kind)
         }
         (None, Some(d)) => {
@@ -137,6 +159,7 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
     };
     let camera = kind == SessionKind::Camera;
     let laser = kind == SessionKind::Laser;
+    let rcm = kind == SessionKind::Rcm;
     if let Some(k) = a
         .kind
         .as_deref()
@@ -158,6 +181,7 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
         }
         None if camera => AcceptSpec::from_toml_str(CAMERA_ACCEPT, "accept/camera.toml")?,
         None if laser => AcceptSpec::from_toml_str(session::laser::ACCEPT, "accept/laser.toml")?,
+        None if rcm => AcceptSpec::from_toml_str(session::rcm::ACCEPT, "accept/rcm.toml")?,
         None => AcceptSpec::default_surgical(),
     };
     // Every motion option against the cell's own limits before anything is created (a NaN
@@ -191,6 +215,7 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
                 )
             })?,
         None if laser => session::laser::SPEC.to_string(),
+        None if rcm => session::rcm::SPEC.to_string(),
         None => DEFAULT_SPEC.to_string(),
     };
     let spec_name = a
@@ -205,6 +230,9 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             .with_context(|| format!("plan spec {spec_name}"))?;
         if camera {
             session::camera::check_spec(&spec, &spec_name)?;
+        }
+        if rcm && spec.rcm.is_none() {
+            bail!("plan spec {spec_name}: an RCM session needs an [rcm] table (see plans/seed002-rcm.toml)");
         }
     }
     // The arm's calibration is read (and checked against the cell's robot) before anything
@@ -221,9 +249,25 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             );
         }
     }
-    let poses = a.poses.unwrap_or(if camera { 24 } else { 120 });
-    let heldout_points = a.heldout_points.unwrap_or(if camera { 12 } else { 40 });
-    if camera {
+    if a.survey {
+        if kind != SessionKind::Kinematic {
+            bail!(
+                "--survey locates a tracker: it is for kinematic sessions (a cell with a tracker)"
+            );
+        }
+        if mode == Mode::Live && !a.live {
+            bail!("--survey moves the arm to its probe poses: add --live");
+        }
+    }
+    let poses = a.poses.unwrap_or(if camera || rcm { 24 } else { 120 });
+    let heldout_points = a
+        .heldout_points
+        .unwrap_or(if camera || rcm { 12 } else { 40 });
+    if rcm {
+        if poses < 6 || heldout_points < 4 {
+            bail!("RCM session: --poses must be ≥ 6 and --heldout-points ≥ 4 (views)");
+        }
+    } else if camera {
         if poses < 6 || heldout_points < 3 {
             bail!("camera session: --poses must be ≥ 6 and --heldout-points ≥ 3 (views)");
         }
@@ -246,6 +290,7 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             .arm_calibration
             .as_ref()
             .map(|_| session::laser::ARM_CALIBRATION.to_string()),
+        survey: a.survey,
     };
     let src = cell_src;
     session::create(dir, setup, src, cell, &spec_text, accept)?;

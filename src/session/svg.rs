@@ -30,6 +30,28 @@ fn nice_max(v: f64) -> f64 {
 }
 
 fn frame(s: &mut String, title: &str, xlabel: &str, ylabel: &str, ymin: f64, ymax: f64) {
+    frame_head(s, title, xlabel, ylabel);
+    for k in 0..=4 {
+        let v = ymin + (ymax - ymin) * k as f64 / 4.0;
+        let y = H - B - (H - B - T) * k as f64 / 4.0;
+        grid_line(s, y, &tick(v));
+    }
+}
+
+/// A horizontal grid line at `y` labelled `label` on the y axis.
+fn grid_line(s: &mut String, y: f64, label: &str) {
+    let _ = write!(
+        s,
+        "<line x1=\"{L}\" x2=\"{x2}\" y1=\"{y:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/>\
+         <text x=\"{tx}\" y=\"{ty:.1}\" text-anchor=\"end\">{label}</text>",
+        x2 = W - R,
+        tx = L - 4.0,
+        ty = y + 4.0
+    );
+}
+
+/// The plot's frame: title, axis labels, axes (no ticks).
+fn frame_head(s: &mut String, title: &str, xlabel: &str, ylabel: &str) {
     let _ = write!(
         s,
         "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"0 0 {W} {H}\" width=\"{W}\" height=\"{H}\" role=\"img\" aria-label=\"{t}\" font-family=\"sans-serif\" font-size=\"11\">\
@@ -44,19 +66,6 @@ fn frame(s: &mut String, title: &str, xlabel: &str, ylabel: &str, ymin: f64, yma
         cy = (T + H - B) / 2.0,
         ylab = esc(ylabel),
     );
-    for k in 0..=4 {
-        let v = ymin + (ymax - ymin) * k as f64 / 4.0;
-        let y = H - B - (H - B - T) * k as f64 / 4.0;
-        let _ = write!(
-            s,
-            "<line x1=\"{L}\" x2=\"{x2}\" y1=\"{y:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/>\
-             <text x=\"{tx}\" y=\"{ty:.1}\" text-anchor=\"end\">{v}</text>",
-            v = tick(v),
-            x2 = W - R,
-            tx = L - 4.0,
-            ty = y + 4.0
-        );
-    }
     let _ = write!(
         s,
         "<line x1=\"{L}\" x2=\"{L}\" y1=\"{T}\" y2=\"{yb}\" stroke=\"black\"/>\
@@ -68,7 +77,11 @@ fn frame(s: &mut String, title: &str, xlabel: &str, ylabel: &str, ymin: f64, yma
 
 /// A tick label without trailing zeros (counts print as integers).
 fn tick(v: f64) -> String {
-    let t = format!("{v:.3}");
+    let t = if v != 0.0 && v.abs() < 0.001 {
+        format!("{v:.7}")
+    } else {
+        format!("{v:.3}")
+    };
     let t = t.trim_end_matches('0').trim_end_matches('.');
     if t == "-0" {
         "0".into()
@@ -78,8 +91,14 @@ fn tick(v: f64) -> String {
 }
 
 fn legend(s: &mut String, items: &[(&str, &str)]) {
+    // Wide enough for the longest label (about 6.2 px a character at 11 px).
+    let chars = items
+        .iter()
+        .map(|(l, _)| l.chars().count())
+        .max()
+        .unwrap_or(0);
+    let x = W - R - (20.0 + 6.2 * chars as f64).max(150.0);
     for (i, (label, colour)) in items.iter().enumerate() {
-        let x = W - R - 150.0;
         let y = T + 6.0 + 16.0 * i as f64;
         let _ = write!(
             s,
@@ -97,21 +116,83 @@ pub fn per_pose(before: &[f64], after: &[f64]) -> String {
     before_after("Held-out error per pose", "held-out pose", before, after)
 }
 
-/// Before / after dot pairs along x (one pair per item); red where after > before.
+/// The decades `[10^lo, 10^hi]` that hold every positive finite value of `v`, when they span
+/// more than `ratio` (a linear axis would flatten the small ones to its floor).
+fn log_span(v: &[f64], ratio: f64) -> Option<(i32, i32)> {
+    let pos = v.iter().copied().filter(|x| x.is_finite() && *x > 0.0);
+    let (lo, hi) = pos.fold((f64::INFINITY, 0.0f64), |(a, b), x| (a.min(x), b.max(x)));
+    // The top decade keeps room for the legend above the largest value.
+    (lo.is_finite() && hi / lo > ratio).then(|| {
+        let l = lo.log10().floor() as i32;
+        (l, ((hi.log10() + 0.4).ceil() as i32).max(l + 1))
+    })
+}
+
+/// A log-scale y axis from `10^lo` to `10^hi`: grid and labels at each decade.
+fn frame_log(s: &mut String, title: &str, xlabel: &str, ylabel: &str, lo: i32, hi: i32) {
+    frame_head(s, title, xlabel, ylabel);
+    for k in lo..=hi {
+        let y = H - B - (H - B - T) * (k - lo) as f64 / (hi - lo) as f64;
+        grid_line(s, y, &tick(10f64.powi(k)));
+    }
+}
+
+/// Before / after dot pairs along x (one pair per item); red where after > before. A log
+/// axis when the errors span more than 20× (a calibration's "after" would sit on the floor
+/// of a linear one).
 pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) -> String {
+    before_after_unit(
+        title,
+        xlabel,
+        "mm",
+        "before (nominal)",
+        "after",
+        before,
+        after,
+    )
+}
+
+/// [`before_after`] in `unit`, with its own legend words.
+pub fn before_after_unit(
+    title: &str,
+    xlabel: &str,
+    unit: &str,
+    before_label: &str,
+    after_label: &str,
+    before: &[f64],
+    after: &[f64],
+) -> String {
     let n = before.len().max(1);
-    let ymax = nice_max(
-        before
-            .iter()
-            .chain(after)
-            .cloned()
-            .filter(|x| x.is_finite())
-            .fold(0.0, f64::max),
-    );
+    let all: Vec<f64> = before.iter().chain(after).copied().collect();
     let mut s = String::new();
-    frame(&mut s, title, xlabel, "error (mm)", 0.0, ymax);
+    let y: Box<dyn Fn(f64) -> f64> = match log_span(&all, 20.0) {
+        Some((lo, hi)) => {
+            frame_log(
+                &mut s,
+                title,
+                xlabel,
+                &format!("error ({unit}, log scale)"),
+                lo,
+                hi,
+            );
+            let (a, b) = (lo as f64, hi as f64);
+            Box::new(move |v: f64| {
+                let l = v.max(10f64.powf(a)).log10();
+                H - B - (H - B - T) * ((l - a) / (b - a)).clamp(0.0, 1.0)
+            })
+        }
+        None => {
+            let ymax = nice_max(
+                all.iter()
+                    .copied()
+                    .filter(|x| x.is_finite())
+                    .fold(0.0, f64::max),
+            );
+            frame(&mut s, title, xlabel, &format!("error ({unit})"), 0.0, ymax);
+            Box::new(move |v: f64| H - B - (H - B - T) * (v / ymax).clamp(0.0, 1.0))
+        }
+    };
     let dx = (W - L - R) / n as f64;
-    let y = |v: f64| H - B - (H - B - T) * (v / ymax).clamp(0.0, 1.0);
     for (i, (b, a)) in before.iter().zip(after).enumerate() {
         if !(b.is_finite() && a.is_finite()) {
             continue;
@@ -127,36 +208,60 @@ pub fn before_after(title: &str, xlabel: &str, before: &[f64], after: &[f64]) ->
             ya = y(*a)
         );
     }
-    let mut items = vec![("before (nominal)", "#999"), ("after", "#1f77b4")];
+    let worse = format!("{after_label}, WORSE");
+    let mut items = vec![(before_label, "#999"), (after_label, "#1f77b4")];
     if before.iter().zip(after).any(|(b, a)| a > b) {
-        items.push(("after, WORSE", "#d62728"));
+        items.push((worse.as_str(), "#d62728"));
     }
     legend(&mut s, &items);
     s.push_str("</svg>");
     s
 }
 
-/// Histogram of the held-out errors before and after.
+/// Histogram of the held-out errors before and after: log-spaced bins (4 a decade) when the
+/// errors span more than 20× (else the "after" would fill the first bin of a linear axis).
 pub fn histogram(before: &[f64], after: &[f64]) -> String {
-    let xmax = nice_max(before.iter().chain(after).cloned().fold(0.0, f64::max));
-    let bins = 20;
+    let all: Vec<f64> = before.iter().chain(after).copied().collect();
+    let span = log_span(&all, 20.0);
+    let xmax = nice_max(
+        all.iter()
+            .copied()
+            .filter(|x| x.is_finite())
+            .fold(0.0, f64::max),
+    );
+    let bins = match span {
+        Some((lo, hi)) => 4 * (hi - lo) as usize,
+        None => 20,
+    };
+    // The bin of a value (0 … bins-1).
+    let bin = |x: f64| -> usize {
+        let f = match span {
+            Some((lo, hi)) => (x.max(10f64.powi(lo)).log10() - lo as f64) / (hi - lo) as f64,
+            None => x / xmax,
+        };
+        (f * bins as f64).floor().clamp(0.0, bins as f64 - 1.0) as usize
+    };
     let count = |v: &[f64]| {
         let mut c = vec![0usize; bins];
-        for x in v {
-            let k = ((x / xmax) * bins as f64)
-                .floor()
-                .clamp(0.0, bins as f64 - 1.0) as usize;
-            c[k] += 1;
+        for x in v.iter().filter(|x| x.is_finite()) {
+            c[bin(*x)] += 1;
         }
         c
     };
     let (cb, ca) = (count(before), count(after));
-    let ymax = nice_max(cb.iter().chain(&ca).copied().max().unwrap_or(1) as f64);
+    // Integer count ticks, four steps; the top fifth kept free for the legend.
+    let top = cb.iter().chain(&ca).copied().max().unwrap_or(1).max(1);
+    let step = (nice_max(top as f64 / 0.8 / 4.0)).ceil().max(1.0);
+    let ymax = step * 4.0;
     let mut s = String::new();
     frame(
         &mut s,
         "Held-out error histogram",
-        &format!("error (mm), 0 to {xmax}"),
+        if span.is_some() {
+            "error (mm, log scale)"
+        } else {
+            "error (mm)"
+        },
         "poses",
         0.0,
         ymax,
@@ -175,13 +280,22 @@ pub fn histogram(before: &[f64], after: &[f64]) -> String {
             );
         }
     }
-    for k in [0, bins / 2, bins] {
+    let ticks: Vec<(usize, f64)> = match span {
+        Some((lo, hi)) => (lo..=hi)
+            .map(|k| (4 * (k - lo) as usize, 10f64.powi(k)))
+            .collect(),
+        None => [0, bins / 2, bins]
+            .iter()
+            .map(|k| (*k, xmax * *k as f64 / bins as f64))
+            .collect(),
+    };
+    for (k, v) in ticks {
         let _ = write!(
             s,
             "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">{}</text>",
             L + bw * k as f64,
             H - B + 14.0,
-            tick(xmax * k as f64 / bins as f64)
+            tick(v)
         );
     }
     legend(
@@ -235,13 +349,22 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
             x(*d)
         );
     }
-    for v in [-lim, 0.0, lim] {
+    for (v, anchor) in [(-lim, "start"), (0.0, "middle"), (lim, "end")] {
+        let label = if v == 0.0 {
+            "0".to_string()
+        } else {
+            format!(
+                "{}{} {}",
+                if v > 0.0 { "+" } else { "" },
+                tick(v),
+                esc(unit)
+            )
+        };
         let _ = write!(
             s,
-            "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"middle\">{v:+.4} {u}</text>",
+            "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"{anchor}\">{label}</text>",
             x(v),
-            h - 8.0,
-            u = esc(unit)
+            h - 8.0
         );
     }
     s.push_str("</svg>");

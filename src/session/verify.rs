@@ -35,6 +35,9 @@ use crate::solve::obs::{observations, Split};
 /// Largest joint change (deg) from the planned (safety-checked) joints a corrected target may
 /// make; larger ones are not commanded (the planner's checks would no longer cover them).
 pub const MAX_CORRECTION_DEG: f64 = 5.0;
+/// A corrected target whose model miss stays above this (mm) did not converge: with a
+/// backlash joint, its direction flips with the correction it causes.
+const UNCONVERGED_MM: f64 = 1e-3;
 /// Verified after-RMS more than this ratio above the predicted one is flagged.
 pub const FLAG_RATIO: f64 = 1.2;
 
@@ -75,6 +78,10 @@ pub struct VerifySummary {
     pub not_commanded: usize,
     /// Effects of the deployed calibration, inverted in the commanded joints (position).
     pub effects_inverted: usize,
+    /// Targets reached through a back-off pose (a backlash joint's move too small to fix its
+    /// direction; see `session::approach`).
+    #[serde(default)]
+    pub approach_poses: usize,
     /// The plan and run directory (relative).
     pub plan: String,
     pub run: String,
@@ -176,17 +183,22 @@ fn rotation_errors(h: &[Hit]) -> Vec<f64> {
 }
 
 /// The calibrated IK of tool pose `t` (robot base) on `branch`, with the deployed effects
-/// inverted when `ctx` (the validation pose's context: time, temperature, approach) is given:
-/// the aim point moves by what the full model misses at the current joints, up to 8 times or
-/// 1e-4 mm. `world` is `t` in the tracker frame.
+/// inverted when `ctx` (the validation pose's context: time, temperature, the joints the move
+/// starts from) is given: the aim point moves by what the full model misses at the current
+/// joints, up to 8 times or 1e-4 mm. The approach directions are those of the move to the
+/// current joints (`signs`), since the correction itself may decide them. `world` is `t` in
+/// the tracker frame. Returns the solution and what the model still misses there (mm): a
+/// miss that stays large means no solution agrees with its own approach directions (the
+/// backlash flips with the correction it causes).
 fn solve_with_effects(
     cal: &KinematicModel,
     effects: &[crate::dataset::CalEffect],
     ctx: Option<&crate::solve::obs::PoseCtx>,
+    signs: &dyn Fn(&[f64]) -> Vec<f64>,
     branch: u8,
     t: &Isometry3<f64>,
     world: &Isometry3<f64>,
-) -> anyhow::Result<Option<crate::model::ik::IkSolution>> {
+) -> anyhow::Result<Option<(crate::model::ik::IkSolution, f64)>> {
     let mut aim = *t;
     let mut best = None;
     for _ in 0..8 {
@@ -197,16 +209,17 @@ fn solve_with_effects(
             return Ok(best);
         };
         let Some(ctx) = ctx.filter(|_| !effects.is_empty()) else {
-            return Ok(Some(sol));
+            return Ok(Some((sol, 0.0)));
         };
         let mut c = ctx.clone();
         if c.q_cmd.is_some() {
             c.q_cmd = Some(sol.q.clone());
         }
         c.q = sol.q.clone();
+        c.approach = signs(&sol.q);
         let pred = crate::diagnose::effects::apply_cal_effects(cal, effects, &c)?;
         let miss = world.translation.vector - pred.coords;
-        best = Some(sol);
+        best = Some((sol, miss.norm()));
         if miss.norm() < 1e-4 {
             break;
         }
@@ -272,55 +285,100 @@ pub fn verify_stage(
     let mut after_want: HashMap<u64, (u64, Isometry3<f64>)> = HashMap::new();
     let mut not_commanded = 0;
     // Direction-dependent effects (backlash) are inverted for the approach each joint will
-    // have in THIS run: from the previous commanded pose (the first from where the validation
-    // run left the arm), not the validation run's, whose predecessor may differ (a target not
-    // commanded here, the run's first pose).
+    // have in THIS run: the sign of the commanded move from the previous commanded pose (the
+    // first from where the validation run left the arm), computed on the corrected joints
+    // (see `approach`). A target whose backlash joints would move too little for the servo
+    // error to leave their direction certain is reached through a back-off pose.
+    let approach = super::approach::Approach::new(&cal.effects, val, dof);
+    let limits = calibrated.joint_limits();
     let (mut prev_cmd, mut last_sign) = match ctxs.values().max_by(|a, b| a.t.total_cmp(&b.t)) {
         Some(c) => (Some(c.q.clone()), c.approach.clone()),
         None => (None, vec![0.0; dof]),
     };
+    let mut approach_poses = 0;
     for p in &vplan.poses {
         let q_plan = target_of(p);
         // The target is a place in the cell (tracker frame); each model reaches it through
         // its own tracker → base (the bases of two fits are different gauges of one frame).
         let world = nominal.measured_pose(&q_plan);
         let t = calibrated.base().inverse() * world;
-        let mut sign = last_sign.clone();
-        let ctx = ctxs.get(&p.id).map(|c| {
-            let mut c = c.clone();
-            if let Some(prev) = &prev_cmd {
-                for (i, s) in sign.iter_mut().enumerate().take(dof.min(prev.len())) {
-                    let d = q_plan[i] - prev[i];
-                    if d.abs() > 1e-9 {
-                        *s = d.signum();
-                    }
+        let with_prev = |prev: &[f64]| {
+            ctxs.get(&p.id).map(|c| {
+                let mut c = c.clone();
+                c.q_prev = Some(prev.to_vec());
+                c
+            })
+        };
+        let from = prev_cmd.clone().unwrap_or_else(|| q_plan.clone());
+        let carried = last_sign.clone();
+        let solve = |from: &[f64], carried: &[f64]| {
+            let ctx = if prev_cmd.is_some() {
+                with_prev(from)
+            } else {
+                ctxs.get(&p.id).cloned()
+            };
+            let signs = |q: &[f64]| {
+                if prev_cmd.is_some() {
+                    approach.signs(from, q, carried)
+                } else {
+                    carried.to_vec()
                 }
-                c.approach = sign.clone();
-                c.q_prev = Some(prev.clone());
-            }
-            c
-        });
-        let sol = solve_with_effects(
-            &calibrated,
-            &cal.effects,
-            ctx.as_ref(),
-            p.branch,
-            &t,
-            &world,
-        )?;
-        let Some(sol) = sol else {
+            };
+            solve_with_effects(
+                &calibrated,
+                &cal.effects,
+                ctx.as_ref(),
+                &signs,
+                p.branch,
+                &t,
+                &world,
+            )
+        };
+        let Some((mut sol, miss)) = solve(&from, &carried)? else {
             not_commanded += 1;
             continue;
         };
+        let mut sign = approach.signs(&from, &sol.q, &carried);
+        let mut via = None;
+        if ctxs.contains_key(&p.id)
+            && !approach.joints.is_empty()
+            && (approach.undetermined(&from, &sol.q) || miss > UNCONVERGED_MM)
+        {
+            let (back, dir) = approach.backoff(&sol.q, &sign, &limits);
+            let Some((s2, _)) = solve(&back, &dir)? else {
+                not_commanded += 1;
+                continue;
+            };
+            if approach.undetermined(&back, &s2.q) {
+                not_commanded += 1;
+                continue;
+            }
+            sign = approach.signs(&back, &s2.q, &dir);
+            sol = s2;
+            via = Some(back);
+        }
         let jump = sol
             .q
             .iter()
-            .zip(&q_plan)
+            .chain(via.iter().flatten())
+            .zip(q_plan.iter().cycle())
             .map(|(a, b)| (a - b).abs().to_degrees())
             .fold(0.0, f64::max);
         if jump > MAX_CORRECTION_DEG {
             not_commanded += 1;
             continue;
+        }
+        if let Some(back) = via {
+            // Measured like any pose (the acquisition has no pass-through poses) and not scored.
+            approach_poses += 1;
+            poses.push(PlanPose {
+                id: poses.len() as u64,
+                label: format!("{}-approach", p.label),
+                q_deg: back.iter().map(|x| x.to_degrees()).collect(),
+                flange: PlanFilePose::from_iso(&preset.flange_pose(&back)),
+                group: "verify-approach".into(),
+                ..p.clone()
+            });
         }
         prev_cmd = Some(sol.q.clone());
         last_sign = sign;
@@ -346,9 +404,18 @@ pub fn verify_stage(
     PlanFile::read(&plan_path)
         .map_err(|e| anyhow::anyhow!("verify: the written plan does not read back: {e}"))?;
     log(&format!(
-        "  {} poses commanded with the calibrated IK ({} not commanded)",
-        plan.poses.len(),
-        not_commanded
+        "  {} poses commanded with the calibrated IK ({} not commanded{})",
+        after_want.len(),
+        not_commanded,
+        if approach_poses > 0 {
+            format!(
+                "; {approach_poses} reached through a back-off pose {:.1}° short on the \
+                 backlash joint(s): their direction was undecided (a tiny move, or one the correction reverses)",
+                super::approach::BACKOFF_DEG
+            )
+        } else {
+            String::new()
+        }
     ));
     let run_dir = dir.join("run-verify");
     let summary = cell.acquire(&plan_path, &run_dir).with_context(|| {
@@ -389,6 +456,7 @@ pub fn verify_stage(
         flagged,
         not_commanded,
         effects_inverted: cal.effects.len(),
+        approach_poses,
         plan: "plan/verify.json".into(),
         run: "run-verify".into(),
     };

@@ -226,11 +226,16 @@ pub fn independence(g: &DMatrix<f64>, g_perp: &DMatrix<f64>) -> f64 {
 pub struct CvBase {
     folds: Vec<CvFold>,
     jscale: Vec<f64>,
+    /// `J` column-scaled (what every candidate is tested against).
+    js: DMatrix<f64>,
 }
 
 struct CvFold {
     test: Vec<usize>,
     train: Vec<usize>,
+    /// The fold's training rows of the scaled `J` and of `r`, and their cross products.
+    jt: DMatrix<f64>,
+    rt: DVector<f64>,
     jtj: DMatrix<f64>,
     jtr: DVector<f64>,
 }
@@ -272,18 +277,24 @@ impl CvBase {
                 let rt = r.select_rows(&train);
                 Some(CvFold {
                     jtj: jt.transpose() * &jt,
-                    jtr: jt.transpose() * rt,
+                    jtr: jt.transpose() * &rt,
+                    jt,
+                    rt,
                     test,
                     train,
                 })
             })
             .collect();
-        CvBase { folds, jscale }
+        CvBase { folds, jscale, js }
     }
 
     /// CV RMS per row of the fit augmented with the columns `g` (`g` may have no column).
+    /// `j` and `r` are the ones given to [`CvBase::new`] (its scaled `J` and each fold's
+    /// training rows are kept from there, not rebuilt per candidate).
     pub fn rms(&self, j: &DMatrix<f64>, g: &DMatrix<f64>, r: &DVector<f64>) -> f64 {
-        let js = scaled(j, &self.jscale);
+        debug_assert_eq!(j.shape(), self.js.shape());
+        debug_assert_eq!(self.jscale.len(), j.ncols());
+        let js = &self.js;
         let gs = scaled(g, &col_scales(g));
         let (p0, pk) = (j.ncols(), g.ncols());
         let mut sse = 0.0;
@@ -295,15 +306,13 @@ impl CvBase {
             m.view_mut((0, 0), (p0, p0)).copy_from(&f.jtj);
             b.rows_mut(0, p0).copy_from(&f.jtr);
             if pk > 0 {
-                let jt = js.select_rows(&f.train);
                 let gt = gs.select_rows(&f.train);
-                let rt = r.select_rows(&f.train);
-                let jg = jt.transpose() * &gt;
+                let jg = f.jt.transpose() * &gt;
                 m.view_mut((0, p0), (p0, pk)).copy_from(&jg);
                 m.view_mut((p0, 0), (pk, p0)).copy_from(&jg.transpose());
                 m.view_mut((p0, p0), (pk, pk))
                     .copy_from(&(gt.transpose() * &gt));
-                b.rows_mut(p0, pk).copy_from(&(gt.transpose() * rt));
+                b.rows_mut(p0, pk).copy_from(&(gt.transpose() * &f.rt));
             }
             let eig = m.symmetric_eigen();
             let lmax = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(v.abs()));

@@ -170,7 +170,7 @@ impl Predictor {
         let parsed = effects
             .iter()
             .map(crate::diagnose::effects::Effect::from_cal)
-            .collect::<anyhow::Result<Vec<_>>>()?;
+            .collect::<Result<Vec<_>, _>>()?;
         let mut warnings = Vec::new();
         if inferred > 0 && effects.iter().any(|e| e.kind == "backlash") {
             warnings.push(crate::solve::obs::q_prev_warning(

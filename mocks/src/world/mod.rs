@@ -17,6 +17,7 @@ pub mod control;
 pub mod effects;
 pub mod motion;
 pub mod operator;
+pub mod rcm_view;
 pub mod sensors;
 
 use crate::scenario::{
@@ -144,6 +145,9 @@ pub(crate) struct World {
     pub(crate) scene: SceneConfig,
     pub(crate) control: control::ControlState,
     pub(crate) operator: Option<OperatorRuntime>,
+    /// Endoscope renderers of fixed cameras in an RCM cell, by camera index (built on the
+    /// first frame: [`rcm_view`]).
+    pub(crate) rcm_renderers: std::collections::HashMap<usize, Arc<crate::rcm_render::RcmRenderer>>,
 }
 
 /// The simulated operator's script and when it started.
@@ -398,6 +402,7 @@ impl WorldHandle {
                 cameras,
                 scene: s.scene.clone(),
                 control: Default::default(),
+                rcm_renderers: Default::default(),
                 operator: match &s.operator {
                     None => None,
                     Some(op) => Some(OperatorRuntime {
@@ -920,6 +925,9 @@ impl WorldHandle {
     /// to read the pose and draw the image's noise seed; the rendering itself runs unlocked, so
     /// a camera stream never stalls the other devices.
     pub fn render_camera_of(&self, camera: usize) -> Image {
+        if let Some(img) = self.render_rcm_view(camera) {
+            return img;
+        }
         let t = self.now();
         let pose = self.camera_in_base(camera);
         let job = self.with(|w| {

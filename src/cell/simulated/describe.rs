@@ -89,6 +89,29 @@ pub fn describe_scenario(
         tracker_rate_hz: t.map(|t| t.rate_hz),
         settle_s: Some(a.settle_s),
         camera,
+        endoscope: endoscope(&one),
     };
     Ok((description, one))
+}
+
+/// An RCM cell's stated endoscope (a camera fixed in the base: its intrinsics as the
+/// endoscope's own prior calibration) and instrument shaft, when the scene has an instrument.
+fn endoscope(sc: &StatedScenario) -> Option<session::rcm::EndoscopeCell> {
+    let inst = sc.instrument.as_ref()?;
+    let c = sc.cameras.iter().find(|c| c.arm.is_none())?;
+    let [fx, fy, cx, cy] = c.intrinsics;
+    Some(session::rcm::EndoscopeCell {
+        name: c.name.clone(),
+        camera: crate::dataset::endoscope::EndoscopeCamera {
+            kind: "endoscope".into(),
+            width: c.width,
+            height: c.height,
+            fx,
+            fy,
+            cx,
+            cy,
+            dist: [c.radial[0], c.radial[1], 0.0, 0.0, 0.0],
+        },
+        shaft_radius_mm: inst.radius_mm,
+    })
 }

@@ -22,7 +22,7 @@ mod describe;
 pub mod wire;
 
 pub use describe::describe_scenario;
-pub use robocal_mocks::stated::{Bind, Endpoint, Served, SimCell, StatedScenario};
+pub use robocal_mocks::stated::{Bind, Endpoint, Only, Served, SimCell, StatedScenario};
 pub use wire::wire_cell;
 
 /// The simulated cell of the scenario file at `path`, on a virtual or the wall clock.
@@ -36,10 +36,10 @@ pub fn stated_scenario(path: &Path) -> anyhow::Result<StatedScenario> {
     StatedScenario::load(path).with_context(|| format!("reading {}", path.display()))
 }
 
-/// The scenario file at `path` cut to arm `arm` (its trackers, lasers and cameras), as the TOML
-/// a single-arm session runs on; `ranges_only`: without trackers and cameras.
-pub fn one_arm_scenario(path: &Path, arm: &str, ranges_only: bool) -> anyhow::Result<String> {
-    robocal_mocks::stated::one_arm_scenario_toml(path, arm, ranges_only)
+/// The scenario file at `path` cut to arm `arm` (its trackers, lasers and cameras) and to the
+/// devices `only` keeps, as the TOML a single-arm session runs on.
+pub fn one_arm_scenario(path: &Path, arm: &str, only: Only) -> anyhow::Result<String> {
+    robocal_mocks::stated::one_arm_scenario_toml(path, arm, only)
         .with_context(|| format!("writing the session's scenario from {}", path.display()))
 }
 
@@ -213,9 +213,10 @@ mod tests {
     use std::path::Path;
 
     /// The items of the simulators' truth-free face this module may use.
-    const FACE: [&str; 12] = [
+    const FACE: [&str; 13] = [
         "Bind",
         "Endpoint",
+        "Only",
         "Protocol",
         "Served",
         "SimCell",

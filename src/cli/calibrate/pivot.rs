@@ -129,6 +129,8 @@ fn load(args: &Args) -> anyhow::Result<Vec<nalgebra::Isometry3<f64>>> {
             .map(|t| format!(" for tool `{t}`"))
             .unwrap_or_default()
     );
+    crate::plausible::quat::check_order_pivot(&frames, &data.display().to_string())
+        .map_err(|e| anyhow::anyhow!(e))?;
     Ok(frames)
 }
 

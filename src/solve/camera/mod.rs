@@ -29,6 +29,7 @@ pub mod problem;
 pub mod realeval;
 pub mod select;
 pub mod subpix;
+pub mod viewcorr;
 pub mod zhang;
 
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
@@ -865,6 +866,7 @@ pub fn calibrate(
         g: &g,
         k1,
         mask: model.mask(),
+        sigma_px: k1_rms / std::f64::consts::SQRT_2,
         x0: best.x,
         b0: best.target,
     };
@@ -874,19 +876,24 @@ pub fn calibrate(
     let mut pose_noise = None;
     let mut chosen = select::Candidate::Ml;
     if !bc.scale && !bc.bend && views.len() >= 8 {
-        let mut best_cv = f64::INFINITY;
-        for c in select::Candidate::all() {
-            let s = ctx.cv_rms(c, 5);
-            if s < best_cv {
-                (best_cv, chosen) = (s, c);
-            }
-            cv_scores.push((c.name(), s));
-        }
+        let per: Vec<_> = select::Candidate::all()
+            .into_iter()
+            .map(|c| (c, ctx.cv_views(c, 5)))
+            .collect();
+        cv_scores = per
+            .iter()
+            .map(|(c, v)| (c.name(), select::cv_of(v.as_deref())))
+            .collect();
+        chosen = select::choose(&per).unwrap_or(chosen);
         candidates.push(ml_free.clone());
         for c in [
             select::Candidate::MlBoardIntrinsics,
             select::Candidate::PoseNoise,
             select::Candidate::PoseNoiseFull,
+            select::Candidate::ViewCorrections,
+            select::Candidate::ViewCorrectionsScaled(-4),
+            select::Candidate::ViewCorrectionsScaled(-3),
+            select::Candidate::ViewCorrectionsScaled(-2),
         ] {
             if let Some(f) = ctx.fit(c, &all) {
                 pose_noise = pose_noise.or(f.pose_noise);

@@ -333,6 +333,8 @@ pub struct SplitHalf {
     pub ratios: [f64; 6],
     /// The same for OpenCV Park–Martin (mm, deg), when the peer ran.
     pub opencv_park: Option<(f64, f64)>,
+    /// The estimate written on each half (the selection's choice).
+    pub methods: [String; 2],
 }
 
 /// Everything measured on one real set.
@@ -349,6 +351,9 @@ pub struct SetReport {
     /// Held-out floor: X and target fitted to the held-out views themselves (board-only
     /// intrinsics): what the held-out views' own robot-pose error leaves.
     pub floor_px: f64,
+    /// The same with the intrinsics free as well (the lowest held-out RMS any pinhole-and-
+    /// distortion camera on the stated flange poses can reach on these views).
+    pub floor_free_px: f64,
     pub split: SplitHalf,
     /// Stated 1σ of X translation (mm) and the bootstrap's, when run.
     pub sigma_mm: [f64; 3],
@@ -403,6 +408,23 @@ pub fn evaluate(
     }
     let floor_px =
         super::fit_fixed_intrinsics(&held, &res.intrinsics_only, &res.ml.x, &res.ml.target).2;
+    let floor_free_px = {
+        let obs = super::obs_of(&held.views, &held.board);
+        let g = super::motion_poses(&held.views, held.mount);
+        let rep = super::ml_fit(
+            &obs,
+            &g,
+            &res.intrinsics_only,
+            res.distortion.mask(),
+            &res.ml.x,
+            &res.ml.target,
+            super::problem::BoardModel::default(),
+            1.0,
+            [0.0; 2],
+        )
+        .5;
+        super::rms(&rep.residuals).min(floor_px)
+    };
     // Split half.
     let (a, b) = halves(data);
     let ra = super::calibrate(&a, None, &super::Options::default()).map_err(|e| e.to_string())?;
@@ -439,11 +461,13 @@ pub fn evaluate(
         opencv,
         opencv_version: version,
         floor_px,
+        floor_free_px,
         split: SplitHalf {
             dx_mm,
             dr_deg,
             ratios,
             opencv_park,
+            methods: [ra.ml.method.clone(), rb.ml.method.clone()],
         },
         sigma_mm: u.x_mm,
         sigma_deg: u.x_deg,
