@@ -175,7 +175,8 @@ pub fn soak(file: &str, n: usize, prob: f64, seed: u64) -> anyhow::Result<Tally>
         .worker_threads(2)
         .enable_all()
         .build()?;
-    let (mut devices, _info, served) = rt.block_on(wire_cell(&world))?;
+    let (mut devices, _info, served) =
+        rt.block_on(wire_cell(&robocal::cell::SimCell::of(&world)))?;
     let opts = AcquireOptions {
         sample: robocal::acquire::SampleOptions {
             frames: 10,

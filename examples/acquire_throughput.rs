@@ -46,7 +46,7 @@ fn main() -> anyhow::Result<()> {
         .join("mocks/scenarios/lab-vs060-optotrak-il600.toml");
     let scenario = Scenario::load(&scen_path)?;
     let world = WorldHandle::from_scenario(&scenario)?;
-    let (mut devices, _) = robocal::cell::sim_cell(&world)?;
+    let (mut devices, _) = robocal::cell::sim_cell(&robocal::cell::SimCell::of(&world))?;
     let opts = AcquireOptions::default();
     let limits = SafetyLimits {
         joint_lower: vec![-170f64.to_radians(); 6],

@@ -62,7 +62,7 @@ fn plan(spec: &Path, strata: &str, seed: u64, jitter: bool, out: &Path) -> PlanF
     .iter()
     .map(|s| s.to_string())
     .collect();
-    assert_eq!(robocal::cli::run(args), 0);
+    assert_eq!(robocal::main_with_args(args), 0);
     PlanFile::read(out).unwrap()
 }
 

@@ -145,7 +145,12 @@ fn plan(
     .iter()
     .map(|s| s.to_string())
     .collect();
-    assert_eq!(robocal::cli::run(args), 0, "planning {}", sp.display());
+    assert_eq!(
+        robocal::main_with_args(args),
+        0,
+        "planning {}",
+        sp.display()
+    );
     PlanFile::read(out).unwrap()
 }
 

@@ -4,7 +4,10 @@
 //! silhouettes (px, deg) and the hand-eye error with detected vs exact lines.
 //!
 //! `cargo run --example rcm_images [-- --trials 20 --poses 20 --robot-mm 0.05 --robot-deg 0.02]`
-use robocal::trials::rcm_images::{run, text, TrialOptions};
+#[path = "common/rcm_trials.rs"]
+mod rcm_trials;
+
+use rcm_trials::{run, text, TrialOptions};
 use robocal_mocks::rcm::RcmScenario;
 
 fn main() -> anyhow::Result<()> {
@@ -48,7 +51,7 @@ fn dump(o: &TrialOptions, dir: &std::path::Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)?;
     let cell = RcmCell::new(RcmScenario::builtin());
     let rr = RcmRenderer::new(&cell, &cell.scenario.render);
-    let cam = robocal::trials::rcm_images::endoscope_camera(&cell.scenario);
+    let cam = rcm_trials::endoscope_camera(&cell.scenario);
     let model = robocal::model::KinematicModel::preset(&cell.scenario.robot)?;
     let spec = RcmPlanSpec {
         trocar_mm: cell.scenario.trocar_mm,

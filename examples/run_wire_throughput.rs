@@ -1,5 +1,5 @@
 //! Acquisition throughput of the seed 001 plan over the WIRE-level dry-run cell
-//! (`robocal::cell::wire`): the scenario's simulators served on loopback TCP / ptys and
+//! (`robocal::cell::wire_cell`): the scenario's simulators served on loopback TCP / ptys and
 //! the real drivers (b-CAP, NDI, KEYENCE, UR) talking to them, on the world's virtual clock.
 //! Prints poses/hour and the engine's move / settle / sample / overhead breakdown (simulated
 //! seconds), plus the wall time the run took.
@@ -68,7 +68,8 @@ fn main() -> anyhow::Result<()> {
 
     let wall = Instant::now();
     let (s, served) = rt.block_on(async {
-        let (mut devices, _info, served) = robocal::cell::wire_cell(&world).await?;
+        let (mut devices, _info, served) =
+            robocal::cell::wire_cell(&robocal::cell::SimCell::of(&world)).await?;
         devices.arm = guard(devices.arm.clone(), limits, None);
         let s = acquire(&devices, &poses, &mut journal, &[], &opts, &mut |_| {}).await?;
         anyhow::Ok((s, served))

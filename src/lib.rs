@@ -4,8 +4,10 @@
 //! Units inside the library: lengths in millimetres, angles in radians, time in seconds.
 //! Files use millimetres and degrees (see `dataset`), conversion happens at the file edge.
 //!
-//! Estimation code (`model`, `solve`, `diagnose`, `plan`) never depends on the simulator crate (`mocks/`);
-//! only `cell` (dry runs) and `trials` (scoring against the simulated truth) wire the simulators in.
+//! Estimation code (`model`, `solve`, `diagnose`, `plan`) never depends on the simulator crate (`mocks/`):
+//! only `cell::simulated` reaches the simulators, through their truth-free face
+//! (`mocks/src/stated.rs`: what a scenario states, and its devices as driver traits); a test
+//! there fails when any other file names them.
 
 pub mod acquire;
 pub mod capture;
@@ -24,4 +26,18 @@ pub mod report;
 pub mod schema;
 pub mod session;
 pub mod solve;
-pub mod trials;
+
+pub use cli::EXIT_USAGE;
+
+/// The `robocal` command line as a library call, for tests and examples that drive a whole
+/// command: `args` as the binary receives them (the first is the program name), parsed and run
+/// in this thread (so per-thread counters see the work). Returns the process exit code: 0
+/// success (a session: PASS), 1 error, 2 a session's FAIL / INCOMPLETE, 64 a command line that
+/// does not parse, 130 stopped by Ctrl-C after a durable record.
+pub fn main_with_args<I, T>(args: I) -> i32
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    cli::run(args)
+}

@@ -7,5 +7,5 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    std::process::exit(robocal::cli::run(std::env::args_os()));
+    std::process::exit(robocal::main_with_args(std::env::args_os()));
 }

@@ -703,21 +703,18 @@ marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }
         assert!(String::from_utf8_lossy(&o.stderr).contains("nothing moves without --live"));
         assert!(!out.exists());
         // Usage errors.
-        assert_eq!(
-            robocal(&["run"]).status.code(),
-            Some(robocal::cli::EXIT_USAGE)
-        );
+        assert_eq!(robocal(&["run"]).status.code(), Some(robocal::EXIT_USAGE));
         assert_eq!(
             robocal(&["run", "--plan", s(&plan), "--live", "--out", s(&out)])
                 .status
                 .code(),
-            Some(robocal::cli::EXIT_USAGE)
+            Some(robocal::EXIT_USAGE)
         );
         assert_eq!(
             robocal(&["run", "--resume", s(&out), "--plan", s(&plan)])
                 .status
                 .code(),
-            Some(robocal::cli::EXIT_USAGE)
+            Some(robocal::EXIT_USAGE)
         );
         // Not a run directory.
         let o = robocal(&["run", "--resume", s(dir.path())]);
@@ -884,7 +881,7 @@ mod sim_devices {
         path: &std::path::Path,
         opts: &AcquireOptions,
     ) -> RunSummary {
-        let (mut devices, _) = robocal::cell::sim_cell(world).unwrap();
+        let (mut devices, _) = robocal::cell::sim_cell(&robocal::cell::SimCell::of(world)).unwrap();
         let limits = SafetyLimits {
             joint_lower: vec![-170f64.to_radians(); 6],
             joint_upper: vec![170f64.to_radians(); 6],

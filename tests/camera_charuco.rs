@@ -25,7 +25,7 @@ fn root() -> &'static Path {
 fn cli(args: &[&str]) -> i32 {
     let mut v = vec!["robocal".to_string()];
     v.extend(args.iter().map(|s| s.to_string()));
-    robocal::cli::run(v)
+    robocal::main_with_args(v)
 }
 
 fn s(p: &Path) -> &str {

@@ -23,7 +23,7 @@ fn root() -> &'static Path {
 fn cli(args: &[&str]) -> i32 {
     let mut v = vec!["robocal".to_string()];
     v.extend(args.iter().map(|s| s.to_string()));
-    robocal::cli::run(v)
+    robocal::main_with_args(v)
 }
 
 fn s(p: &Path) -> &str {
@@ -274,7 +274,7 @@ fn run_poses(
     header: &Header,
     max_poses: usize,
 ) -> RunSummary {
-    let (mut devices, _) = robocal::cell::sim_cell(world).unwrap();
+    let (mut devices, _) = robocal::cell::sim_cell(&robocal::cell::SimCell::of(world)).unwrap();
     assert!(devices.camera.is_some());
     let limits = SafetyLimits {
         joint_lower: vec![-360f64.to_radians(); 6],

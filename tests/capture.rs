@@ -52,6 +52,37 @@ fn cell(dir: &Path, serve: &SimServe) -> PathBuf {
     f
 }
 
+/// The operator cell of [`scenario`] served by `robocal sim serve`, and its device file.
+struct Served {
+    sc: Scenario,
+    serve: SimServe,
+    file: PathBuf,
+}
+
+/// Serves the operator scenario (steps as [`scenario`] keeps and edits them) in `dir`.
+fn served(dir: &Path, keep: impl Fn(&Step) -> bool, edit: impl Fn(&mut Step)) -> Served {
+    let (scen, sc) = scenario(dir, keep, edit);
+    let serve = SimServe::start(&scen);
+    let file = cell(dir, &serve);
+    Served { sc, serve, file }
+}
+
+/// `robocal capture pivot` of the probe on the device file `file` into `out`, then `extra`.
+fn pivot(file: &Path, out: &Path, extra: &[&str]) -> (Option<i32>, String, String) {
+    let mut args = vec![
+        "capture",
+        "pivot",
+        "--devices",
+        s(file),
+        "--tool",
+        "probe",
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 fn run(args: &[&str]) -> (Option<i32>, String, String) {
     let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
         .args(args)
@@ -91,9 +122,11 @@ fn divot_in_tracker(sc: &Scenario) -> Point3<f64> {
 #[test]
 fn capture_pivot_recovers_the_probe_tip() {
     let tmp = tempfile::tempdir().unwrap();
-    let (scen, sc) = scenario(tmp.path(), is_pivot, |_| {});
-    let serve = SimServe::start(&scen);
-    let file = cell(tmp.path(), &serve);
+    let Served {
+        sc,
+        serve: _serve,
+        file,
+    } = served(tmp.path(), is_pivot, |_| {});
     let out = tmp.path().join("pivot");
     // Two tools on the tracker and no --tool: refused, naming both.
     let (code, _, err) = run(&["capture", "pivot", "--devices", s(&file), "--out", s(&out)]);
@@ -102,16 +135,7 @@ fn capture_pivot_recovers_the_probe_tip() {
         err.contains("2 tools (flange-marker, probe)") && err.contains("--tool"),
         "{err}"
     );
-    let (code, stdout, err) = run(&[
-        "capture",
-        "pivot",
-        "--devices",
-        s(&file),
-        "--tool",
-        "probe",
-        "--out",
-        s(&out),
-    ]);
+    let (code, stdout, err) = pivot(&file, &out, &[]);
     assert_eq!(code, Some(0), "{err}");
     assert!(
         err.contains("spread") && err.contains("tilt directions"),
@@ -145,49 +169,26 @@ fn capture_pivot_recovers_the_probe_tip() {
 fn capture_pivot_refuses_a_small_cone_and_a_moving_divot() {
     let tmp = tempfile::tempdir().unwrap();
     // A divot that slides 0.2 mm/s.
-    let (scen, _) = scenario(tmp.path(), is_pivot, |st| {
+    let Served { serve, file, .. } = served(tmp.path(), is_pivot, |st| {
         if let Step::Pivot { drift_mm_s, .. } = st {
             *drift_mm_s = [0.2, 0.0, 0.0];
         }
     });
-    let serve = SimServe::start(&scen);
-    let file = cell(tmp.path(), &serve);
     let out = tmp.path().join("pivot");
-    let (code, _, err) = run(&[
-        "capture",
-        "pivot",
-        "--devices",
-        s(&file),
-        "--tool",
-        "probe",
-        "--out",
-        s(&out),
-    ]);
+    let (code, _, err) = pivot(&file, &out, &[]);
     assert_eq!(code, Some(1));
     assert!(err.contains("the divot moved"), "{err}");
     assert!(!out.join("pivot.json").exists());
     drop(serve);
     // A cone of ±6°: too little spread, with a hint.
     let tmp = tempfile::tempdir().unwrap();
-    let (scen, _) = scenario(tmp.path(), is_pivot, |st| {
+    let Served { serve, file, .. } = served(tmp.path(), is_pivot, |st| {
         if let Step::Pivot { cone_deg, .. } = st {
             *cone_deg = 6.0;
         }
     });
-    let serve = SimServe::start(&scen);
-    let file = cell(tmp.path(), &serve);
-    let (code, _, err) = run(&[
-        "capture",
-        "pivot",
-        "--devices",
-        s(&file),
-        "--tool",
-        "probe",
-        "--out",
-        s(&out),
-        "--max-seconds",
-        "6",
-    ]);
+    let (code, _, err) = pivot(&file, &out, &["--max-seconds", "6"]);
+    drop(serve);
     assert_eq!(code, Some(1));
     assert!(
         err.contains("too little spread") && err.contains("needed 40°"),
@@ -198,13 +199,15 @@ fn capture_pivot_refuses_a_small_cone_and_a_moving_divot() {
 #[test]
 fn capture_points_averages_still_windows() {
     let tmp = tempfile::tempdir().unwrap();
-    let (scen, sc) = scenario(
+    let Served {
+        sc,
+        serve: _serve,
+        file,
+    } = served(
         tmp.path(),
         |st| matches!(st, Step::Wait { .. } | Step::Touch { .. }),
         |_| {},
     );
-    let serve = SimServe::start(&scen);
-    let file = cell(tmp.path(), &serve);
     let op = sc.operator.as_ref().unwrap();
     let tip = op.probe_tip_mm;
     let tip_arg = format!("{},{},{}", tip[0], tip[1], tip[2]);
@@ -252,9 +255,8 @@ fn capture_points_averages_still_windows() {
 #[test]
 fn capture_poses_reads_the_hand_guided_denso_and_ur_freedrive() {
     let tmp = tempfile::tempdir().unwrap();
-    let (scen, sc) = scenario(tmp.path(), |st| matches!(st, Step::Drag { .. }), |_| {});
-    let serve = SimServe::start(&scen);
-    let file = cell(tmp.path(), &serve);
+    let Served { sc, serve, file } =
+        served(tmp.path(), |st| matches!(st, Step::Drag { .. }), |_| {});
     let out = tmp.path().join("poses.csv");
     let (code, stdout, err) = run(&[
         "capture",

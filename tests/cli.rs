@@ -139,11 +139,11 @@ fn inspect_exit_codes() {
     assert!(stderr(&o).contains("missing.jsonl"), "{}", stderr(&o));
     assert_eq!(
         robocal(&["inspect"]).status.code(),
-        Some(robocal::cli::EXIT_USAGE)
+        Some(robocal::EXIT_USAGE)
     );
     assert_eq!(
         robocal(&["inspect", "--bogus", p(&f)]).status.code(),
-        Some(robocal::cli::EXIT_USAGE)
+        Some(robocal::EXIT_USAGE)
     );
 }
 
@@ -264,13 +264,13 @@ fn predict_errors_and_usage() {
     // Usage errors: exit 2.
     assert_eq!(
         robocal(&["predict"]).status.code(),
-        Some(robocal::cli::EXIT_USAGE)
+        Some(robocal::EXIT_USAGE)
     );
     assert_eq!(
         robocal(&["predict", "--calibration", p(&cal_path)])
             .status
             .code(),
-        Some(robocal::cli::EXIT_USAGE)
+        Some(robocal::EXIT_USAGE)
     );
 
     // A bad calibration file names the file and the field.

@@ -10,7 +10,7 @@ pub fn root() -> &'static Path {
 pub fn cli(args: &[&str]) -> i32 {
     let mut v = vec!["robocal".to_string()];
     v.extend(args.iter().map(|s| s.to_string()));
-    robocal::cli::run(v)
+    robocal::main_with_args(v)
 }
 
 /// A path as `&str` (test paths are UTF-8).

@@ -690,7 +690,7 @@ fn cli_plan_writes_a_valid_plan_without_devices() {
     let csv = dir.path().join("poses.csv");
     let pcs = dir.path().join("plan.pcs");
     let spec = plans_dir().join("seed004-shell.toml");
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal".into(),
         "plan".into(),
         "--spec".into(),
@@ -709,7 +709,7 @@ fn cli_plan_writes_a_valid_plan_without_devices() {
     let f = PlanFile::read(&out).unwrap();
     assert!(!f.poses.is_empty());
     assert!(csv.exists() && pcs.exists());
-    let check = robocal::cli::run([
+    let check = robocal::main_with_args([
         "robocal".into(),
         "plan".into(),
         "--check".into(),
@@ -717,7 +717,7 @@ fn cli_plan_writes_a_valid_plan_without_devices() {
     ]);
     assert_eq!(check, 0);
     let missing_robot =
-        robocal::cli::run(["robocal", "plan", "--spec", "plans/seed004-shell.toml"]);
+        robocal::main_with_args(["robocal", "plan", "--spec", "plans/seed004-shell.toml"]);
     assert_eq!(missing_robot, 1);
 }
 
@@ -748,7 +748,7 @@ fn numeric_ik_fallback_for_geometries_without_closed_form() {
 fn cli_plan_takes_the_robot_from_a_dataset_chain() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("PLAN.json");
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal".into(),
         "plan".into(),
         "--spec".into(),

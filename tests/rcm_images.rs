@@ -3,13 +3,14 @@
 //! shaft's silhouettes in the pixels, `calibrate rcm` reads images.
 use std::process::Command;
 
+use super::rcm_trials as rcm_images;
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rcm_images::TrialOptions;
 use robocal::model::KinematicModel;
 use robocal::plan::rcm::{generate, RcmPlanSpec};
 use robocal::solve::rcm::lines;
-use robocal::trials::rcm_images::{self, TrialOptions};
 use robocal_mocks::rcm::{RcmCell, RcmScenario};
 use robocal_mocks::rcm_render::write_image_dataset;
 
@@ -136,7 +137,7 @@ fn seed002_plan_file_pivots_about_the_trocar_and_is_reachable() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("PLAN.json");
     let spec = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("plans/seed002-rcm.toml");
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal".into(),
         "plan".into(),
         "--spec".into(),

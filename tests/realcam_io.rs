@@ -138,7 +138,7 @@ fn import_handeye_checks_the_declaration_and_every_image_format_calibrates() {
     let run = |a: Vec<String>| {
         let mut v = vec!["robocal".to_string()];
         v.extend(a);
-        robocal::cli::run(v)
+        robocal::main_with_args(v)
     };
     // The wrong major order is refused (no dataset written).
     assert_eq!(run(args("rot9-row")), 1);

@@ -745,7 +745,7 @@ fn a_session_identifies_once_and_reads_each_dataset_once() {
         robocal::solve::kinematics::identifications_on_this_thread(),
         robocal::dataset::dataset_parses_on_this_thread(),
     );
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal",
         "session",
         "--sim",

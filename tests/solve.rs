@@ -507,7 +507,7 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     let train = data("kin-geometric/train.jsonl");
     let held = data("kin-geometric/heldout.jsonl");
     let out_n = dir.path().join("nom");
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal",
         "calibrate",
         "nominal",
@@ -525,7 +525,7 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     assert!(h > 0.8 && h < 0.95, "{h}");
     assert!(f.metrics["train_rms_mm"].as_f64().unwrap() > 0.7);
     let out_k = dir.path().join("kin");
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal",
         "calibrate",
         "kinematics",
@@ -559,7 +559,7 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     assert_eq!(source, "bootstrap covariance");
     assert!(c.trace() > 0.0 && c.trace().sqrt() < 0.5, "{c}");
     let csv_path = dir.path().join("pred.csv");
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal",
         "predict",
         "--calibration",
@@ -575,7 +575,7 @@ fn cli_calibrate_nominal_and_kinematics_then_predict() {
     let p: Vec<(u64, Point3<f64>)> = pred.into_iter().collect();
     assert!(rms_against(&truth, &p) < 0.02);
     // Bad input: missing file → exit code 1, no panic.
-    let code = robocal::cli::run([
+    let code = robocal::main_with_args([
         "robocal",
         "calibrate",
         "kinematics",

@@ -30,6 +30,9 @@ mod plan;
 mod rcm;
 mod rcm_images;
 mod rcm_session;
+/// The RCM image trials (an evaluation harness kept beside the examples).
+#[path = "../examples/common/rcm_trials.rs"]
+mod rcm_trials;
 mod real_handeye;
 mod realcam_io;
 mod report;

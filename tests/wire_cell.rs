@@ -1,4 +1,4 @@
-//! The wire-level dry-run cell (`robocal::cell::wire`): the scenario's simulators on
+//! The wire-level dry-run cell (`robocal::cell::wire_cell`): the scenario's simulators on
 //! loopback TCP / ptys, the REAL drivers connected to them. Readings through the wire equal
 //! the world's truth within each protocol's resolution, and the acquisition engine records
 //! every pose of a small seed-001 plan over the wire cell on the virtual clock.
@@ -79,7 +79,9 @@ fn assert_pose_close(got: &Isometry3<f64>, want: &Isometry3<f64>, mm: f64, rad: 
 /// readings read over the wire must equal the world's truth.
 async fn wire_equals_truth(s: Scenario, marker_tol_mm: f64, marker_tol_rad: f64) {
     let world = WorldHandle::from_scenario(&s).unwrap();
-    let (devices, info, served) = wire_cell(&world).await.expect("wire cell");
+    let (devices, info, served) = wire_cell(&robocal::cell::SimCell::of(&world))
+        .await
+        .expect("wire cell");
     assert_eq!(info.serial, world.arm_identity(0).map(|(_, s)| s));
     assert!(
         served.endpoints.iter().any(|e| e.protocol == "bcap"),
@@ -215,7 +217,9 @@ async fn hospital_with_a_serial_polaris_over_a_pty_equals_the_truth() {
 #[tokio::test]
 async fn ur5e_over_rtde_dashboard_and_script_equals_the_truth() {
     let world = WorldHandle::from_scenario(&scenario(UR5E, true)).unwrap();
-    let (devices, info, served) = wire_cell(&world).await.expect("wire cell");
+    let (devices, info, served) = wire_cell(&robocal::cell::SimCell::of(&world))
+        .await
+        .expect("wire cell");
     for proto in ["rtde", "dashboard", "script"] {
         assert!(
             served
@@ -332,7 +336,9 @@ async fn acquire_over_wire(file: &str, n: usize) {
     let world = WorldHandle::from_scenario(&s).unwrap();
     assert!(world.is_virtual());
     let (robot, poses) = seed001_poses(&s, n);
-    let (mut devices, _info, served) = wire_cell(&world).await.expect("wire cell");
+    let (mut devices, _info, served) = wire_cell(&robocal::cell::SimCell::of(&world))
+        .await
+        .expect("wire cell");
     let opts = AcquireOptions::default();
     devices.arm = guard(
         devices.arm.clone(),

@@ -14,6 +14,7 @@ pub mod rcm_render;
 pub mod scenario;
 pub mod serve;
 pub mod sim;
+pub mod stated;
 pub mod synth;
 pub mod ur;
 pub mod world;

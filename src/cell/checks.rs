@@ -7,78 +7,17 @@ use std::path::Path;
 
 use anyhow::Context as _;
 
-use crate::plan::recheck::{recheck, CellRobot};
+use crate::plan::recheck::recheck;
 use crate::plan::PlanFile;
-use crate::plausible::limits::{motion_cap, CellLimit};
-use robocal_mocks::scenario::Scenario;
+use crate::plausible::limits::motion_cap;
 
-/// The cell's arm: model and motion limits (deg/s, deg/s²) with their source.
-struct CellArm {
-    robot: CellRobot,
-    vel: Option<CellLimit>,
-    acc: Option<CellLimit>,
-}
+use super::source::{source, OpenOptions, StatedArm as CellArm};
 
+/// The arm of the cell described by `config` (`mode` `sim`: a scenario; `live`: a device file).
 fn cell_arm(mode: &str, config: &Path, arm: Option<&str>) -> anyhow::Result<CellArm> {
-    if mode == "sim" {
-        let s = Scenario::load(config).with_context(|| format!("reading {}", config.display()))?;
-        let a = match arm {
-            Some(n) => s.arms.iter().find(|a| a.name == n),
-            None => s.arms.first(),
-        };
-        let Some(a) = a else {
-            anyhow::bail!(
-                "{}: the scenario has no [[arm]]{}",
-                config.display(),
-                arm.map_or_else(String::new, |n| format!(" named {n:?}"))
-            );
-        };
-        let src = |k: &str| format!("{}: arm \"{}\" motion.{k}", config.display(), a.name);
-        return Ok(CellArm {
-            robot: CellRobot {
-                source: format!("{}: arm \"{}\"", config.display(), a.name),
-                model: Some(a.model.clone()),
-                safety: a.safety.as_ref().map(|s| crate::plan::recheck::CellSafety {
-                    table_z_mm: s.table_z_mm,
-                    table_clearance_mm: s.table_clearance_mm.unwrap_or(0.0),
-                    envelope: s.envelope.clone(),
-                }),
-            },
-            vel: Some(CellLimit {
-                value: a.motion.max_vel_deg_s,
-                source: src("max_vel_deg_s"),
-            }),
-            acc: Some(CellLimit {
-                value: a.motion.max_acc_deg_s2,
-                source: src("max_acc_deg_s2"),
-            }),
-        });
-    }
-    let f = crate::acquire::devices::DevicesFile::read(config)?;
-    let arm = f
-        .devices
-        .iter()
-        .find(|d| d.role == crate::acquire::devices::Role::Arm);
-    // A device file's `model` is free text: compared only when it names a built-in preset.
-    let model = arm
-        .and_then(|d| d.model.clone())
-        .filter(|m| crate::dataset::preset_dof(m.trim()).is_some());
-    let name = arm.map(|d| d.name.as_str()).unwrap_or("?");
-    let limit = |v: Option<f64>, k: &str| {
-        v.map(|value| CellLimit {
-            value,
-            source: format!("{}: device \"{name}\" {k}", config.display()),
-        })
-    };
-    Ok(CellArm {
-        robot: CellRobot {
-            source: format!("{}: device \"{name}\"", config.display()),
-            model,
-            safety: None,
-        },
-        vel: limit(arm.and_then(|d| d.max_speed_deg_s), "max_speed_deg_s"),
-        acc: limit(arm.and_then(|d| d.max_accel_deg_s2), "max_accel_deg_s2"),
-    })
+    Ok(source(mode, config, OpenOptions::default())?
+        .stated(arm)?
+        .arm)
 }
 
 /// Checks a run's plan, caps and frame count against the cell described by `config`

@@ -8,7 +8,6 @@ use std::sync::Arc;
 
 use crate::acquire::devices::{DeviceEntry, DevicesFile, Protocol, Role};
 use crate::acquire::Devices;
-use crate::cell::CellInfo;
 use robocal_drivers::bcap::{DensoArm, DensoConfig};
 use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig};
 use robocal_drivers::ndi::{NdiConfig, NdiTracker, ReplyMode};
@@ -77,7 +76,7 @@ pub async fn live_cell(
     dof: usize,
     camera: bool,
     _consent: &crate::cell::LiveConsent,
-) -> anyhow::Result<(Devices, CellInfo)> {
+) -> anyhow::Result<(Devices, super::CellInfo)> {
     // The same validation as `robocal devices` and the session (done before consent there;
     // repeated here because the file may have changed since).
     let checked = crate::acquire::device_check::check_file(path)?;
@@ -116,38 +115,27 @@ pub async fn live_cell(
     let tracker: Option<Arc<dyn MarkerTracker>> = match first(file, Role::Tracker) {
         None => None,
         Some(t) => Some(match t.protocol {
-            Protocol::NdiTcp => Arc::new(
-                NdiTracker::connect_tcp(
-                    &t.target(),
-                    NdiConfig::default(),
-                    &tool_roms(t, base)?,
-                    ReplyMode::Binary,
-                )
-                .await
-                .with_context(|| {
+            Protocol::NdiTcp | Protocol::NdiSerial => {
+                let serial = t.protocol == Protocol::NdiSerial;
+                let roms = tool_roms(t, base)?;
+                let (cfg, mode) = (NdiConfig::default(), ReplyMode::Binary);
+                let what = || {
                     format!(
-                        "NDI tracker {:?} at {} (connect and start-up)",
+                        "NDI tracker {:?} {} {} ({} and start-up)",
                         t.name,
-                        t.target()
+                        if serial { "on" } else { "at" },
+                        t.target(),
+                        if serial { "open" } else { "connect" }
                     )
-                })?,
-            ),
-            Protocol::NdiSerial => Arc::new(
-                NdiTracker::open_serial(
-                    &t.target(),
-                    NdiConfig::default(),
-                    &tool_roms(t, base)?,
-                    ReplyMode::Binary,
-                )
-                .await
-                .with_context(|| {
-                    format!(
-                        "NDI tracker {:?} on {} (open and start-up)",
-                        t.name,
-                        t.target()
-                    )
-                })?,
-            ),
+                };
+                if serial {
+                    let t = NdiTracker::open_serial(&t.target(), cfg, &roms, mode).await;
+                    Arc::new(t.with_context(what)?)
+                } else {
+                    let t = NdiTracker::connect_tcp(&t.target(), cfg, &roms, mode).await;
+                    Arc::new(t.with_context(what)?)
+                }
+            }
             Protocol::OptotrakOapi => bail!(
                 "device {:?}: the Optotrak needs NDI's OAPI library (build with --features \
                  optotrak); live acquisition through it is not wired in this build",
@@ -172,7 +160,7 @@ pub async fn live_cell(
         (false, _) | (true, None) => None,
         (true, Some(c)) => Some(open_camera(c, base, clock.clone())?),
     };
-    let info = CellInfo {
+    let info = super::CellInfo {
         serial: None,
         tracker_kind: first(file, Role::Tracker).and_then(|t| t.model.clone()),
         range_kind: first(file, Role::Laser).and_then(|l| l.model.clone()),
@@ -187,4 +175,96 @@ pub async fn live_cell(
         },
         info,
     ))
+}
+
+/// A device file as a run's cell.
+#[derive(Debug, Clone)]
+pub struct DeviceFileCell {
+    path: std::path::PathBuf,
+    opts: super::OpenOptions,
+}
+
+impl DeviceFileCell {
+    /// The cell of the device file at `path`.
+    pub fn new(path: &Path, opts: super::OpenOptions) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            opts,
+        }
+    }
+}
+
+impl super::CellSource for DeviceFileCell {
+    /// The device file's arm (its `model` compared only when it names a built-in preset; no
+    /// safety block yet) and first camera (size from its first image) with the `[board]`.
+    fn stated(&self, _arm: Option<&str>) -> anyhow::Result<super::StatedCell> {
+        use crate::plausible::limits::CellLimit;
+        let config = &self.path;
+        let f = DevicesFile::read(config)?;
+        let arm = first(&f, Role::Arm);
+        // A device file's `model` is free text: compared only when it names a built-in preset.
+        let model = arm
+            .and_then(|d| d.model.clone())
+            .filter(|m| crate::dataset::preset_dof(m.trim()).is_some());
+        let name = arm.map(|d| d.name.as_str()).unwrap_or("?");
+        let limit = |v: Option<f64>, k: &str| {
+            v.map(|value| CellLimit {
+                value,
+                source: format!("{}: device \"{name}\" {k}", config.display()),
+            })
+        };
+        let camera = first(&f, Role::Camera).map(|c| super::StatedCamera {
+            name: c.name.clone(),
+            header: crate::dataset::CameraHeader {
+                kind: "mono".into(),
+                // Known from the first image.
+                width: 0,
+                height: 0,
+                name: Some(c.name.clone()),
+                mount: Some(c.mount.clone().unwrap_or_else(|| "flange".into())),
+            },
+            target: f.board.as_ref().map(|b| b.target()),
+            // A chessboard declared in the file is detected at capture time as in dry runs.
+            detect: f
+                .board
+                .as_ref()
+                .filter(|b| b.kind == "chessboard")
+                .map(|b| (b.cols, b.rows)),
+        });
+        Ok(super::StatedCell {
+            arm: super::StatedArm {
+                robot: crate::plan::recheck::CellRobot {
+                    source: format!("{}: device \"{name}\"", config.display()),
+                    model,
+                    safety: None,
+                },
+                vel: limit(arm.and_then(|d| d.max_speed_deg_s), "max_speed_deg_s"),
+                acc: limit(arm.and_then(|d| d.max_accel_deg_s2), "max_accel_deg_s2"),
+            },
+            camera,
+        })
+    }
+
+    fn open(
+        &self,
+        rt: &tokio::runtime::Runtime,
+        consent: Option<&super::LiveConsent>,
+    ) -> anyhow::Result<super::OpenCell> {
+        let Some(consent) = consent else {
+            bail!("nothing moves without --live and confirmation");
+        };
+        let (devices, info) = rt
+            .block_on(live_cell(
+                &self.path,
+                self.opts.dof,
+                self.opts.camera,
+                consent,
+            ))
+            .with_context(|| format!("connecting the devices of {}", self.path.display()))?;
+        Ok(super::OpenCell {
+            devices,
+            info,
+            stop: None,
+        })
+    }
 }

@@ -1,30 +1,38 @@
 //! The cell: the one place that turns a scenario or a device file into connected drivers and
 //! drives them through a plan into a run directory.
 //!
+//! - [`source`]: the one interface of a cell ([`CellSource`]: what its file states, its devices
+//!   opened), implemented by [`simulated::ScenarioCell`] and [`live::DeviceFileCell`];
 //! - [`run`]: the run directory (`robocal-run/1`: `run.json`, the plan and cell file copies, the
 //!   dataset journal, `summary.json`), the dataset header, resume, the acquisition of a
 //!   [`RunRequest`] ([`run::run`]);
 //! - [`safety`]: the safety limits the arm is wrapped in, and the consent to move hardware;
-//! - [`sim`] (in-process simulators), [`wire`] (simulators behind the real protocols on
-//!   loopback / ptys, the real drivers connected to them), [`live`] (real hardware);
+//! - [`simulated`] (the simulators, in process or behind the real protocols on loopback /
+//!   ptys: the only module that reaches them, through their truth-free face), [`live`] (real
+//!   hardware);
 //! - [`describe`]: a scenario or a device file read into the session's cell description;
 //! - [`checks`]: the input checks of a run that need the cell (plan against the cell's robot,
 //!   speed / acceleration caps within its limits).
 //!
-//! Only this module (and the evaluation harnesses in [`crate::trials`]) wires the simulators
-//! in; the acquisition engine ([`crate::acquire`]) sees only the device traits.
+//! The acquisition engine ([`crate::acquire`]) sees only the device traits.
+// Every public item of the cell says what it is: the cell is where a scenario or a device file
+// becomes hardware, and an undocumented field there is a guess at the safety of a move.
+#![warn(missing_docs)]
+
 pub mod checks;
 pub mod describe;
 pub mod live;
 pub mod run;
 pub mod safety;
-pub mod sim;
-pub mod wire;
+pub mod simulated;
+pub mod source;
 
 pub use run::{
     parse_board, run, CameraUse, Interrupted, RunConfig, RunOutcome, RunProgress, RunRequest,
     RunStart,
 };
 pub use safety::{confirm_live, safety_limits, LiveConsent};
-pub use sim::{sim_cell, sim_world, CellInfo};
-pub use wire::wire_cell;
+pub use simulated::{sim_cell, wire_cell, SimCell};
+pub use source::{
+    CellInfo, CellSource, OpenCell, OpenOptions, StatedArm, StatedCamera, StatedCell,
+};

@@ -15,12 +15,11 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context as _};
 use robocal_drivers::safety::guard;
-use robocal_mocks::Scenario;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 use super::safety::{confirm_live, safety_limits, LiveConsent};
-use super::sim::{sim_cell, sim_world, CellInfo};
+use super::source::{source, CellInfo, OpenOptions, StatedCamera};
 use crate::acquire::{
     self, AcquireOptions, CaptureOptions, FaultOptions, MoveSpeedOpt, PlannedPose, Progress,
     RunSummary, SampleOptions, SettleOptions,
@@ -224,91 +223,40 @@ fn header_for(plan: &PlanFile, info: &CellInfo) -> Header {
     }
 }
 
-/// The header's `camera` and `target` blocks of a simulated cell (its first camera and its
-/// chessboard; `board` overrides the inner corners). Live cells leave them to
-/// `robocal calibrate camera --board --square` (the size comes from the images).
+/// The dataset header's `camera` and `target` blocks: as the cell file states them (`board`
+/// overrides the inner corners), the image size from one frame grabbed now when only an image
+/// tells it (a real camera; the grab also proves the camera answers before anything moves).
 fn camera_header(
     header: &mut Header,
-    scenario: &Path,
-    board: Option<(u32, u32)>,
-) -> anyhow::Result<()> {
-    let s = Scenario::load(scenario)?;
-    let Some(c) = s.cameras.first() else {
-        return Ok(());
-    };
-    let cam = crate::dataset::CameraHeader {
-        kind: "mono".into(),
-        width: c.width,
-        height: c.height,
-        name: Some(c.name.clone()),
-        mount: Some(if c.arm.is_some() { "flange" } else { "base" }.into()),
-    };
-    let target = s.scene.chessboard.as_ref().map(|b| {
-        let (cols, rows) = board.unwrap_or((b.cols.saturating_sub(1), b.rows.saturating_sub(1)));
-        crate::dataset::TargetHeader {
-            kind: if b.charuco.is_some() {
-                "charuco"
-            } else {
-                "chessboard"
-            }
-            .into(),
-            cols,
-            rows,
-            square_mm: b.square_mm,
-            marker_mm: b.charuco.as_ref().map(|m| m.marker_mm),
-            dictionary: b.charuco.as_ref().map(|m| m.dictionary.clone()),
-        }
-    });
-    header.set_camera(&cam, target.as_ref());
-    Ok(())
-}
-
-/// The dataset header's `camera` and `target` blocks of a real cell: the image size from one
-/// frame grabbed now (which also proves the camera answers before anything moves), the mount
-/// and the board from the device file.
-fn live_camera_header(
-    header: &mut Header,
-    devices_file: &Path,
+    stated: &StatedCamera,
     cam: &dyn robocal_drivers::traits::ImageSource,
     rt: &tokio::runtime::Runtime,
     board: Option<(u32, u32)>,
+    config: &Path,
 ) -> anyhow::Result<()> {
-    let f = crate::acquire::devices::DevicesFile::read(devices_file)?;
-    let entry = f
-        .devices
-        .iter()
-        .find(|d| d.role == crate::acquire::devices::Role::Camera);
-    let img = rt.block_on(cam.grab()).with_context(|| {
-        format!(
-            "grabbing a first image from camera {:?} ({})",
-            entry.map_or("?", |e| e.name.as_str()),
-            devices_file.display()
-        )
-    })?;
-    anyhow::ensure!(
-        img.width > 0 && img.height > 0,
-        "camera {:?} returned an empty image",
-        entry.map_or("?", |e| e.name.as_str())
-    );
-    let cam = crate::dataset::CameraHeader {
-        kind: "mono".into(),
-        width: img.width,
-        height: img.height,
-        name: entry.map(|e| e.name.clone()),
-        mount: Some(
-            entry
-                .and_then(|e| e.mount.clone())
-                .unwrap_or_else(|| "flange".into()),
-        ),
-    };
-    let target = f.board.as_ref().map(|b| {
-        let mut t = b.target();
+    let mut camera = stated.header.clone();
+    if camera.width == 0 || camera.height == 0 {
+        let img = rt.block_on(cam.grab()).with_context(|| {
+            format!(
+                "grabbing a first image from camera {:?} ({})",
+                stated.name,
+                config.display()
+            )
+        })?;
+        anyhow::ensure!(
+            img.width > 0 && img.height > 0,
+            "camera {:?} returned an empty image",
+            stated.name
+        );
+        (camera.width, camera.height) = (img.width, img.height);
+    }
+    let target = stated.target.clone().map(|mut t| {
         if let Some((c, r)) = board {
             (t.cols, t.rows) = (c, r);
         }
         t
     });
-    header.set_camera(&cam, target.as_ref());
+    header.set_camera(&camera, target.as_ref());
     Ok(())
 }
 
@@ -328,51 +276,6 @@ fn options(cfg: &RunConfig, max_poses: Option<usize>) -> AcquireOptions {
 fn is_camera_plan(plan: &PlanFile) -> bool {
     serde_json::from_value::<crate::plan::PlanSpec>(plan.spec.clone())
         .is_ok_and(|sp| sp.shell.is_some())
-}
-
-/// The camera of a cell and, for a simulated cell, its chessboard as inner corners.
-struct CellCamera {
-    /// The camera's device name, if the cell has one.
-    name: Option<String>,
-    /// The scenario's chessboard (inner corners), sim cells only.
-    board: Option<(u32, u32)>,
-}
-
-/// The camera of the cell described by `config` (a scenario for `sim`, else a device file).
-fn cell_camera(mode: &str, config: &Path) -> anyhow::Result<CellCamera> {
-    Ok(match mode {
-        "sim" => {
-            let s = Scenario::load(config)?;
-            let board = s
-                .scene
-                .chessboard
-                .as_ref()
-                .filter(|b| b.cols >= 3 && b.rows >= 3)
-                // OpenCV's chessboard detector cannot label a ChArUco board's corners:
-                // ChArUco images are detected by `calibrate camera` (with their ids).
-                .filter(|b| b.charuco.is_none())
-                .map(|b| (b.cols - 1, b.rows - 1));
-            CellCamera {
-                name: s.cameras.first().map(|c| c.name.clone()),
-                board,
-            }
-        }
-        _ => {
-            let f = crate::acquire::devices::DevicesFile::read(config)?;
-            let cam = f
-                .devices
-                .iter()
-                .find(|d| d.role == crate::acquire::devices::Role::Camera)
-                .map(|d| d.name.clone());
-            // A chessboard declared in the file is detected at capture time as in dry runs.
-            let board = f
-                .board
-                .as_ref()
-                .filter(|b| b.kind == "chessboard")
-                .map(|b| (b.cols, b.rows));
-            CellCamera { name: cam, board }
-        }
-    })
 }
 
 /// Runs (or resumes) the acquisition in `dir` with the run configuration `cfg`.
@@ -402,37 +305,20 @@ fn acquire_in(
         .enable_all()
         .build()
         .context("starting the async runtime")?;
-    let mut served = None;
-    let (mut devices, info) = match cfg.mode.as_str() {
-        "sim" if req.in_process => {
-            let world = sim_world(&config_path, cfg.virtual_clock)?;
-            sim_cell(&world).with_context(|| format!("{}", config_path.display()))?
-        }
-        "sim" => {
-            // The dry run proper: simulators serve the real protocols on loopback / ptys and
-            // the real drivers connect to them.
-            let world = sim_world(&config_path, cfg.virtual_clock)?;
-            let (d, i, s) = rt
-                .block_on(super::wire::wire_cell(&world))
-                .with_context(|| format!("{}", config_path.display()))?;
-            served = Some(s);
-            (d, i)
-        }
-        "live" => {
-            let Some(consent) = consent else {
-                bail!("nothing moves without --live and confirmation");
-            };
-            let dof = plan.poses.first().map_or(6, |p| p.q_deg.len());
-            rt.block_on(super::live::live_cell(
-                &config_path,
-                dof,
-                cfg.camera,
-                consent,
-            ))
-            .with_context(|| format!("connecting the devices of {}", config_path.display()))?
-        }
-        other => bail!("{}: unknown mode {other:?}", dir.join("run.json").display()),
-    };
+    let cell = source(
+        &cfg.mode,
+        &config_path,
+        OpenOptions {
+            virtual_clock: cfg.virtual_clock,
+            in_process: req.in_process,
+            dof: plan.poses.first().map_or(6, |p| p.q_deg.len()),
+            camera: cfg.camera,
+        },
+    )
+    .with_context(|| format!("{}", dir.join("run.json").display()))?;
+    let stated = cell.stated(None)?;
+    let opened = cell.open(&rt, consent)?;
+    let (mut devices, info) = (opened.devices, opened.info);
     if !cfg.camera {
         devices.camera = None;
     } else if devices.camera.is_none() {
@@ -450,10 +336,8 @@ fn acquire_in(
     };
     devices.arm = guard(devices.arm.clone(), limits, geometry);
     let mut header = header_for(&plan, &info);
-    if cfg.camera && cfg.mode == "sim" {
-        camera_header(&mut header, &config_path, cfg.capture.board)?;
-    } else if let Some(cam) = devices.camera.clone().filter(|_| cfg.camera) {
-        live_camera_header(&mut header, &config_path, &*cam, &rt, cfg.capture.board)?;
+    if let (Some(cam), Some(st)) = (devices.camera.clone(), &stated.camera) {
+        camera_header(&mut header, st, &*cam, &rt, cfg.capture.board, &config_path)?;
     }
     let journal_path = dir.join(DATASET);
     let (mut journal, existing, warnings) = Journal::open_or_create(&journal_path, &header)?;
@@ -504,8 +388,8 @@ fn acquire_in(
     ))?;
     progress.finish();
     signals.abort();
-    if let Some(s) = served {
-        s.abort();
+    if let Some(stop) = opened.stop {
+        stop();
     }
     write_atomic(
         dir.join("summary.json"),
@@ -610,11 +494,12 @@ fn new_run(
             crate::fsio::resume_command(dir)
         );
     }
-    let CellCamera {
-        name: cam_name,
-        board: scenario_board,
-    } = cell_camera(mode, config_src)
-        .with_context(|| format!("reading {}", config_src.display()))?;
+    let stated_camera = source(mode, config_src, OpenOptions::default())?
+        .stated(None)
+        .with_context(|| format!("reading {}", config_src.display()))?
+        .camera;
+    let cam_name = stated_camera.as_ref().map(|c| c.name.clone());
+    let scenario_board = stated_camera.and_then(|c| c.detect);
     let camera = if args.camera == CameraUse::Never {
         false
     } else if args.camera == CameraUse::Always {

@@ -110,20 +110,35 @@ pub fn confirm_live(live: bool, yes: bool, what: &str) -> anyhow::Result<LiveCon
     }
     // The question goes to stderr: stdout carries the run's (or session's) result.
     eprintln!("{what}");
-    if !yes {
-        use std::io::{BufRead as _, IsTerminal as _, Write as _};
-        if !std::io::stdin().is_terminal() {
-            bail!("confirmation needed: re-run with --yes to move the hardware");
-        }
-        eprint!("type `yes` to move the arm: ");
-        std::io::stderr().flush().ok();
-        let mut answer = String::new();
-        std::io::stdin().lock().read_line(&mut answer)?;
-        if answer.trim() != "yes" {
-            bail!("not confirmed: nothing moved");
-        }
-    }
+    ask_yes(
+        yes,
+        "move the arm",
+        "re-run with --yes to move the hardware",
+        "nothing moved",
+    )?;
     Ok(LiveConsent(()))
+}
+
+/// The operator's typed `yes` on the terminal (the one confirmation prompt of every command
+/// that moves or releases an arm): `yes` (`--yes` given) skips the question; stdin not a
+/// terminal fails with "confirmation needed: {needed}"; the prompt is "type `yes` to
+/// {action}: " on stderr; any other answer fails with "not confirmed: {refused}".
+pub fn ask_yes(yes: bool, action: &str, needed: &str, refused: &str) -> anyhow::Result<()> {
+    if yes {
+        return Ok(());
+    }
+    use std::io::{BufRead as _, IsTerminal as _, Write as _};
+    if !std::io::stdin().is_terminal() {
+        bail!("confirmation needed: {needed}");
+    }
+    eprint!("type `yes` to {action}: ");
+    std::io::stderr().flush().ok();
+    let mut answer = String::new();
+    std::io::stdin().lock().read_line(&mut answer)?;
+    if answer.trim() != "yes" {
+        bail!("not confirmed: {refused}");
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -35,8 +35,8 @@ pub enum What {
     /// Camera intrinsics + hand-eye (seed 004): every closed form side by side, then the
     /// maximum-likelihood refinement on raw corner reprojection.
     Camera(camera::Args),
-    /// Tool (marker) on the flange and base with the identified arm fixed (seed 001 §2.3),
-    /// and the guide tool's frame from the pin forward / reversed (§2.4), with uncertainty.
+    /// Tool (marker) on the flange and base with the identified arm fixed, and the guide
+    /// tool's frame from the pin forward / reversed, with uncertainty.
     Tool(tool::Args),
     /// Seed 003's 6-n-6 correction network on top of a kinematic calibration (stored in the
     /// calibration file, applied by `predict`).

@@ -360,20 +360,12 @@ fn poses(a: PosesArgs) -> anyhow::Result<()> {
             arm.target(),
             a.max_seconds
         );
-        if !a.yes {
-            use std::io::BufRead as _;
-            anyhow::ensure!(
-                std::io::stdin().is_terminal(),
-                "confirmation needed: re-run with --yes to put the arm in freedrive"
-            );
-            eprint!("type `yes` to start freedrive: ");
-            let mut answer = String::new();
-            std::io::stdin().lock().read_line(&mut answer)?;
-            anyhow::ensure!(
-                answer.trim() == "yes",
-                "not confirmed: freedrive not started"
-            );
-        }
+        crate::cell::safety::ask_yes(
+            a.yes,
+            "start freedrive",
+            "re-run with --yes to put the arm in freedrive",
+            "freedrive not started",
+        )?;
     } else {
         eprintln!(
             "{:?}: read-only; move the arm with the teach pendant (hand-guiding / jog)",

@@ -36,7 +36,7 @@ pub struct Args {
     /// one whose final model predicts time-blocked folds of the training data better.)
     #[arg(long, conflicts_with = "kernel_benchmark")]
     pub physics_first: bool,
-    /// Only the kernel-benchmark chain (the default before issue 31): a physical effect must
+    /// Only the kernel-benchmark chain (the earlier default policy): a physical effect must
     /// explain half of what a kernel regression on joint space explains.
     #[arg(long)]
     pub kernel_benchmark: bool,

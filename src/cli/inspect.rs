@@ -28,7 +28,7 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
     // The summary of a file is shown even when its values cannot be right; the file is then
     // refused as every command that uses it would (units, id order, corrupt values,
-    // quaternions: the plausibility layer, issue 26 §3).
+    // quaternions: the plausibility layer), so inspecting never vouches for a bad file.
     crate::plausible::check_dataset(&loaded.dataset, &args.file)
         .map_err(|e| anyhow::anyhow!("{e} (the summary above is of a file robocal refuses)"))?;
     Ok(())

@@ -12,25 +12,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _};
-use robocal_mocks::Scenario;
 
 use crate::acquire::RunSummary;
-use crate::cell::describe::{describe_devices, describe_scenario};
-use crate::session::{self, AcceptSpec, Mode, SessionKind, SessionSetup};
-
-/// The default plan spec (seed 001 annulus).
-const DEFAULT_SPEC: &str = include_str!("../../plans/seed001-annulus.toml");
-/// The default camera plan specs (seed 004 shell) per robot preset; the session centres the
-/// shell on the cell's board.
-const CAMERA_SPECS: [(&str, &str); 2] = [
-    ("ur5e", include_str!("../../plans/seed004-ur5e-camera.toml")),
-    (
-        "denso-vs060",
-        include_str!("../../plans/seed004-vs060-camera.toml"),
-    ),
-];
-/// The default acceptance spec of a camera session.
-const CAMERA_ACCEPT: &str = include_str!("../../accept/camera.toml");
+use crate::session::{self, Mode, SessionKind, SessionSetup};
 
 /// Arguments of `robocal session`.
 #[derive(Debug, Clone, clap::Args)]
@@ -181,15 +165,6 @@ fn chain_stage(a: &Args, dir: &std::path::Path) -> anyhow::Result<Option<String>
     Ok(Some(text))
 }
 
-fn session_kind_name(k: SessionKind) -> &'static str {
-    match k {
-        SessionKind::Kinematic => "kinematic",
-        SessionKind::Camera => "camera",
-        SessionKind::Laser => "laser",
-        SessionKind::Rcm => "rcm",
-    }
-}
-
 /// The devices of the session: `robocal run`'s acquisition on the session's cell file copy.
 struct RunCell {
     kind: SessionKind,
@@ -223,22 +198,16 @@ impl RunCell {
         crate::acquire::device_check::check_file(&self.cell_file)?.require_valid()?;
         // On stderr, with the progress: stdout starts with the verdict.
         eprint!("{}", session::briefing::text(&self.dir, &s)?);
-        if !self.yes {
-            use std::io::{BufRead as _, IsTerminal as _, Write as _};
-            if !std::io::stdin().is_terminal() {
-                bail!(
-                    "confirmation needed: re-run with --yes to move the hardware (`{}`)",
-                    resume_hint(&self.dir)
-                );
-            }
-            eprint!("type `yes` to move the arm: ");
-            std::io::stderr().flush().ok();
-            let mut answer = String::new();
-            std::io::stdin().lock().read_line(&mut answer)?;
-            if answer.trim() != "yes" {
-                bail!("not confirmed: nothing moved");
-            }
-        } else {
+        crate::cell::safety::ask_yes(
+            self.yes,
+            "move the arm",
+            &format!(
+                "re-run with --yes to move the hardware (`{}`)",
+                resume_hint(&self.dir)
+            ),
+            "nothing moved",
+        )?;
+        if self.yes {
             eprintln!("--yes: moving the arm");
         }
         self.consented = Some(planned);
@@ -315,252 +284,19 @@ impl RunCell {
     }
 }
 
-fn start(a: &Args) -> anyhow::Result<(PathBuf, Mode, bool)> {
-    let Some(dir) = &a.out else {
-        bail!("--out DIR is required (or --resume DIR)");
-    };
-    let (mode, cell, cell_file, scenario_text, kind) = match (&a.sim, &a.devices) {
-        (Some(s), None) => {
-            let sc = Scenario::load(s).with_context(|| format!("reading {}", s.display()))?;
-            if sc.arms.len() > 1 && a.arm.is_none() {
-                eprintln!(
-                    "note: {} has {} arms; this session calibrates {:?} (choose with --arm NAME)",
-                    s.display(),
-                    sc.arms.len(),
-                    sc.arms[0].name
-                );
-            }
-            let (cell, mut one) = describe_scenario(&sc, a.arm.as_deref())?;
-            let kind = if a.kind.as_deref() == Some("laser") {
-                if one.lasers.is_empty() {
-                    bail!(
-                        "{}: arm {:?} carries no laser: a laser session needs a [[laser]] on it",
-                        s.display(),
-                        one.arms[0].name
-                    );
-                }
-                // The laser session records ranges only: the tracker and cameras stay off
-                // (a marker out of view must not skip a laser pose).
-                one.trackers.clear();
-                one.cameras.clear();
-                SessionKind::Laser
-            } else if a.kind.as_deref() == Some("rcm")
-                || (a.kind.is_none() && one.trackers.is_empty() && cell.endoscope.is_some())
-            {
-                if cell.endoscope.is_none() {
-                    bail!(
-                        "{}: an RCM session needs an instrument (`[scene.instrument]`) and a \
-                         camera fixed in the base (the endoscope)",
-                        s.display()
-                    );
-                }
-                // The RCM session records images only.
-                one.trackers.clear();
-                one.lasers.clear();
-                SessionKind::Rcm
-            } else if !one.trackers.is_empty() {
-                SessionKind::Kinematic
-            } else if !one.cameras.is_empty() {
-                SessionKind::Camera
-            } else {
-                bail!(
-                    "{}: arm {:?} has neither a tracker (kinematic session) nor a camera \
-                     (camera session)",
-                    s.display(),
-                    one.arms[0].name
-                );
-            };
-            let text = toml::to_string(&one).context("writing the session's scenario")?;
-            (Mode::Sim, cell, "scenario.toml", Some(text), kind)
-        }
-        (None, Some(d)) => {
-            if !a.live && !a.plan_only {
-                bail!(
-                    "nothing moves without --live: add --live to drive {}, or use --sim SCENARIO.toml for a dry run",
-                    d.display()
-                );
-            }
-            // The same validation as `robocal devices --probe` and `run --live`, before
-            // anything is created (and long before consent).
-            let checked = crate::acquire::device_check::check_file(d)?;
-            checked.require_valid()?;
-            let (cell, kind) = describe_devices(d)?;
-            let kind = if a.kind.as_deref() == Some("laser") {
-                SessionKind::Laser
-            } else {
-                kind
-            };
-            let resolved =
-                crate::acquire::device_check::resolved_toml(&checked.file, &checked.base)?;
-            (Mode::Live, cell, "devices.toml", Some(resolved), kind)
-        }
-        _ => bail!("give --sim SCENARIO.toml (dry run) or --devices CELL.toml --live"),
-    };
-    let camera = kind == SessionKind::Camera;
-    let laser = kind == SessionKind::Laser;
-    let rcm = kind == SessionKind::Rcm;
-    if let Some(k) = a
-        .kind
-        .as_deref()
-        .filter(|k| !laser && *k != session_kind_name(kind))
-    {
-        bail!(
-            "--kind {k}: the cell makes a {} session (give a cell with a {k} setup)",
-            session_kind_name(kind)
-        );
-    }
-    if a.arm_calibration.is_some() && !laser {
-        bail!("--arm-calibration is for laser sessions (--kind laser)");
-    }
-    let accept = match &a.accept {
-        Some(p) => {
-            let spec = AcceptSpec::from_file(p)?;
-            spec.check_kind(kind, &p.display().to_string())?;
-            spec
-        }
-        None if camera => AcceptSpec::from_toml_str(CAMERA_ACCEPT, "accept/camera.toml")?,
-        None if laser => AcceptSpec::from_toml_str(session::laser::ACCEPT, "accept/laser.toml")?,
-        None if rcm => AcceptSpec::from_toml_str(session::rcm::ACCEPT, "accept/rcm.toml")?,
-        None => AcceptSpec::default_surgical(),
-    };
-    // Every motion option against the cell's own limits before anything is created (a NaN
-    // speed would be written as `null` into session.json and never resume).
-    let cell_src = a
-        .sim
-        .as_ref()
-        .or(a.devices.as_ref())
-        .expect("checked above");
-    crate::cell::checks::check_motion_options(
-        if mode == Mode::Sim { "sim" } else { "live" },
-        cell_src,
-        a.arm.as_deref(),
-        a.speed_deg_s,
-        a.accel_deg_s2,
-        a.frames,
-    )?;
-    let spec_text = match &a.spec {
-        Some(p) => {
-            crate::fsio::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
-        }
-        None if camera => CAMERA_SPECS
-            .iter()
-            .find(|(m, _)| *m == cell.robot_model)
-            .map(|(_, t)| t.to_string())
-            .with_context(|| {
-                format!(
-                    "no default camera plan for robot {:?}: give --spec SPEC.toml with a [shell] \
-                     (see plans/seed004-shell.toml)",
-                    cell.robot_model
-                )
-            })?,
-        None if laser => session::laser::SPEC.to_string(),
-        None if rcm => session::rcm::SPEC.to_string(),
-        None => DEFAULT_SPEC.to_string(),
-    };
-    let spec_name = a
-        .spec
-        .as_ref()
-        .map_or("(default)".into(), |p| p.display().to_string());
-    if laser {
-        // One file with the planes and the five-direction plate (two plan generators).
-        session::laser::parse_spec(&spec_text).with_context(|| format!("plan spec {spec_name}"))?;
-    } else {
-        let spec = crate::plan::PlanSpec::from_toml_str(&spec_text)
-            .with_context(|| format!("plan spec {spec_name}"))?;
-        if camera {
-            session::camera::check_spec(&spec, &spec_name)?;
-        }
-        if rcm && spec.rcm.is_none() {
-            bail!("plan spec {spec_name}: an RCM session needs an [rcm] table (see plans/seed002-rcm.toml)");
-        }
-    }
-    // The arm's calibration is read (and checked against the cell's robot) before anything
-    // is created.
-    if let Some(c) = &a.arm_calibration {
-        let cal = crate::dataset::CalibrationFile::load(c)
-            .with_context(|| format!("--arm-calibration {}", c.display()))?;
-        if cal.robot.model != cell.robot_model {
-            bail!(
-                "--arm-calibration {}: a calibration of robot {:?}, but the cell's arm is {:?}",
-                c.display(),
-                cal.robot.model,
-                cell.robot_model
-            );
-        }
-    }
-    if a.survey {
-        if kind != SessionKind::Kinematic {
-            bail!(
-                "--survey locates a tracker: it is for kinematic sessions (a cell with a tracker)"
-            );
-        }
-        if mode == Mode::Live && !a.live {
-            bail!("--survey moves the arm to its probe poses: add --live");
-        }
-    }
-    let poses = a.poses.unwrap_or(if camera || rcm { 24 } else { 120 });
-    let heldout_points = a
-        .heldout_points
-        .unwrap_or(if camera || rcm { 12 } else { 40 });
-    if rcm {
-        if poses < 6 || heldout_points < 4 {
-            bail!("RCM session: --poses must be ≥ 6 and --heldout-points ≥ 4 (views)");
-        }
-    } else if camera {
-        if poses < 6 || heldout_points < 3 {
-            bail!("camera session: --poses must be ≥ 6 and --heldout-points ≥ 3 (views)");
-        }
-    } else if poses < 10 || heldout_points < 5 {
-        bail!("--poses must be ≥ 10 and --heldout-points ≥ 5");
-    }
-    let setup = SessionSetup {
-        mode,
-        cell_file: cell_file.into(),
-        spec_file: "spec.toml".into(),
-        poses,
-        heldout_points,
-        frames: a.frames,
-        speed_deg_s: a.speed_deg_s,
-        accel_deg_s2: a.accel_deg_s2,
-        operator_note: a.note.clone(),
-        plan_only: a.plan_only,
-        kind,
-        arm_calibration: a
-            .arm_calibration
-            .as_ref()
-            .map(|_| session::laser::ARM_CALIBRATION.to_string()),
-        survey: a.survey,
-    };
-    let src = cell_src;
-    session::create(dir, setup, src, cell, &spec_text, accept)?;
-    if let Some(c) = &a.arm_calibration {
-        let bytes = crate::fsio::read(c).with_context(|| format!("reading {}", c.display()))?;
-        session::write_atomic(&dir.join(session::laser::ARM_CALIBRATION), &bytes)?;
-    }
-    if let Some(text) = scenario_text {
-        // The session runs on the single-arm scenario (the copy keeps the original's content
-        // for the record as scenario-original.toml); a device file's copy has its tool files
-        // resolved against the original's folder (devices-original.toml as given).
-        let name = cell_file.trim_end_matches(".toml");
-        std::fs::copy(src, dir.join(format!("{name}-original.toml")))?;
-        session::write_atomic(&dir.join(cell_file), text.as_bytes())?;
-    }
-    Ok((dir.clone(), mode, a.plan_only))
-}
-
 /// Run `robocal session`; returns the exit code (0 PASS, 2 FAIL / INCOMPLETE).
 ///
 /// A scenario with several arms (a fleet) and no `--arm` runs one session per arm in
-/// `DIR/<arm>/` and prints the fleet table (seed 001 §4.5): held-out absolute and relative
+/// `DIR/<arm>/` and prints the fleet table (how much each robot of a fleet gains): held-out absolute and relative
 /// error before / after per robot and the mean improvement (also `DIR/fleet.md`).
 pub fn exec(a: Args) -> anyhow::Result<i32> {
     let fleet_dir = match (&a.sim, &a.arm, &a.resume) {
         (Some(sim), None, None) => {
-            let sc = Scenario::load(sim).with_context(|| format!("reading {}", sim.display()))?;
-            (sc.arms.len() > 1).then(|| {
+            let arms = crate::cell::simulated::stated_scenario(sim)?.arms;
+            (arms.len() > 1).then(|| {
                 (
                     a.out.clone().unwrap_or_default(),
-                    sc.arms.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
+                    arms.iter().map(|x| x.name.clone()).collect::<Vec<_>>(),
                 )
             })
         }
@@ -621,7 +357,7 @@ pub fn exec(a: Args) -> anyhow::Result<i32> {
     Ok(worst)
 }
 
-/// The seed 001 §4.5 table: per robot, held-out RMS and relative distance error before /
+/// The fleet table (the same calibration judged on every robot): per robot, held-out RMS and relative distance error before /
 /// after and their improvement; the mean improvement last.
 pub fn fleet_table(sessions: &[session::SessionFile]) -> String {
     use std::fmt::Write as _;
@@ -699,11 +435,34 @@ fn check_late_options(a: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The session-creating options of the command line.
+fn start_options(a: &Args) -> session::start::StartOptions {
+    session::start::StartOptions {
+        sim: a.sim.clone(),
+        devices: a.devices.clone(),
+        live: a.live,
+        out: a.out.clone(),
+        plan_only: a.plan_only,
+        accept: a.accept.clone(),
+        spec: a.spec.clone(),
+        arm: a.arm.clone(),
+        poses: a.poses,
+        heldout_points: a.heldout_points,
+        frames: a.frames,
+        speed_deg_s: a.speed_deg_s,
+        accel_deg_s2: a.accel_deg_s2,
+        note: a.note.clone(),
+        kind: a.kind.clone(),
+        arm_calibration: a.arm_calibration.clone(),
+        survey: a.survey,
+    }
+}
+
 fn exec_one(a: Args) -> anyhow::Result<i32> {
     check_late_options(&a)?;
     let dir = match &a.resume {
         Some(d) => d.clone(),
-        None => start(&a)?.0,
+        None => session::start::start(&start_options(&a))?.0,
     };
     let s0 = session::SessionFile::load(&dir.join("session.json"))?;
     // The verify stage commands the arm too.
@@ -754,8 +513,24 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
     } else {
         chain_stage(&a, &dir)?
     };
+    print_result(&a, &s, &dir, chain.as_deref())?;
+    Ok(if s.setup.plan_only {
+        0
+    } else {
+        s.judgement.as_ref().map_or(2, |j| j.exit_code())
+    })
+}
+
+/// What a session prints at its end: the verdict line first (or the plan written), the
+/// figures, every WORSE line, what to deploy, the report, the chain report.
+fn print_result(
+    a: &Args,
+    s: &session::SessionFile,
+    dir: &Path,
+    chain: Option<&str>,
+) -> anyhow::Result<()> {
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&s)?);
+        println!("{}", serde_json::to_string_pretty(s)?);
     } else if s.setup.plan_only {
         // Nothing was to be judged: no verdict line, exit 0.
         println!(
@@ -825,17 +600,13 @@ fn exec_one(a: Args) -> anyhow::Result<i32> {
         }
         // What to deploy, each file with the accuracy it delivers alone (the verdict is the
         // diagnosed model's).
-        for l in session::deploy_score::lines(&s) {
+        for l in session::deploy_score::lines(s) {
             println!("{l}");
         }
         println!("report: {}", dir.join("report.html").display());
-        if let Some(c) = &chain {
+        if let Some(c) = chain {
             print!("{c}");
         }
     }
-    Ok(if s.setup.plan_only {
-        0
-    } else {
-        s.judgement.as_ref().map_or(2, |j| j.exit_code())
-    })
+    Ok(())
 }

@@ -1,5 +1,5 @@
 //! `robocal sim`: run the simulated devices of a scenario (thin; the work is in
-//! `robocal_mocks::serve`).
+//! [`crate::cell::simulated::serve`]).
 
 use anyhow::Context as _;
 use std::io::Write as _;
@@ -46,23 +46,14 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
 }
 
 fn serve(a: ServeArgs) -> anyhow::Result<()> {
-    let mut scenario = robocal_mocks::Scenario::load(&a.scenario)?;
-    scenario.clock = if a.virtual_clock {
-        robocal_mocks::scenario::ClockMode::Virtual
-    } else {
-        robocal_mocks::scenario::ClockMode::Real
-    };
-    let world = robocal_mocks::WorldHandle::from_scenario(&scenario)?;
-    let bind = robocal_mocks::serve::Bind {
-        host: a.host,
-        standard_ports: a.standard_ports,
-    };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
     rt.block_on(async move {
-        let served = robocal_mocks::serve::serve_all(&world, &bind).await?;
+        let served =
+            crate::cell::simulated::serve(&a.scenario, a.host, a.standard_ports, a.virtual_clock)
+                .await?;
         let mut out = std::io::stdout().lock();
         for line in served.json_lines() {
             writeln!(out, "{line}")?;

@@ -433,7 +433,23 @@ pub fn diagnose(
     train_ds: &Dataset,
     held_ds: Option<&Dataset>,
 ) -> Result<CameraDiagnosis, CameraError> {
-    let base = camera::calibrate(train, held, &Options::default())?;
+    diagnose_from(None, train, held, train_ds, held_ds)
+}
+
+/// As [`diagnose`], starting from `base`, the calibration of the same views already made (a
+/// session hands over its calibrate stage's result instead of calibrating again); `None`:
+/// calibrate here.
+pub fn diagnose_from(
+    base: Option<camera::CameraResult>,
+    train: &CameraData,
+    held: Option<&CameraData>,
+    train_ds: &Dataset,
+    held_ds: Option<&Dataset>,
+) -> Result<CameraDiagnosis, CameraError> {
+    let base = match base {
+        Some(b) => b,
+        None => camera::calibrate(train, held, &Options::default())?,
+    };
     // The views the calibration kept, with its corner rejection.
     let kept: Vec<camera::View> = train
         .views

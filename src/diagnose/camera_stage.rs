@@ -8,7 +8,8 @@ use std::path::Path;
 use anyhow::Context as _;
 
 use crate::dataset::Dataset;
-use crate::solve::camera::data::{load, Overrides};
+use crate::solve::camera::data::{load, Loaded, Overrides};
+use crate::solve::camera::CameraResult;
 
 /// Whether `data` is a camera dataset (header `camera` block).
 pub fn is_camera_dataset(data: &Path) -> bool {
@@ -22,7 +23,19 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     let held = heldout
         .map(|h| load(h, &ov, false).with_context(|| format!("reading {}", h.display())))
         .transpose()?;
-    let d = crate::diagnose::camera::diagnose(
+    run_loaded(&train, held.as_ref(), None, out)
+}
+
+/// [`run`] on camera datasets already read (and their boards detected), from `base`, the
+/// calibration of the same views when it is already made (`None`: calibrated here).
+pub fn run_loaded(
+    train: &Loaded,
+    held: Option<&Loaded>,
+    base: Option<CameraResult>,
+    out: &Path,
+) -> anyhow::Result<String> {
+    let d = crate::diagnose::camera::diagnose_from(
+        base,
         &train.data,
         held.as_ref().map(|h| &h.data),
         &train.dataset,
@@ -37,7 +50,7 @@ pub fn run(data: &Path, heldout: Option<&Path>, out: &Path) -> anyhow::Result<St
     res.board_scale = d.scale;
     res.board_bend_mm = d.bend_mm;
     res.uncertainty = d.uncertainty.clone();
-    let mut cal = crate::solve::camera::calfile::calibration_file(&train, &res);
+    let mut cal = crate::solve::camera::calfile::calibration_file(train, &res);
     if let Some(arm) = &d.arm {
         arm.write_into(&mut cal);
     }

@@ -1,4 +1,4 @@
-//! Identification-Jacobian quality of a pose set (effects.md §5.3 / §5.4).
+//! Identification-Jacobian quality of a pose set (`docs/effects.md` §5.3 / §5.4).
 //!
 //! `J` stacks `model.point_param_jacobian(q)` (3 rows per pose), keeps the free parameters
 //! only and scales each column by a fixed scale (its RMS over the candidate set, so mm and

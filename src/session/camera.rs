@@ -11,7 +11,7 @@ use std::path::Path;
 use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 
-use super::{load_ds, write_atomic, CellDescription, SessionFile, SessionSetup};
+use super::{write_atomic, CellDescription, SessionFile, SessionSetup};
 use crate::dataset::{CalibrationFile, CameraCalBlock};
 use crate::plan::PlanSpec;
 use crate::solve::camera::{self as cam, data};
@@ -151,32 +151,37 @@ fn hand_eye_ci95(b: &CameraCalBlock) -> (Option<f64>, Option<f64>) {
 
 /// The calibration stage: detect the board in the training and validation images, calibrate
 /// (intrinsics, five closed-form hand-eyes, the maximum-likelihood refinement, covariance),
-/// write `calibrate/calibration.json` and `calibrate/camera_report.json`.
-pub fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: super::Log) -> anyhow::Result<()> {
-    let (tp, _) = load_ds(dir, s, "train")?;
-    let (vp, _) = load_ds(dir, s, "validation")?;
-    let ov = data::Overrides::default();
+/// write `calibrate/calibration.json` and `calibrate/camera_report.json`; the result stays in
+/// `work` for the diagnosis.
+pub fn calibrate_stage(
+    dir: &Path,
+    s: &mut SessionFile,
+    work: &mut super::Work,
+    log: super::Log,
+) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
-    let train = data::load(&tp, &ov, false).with_context(|| format!("{}", tp.display()))?;
-    let held = data::load(&vp, &ov, false).with_context(|| format!("{}", vp.display()))?;
+    let tp = work.dataset(dir, s, "train")?.0.clone();
+    camera_set(work, dir, s, "train")?;
+    camera_set(work, dir, s, "validation")?;
+    let (train, held) = (&work.camera.sets["train"], &work.camera.sets["validation"]);
     let t_detect = t0.elapsed().as_secs_f64();
     let res = cam::calibrate(&train.data, Some(&held.data), &cam::Options::default())
         .with_context(|| format!("calibrating the camera of {}", tp.display()))?;
     let t_total = t0.elapsed().as_secs_f64();
     let cdir = dir.join("calibrate");
-    let mut cal = crate::solve::camera::calfile::calibration_file(&train, &res);
+    let mut cal = crate::solve::camera::calfile::calibration_file(train, &res);
     cal.extra.insert("datasets".into(), s.dataset_hashes());
     std::fs::create_dir_all(&cdir)?;
     cal.save(cdir.join("calibration.json"))
         .context("writing calibrate/calibration.json")?;
     let mut rep =
-        crate::solve::camera::calfile::report_json(&train, Some(&held), &res, t_detect, t_total);
+        crate::solve::camera::calfile::report_json(train, Some(held), &res, t_detect, t_total);
     hashes_into(&mut rep, s);
     write_atomic(
         &cdir.join("camera_report.json"),
         (serde_json::to_string_pretty(&rep)? + "\n").as_bytes(),
     )?;
-    for l in crate::solve::camera::calfile::table(&train, Some(&held), &res).lines() {
+    for l in crate::solve::camera::calfile::table(train, Some(held), &res).lines() {
         log(&format!("  {l}"));
     }
     let block = camera_block(&cdir.join("calibration.json"))?;
@@ -223,7 +228,34 @@ pub fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: super::Log) -> anyh
         s.warnings
             .push(format!("view {id}: no usable board ({why})"));
     }
+    work.camera.calibrated = Some(res);
     Ok(())
+}
+
+/// The camera datasets of a session with their boards detected, and the calibration of the
+/// training views: read, detected and computed once per invocation, handed from stage to stage.
+#[derive(Default)]
+pub(crate) struct CameraWork {
+    pub(crate) sets: std::collections::BTreeMap<String, data::Loaded>,
+    /// The calibrate stage's result (absent when that stage ran in an earlier invocation).
+    pub(crate) calibrated: Option<cam::CameraResult>,
+}
+
+/// The session's `role` camera dataset with its boards detected (read and detected once).
+pub(crate) fn camera_set<'a>(
+    work: &'a mut super::Work,
+    dir: &Path,
+    s: &SessionFile,
+    role: &str,
+) -> anyhow::Result<&'a data::Loaded> {
+    if !work.camera.sets.contains_key(role) {
+        let (p, loaded) = work.dataset(dir, s, role)?;
+        let (p, ds) = (p.clone(), loaded.dataset.clone());
+        let l = data::load_dataset(ds, &p, &data::Overrides::default(), false)
+            .with_context(|| format!("{}", p.display()))?;
+        work.camera.sets.insert(role.to_string(), l);
+    }
+    Ok(&work.camera.sets[role])
 }
 
 /// After the camera diagnosis: the diagnosed camera block (deployed), held-out pixels, the
@@ -253,7 +285,11 @@ pub fn after_diagnosis(
 /// The validation stage: the held-out images' reprojection RMS with the calibration and
 /// with the diagnosed model (the diagnosis scored them; this stage checks the file and
 /// records the numbers the verdict uses) and the calibration to deploy.
-pub fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
+pub fn validate_stage(
+    dir: &Path,
+    s: &mut SessionFile,
+    work: &mut super::Work,
+) -> anyhow::Result<()> {
     let dpath = dir.join("diagnose").join("diagnosis.json");
     let diag: crate::schema::DiagnosisFile = crate::schema::read(&dpath)?;
     anyhow::ensure!(
@@ -278,9 +314,8 @@ pub fn validate_stage(dir: &Path, s: &mut SessionFile) -> anyhow::Result<()> {
         );
     }
     // The hand-eye on independent data: the held-out views calibrated on their own.
-    let (vp, _) = load_ds(dir, s, "validation")?;
-    let held = data::load(&vp, &data::Overrides::default(), false)
-        .with_context(|| format!("{}", vp.display()))?;
+    let vp = work.dataset(dir, s, "validation")?.0.clone();
+    let held = camera_set(work, dir, s, "validation")?;
     let plots = super::camera_plots::write(
         dir,
         &vp,

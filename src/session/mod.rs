@@ -24,6 +24,7 @@ pub mod deploy_score;
 pub mod history;
 pub mod laser;
 pub mod rcm;
+pub mod start;
 pub mod survey;
 pub mod svg;
 pub mod verify;
@@ -510,6 +511,7 @@ pub type Log<'a> = &'a mut dyn FnMut(&str);
 pub struct Work {
     datasets: std::collections::BTreeMap<String, (PathBuf, crate::dataset::Loaded)>,
     ident: Option<crate::solve::kinematics::IdentResult>,
+    camera: camera::CameraWork,
 }
 
 impl Work {
@@ -604,7 +606,7 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     if !s.done(Stage::Calibrate) {
         if cam {
             log("calibrate: camera intrinsics + hand-eye (maximum likelihood) on the training images");
-            camera::calibrate_stage(dir, &mut s, &mut *log)?;
+            camera::calibrate_stage(dir, &mut s, &mut work, &mut *log)?;
         } else {
             log("calibrate: kinematic identification on the training poses");
             calibrate_stage(dir, &mut s, &mut work)?;
@@ -619,7 +621,7 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     if !s.done(Stage::Validate) {
         if cam {
             log("validate: held-out images, reprojection before / after the diagnosis");
-            camera::validate_stage(dir, &mut s)?;
+            camera::validate_stage(dir, &mut s, &mut work)?;
         } else {
             log("validate: held-out poses, before / after");
             validate_stage(dir, &mut s, &mut work)?;
@@ -913,20 +915,30 @@ fn diagnose_stage(
     work: &mut Work,
     log: Log,
 ) -> anyhow::Result<()> {
-    work.dataset(dir, s, "train")?;
-    work.dataset(dir, s, "validation")?;
-    let (train, val) = (&work.datasets["train"], &work.datasets["validation"]);
     let out = dir.join("diagnose");
-    let summary = crate::diagnose::stage::run_loaded(
-        &crate::diagnose::stage::DiagnoseRequest {
-            data: train.0.clone(),
-            out: out.clone(),
-            heldout: Some(val.0.clone()),
-            ..Default::default()
-        },
-        &train.1,
-        Some(&val.1),
-    )?;
+    let summary = if s.setup.kind == SessionKind::Camera {
+        // The calibrate stage's views and result, in memory (calibrated here only when that
+        // stage ran in an earlier invocation).
+        camera::camera_set(work, dir, s, "train")?;
+        camera::camera_set(work, dir, s, "validation")?;
+        let base = work.camera.calibrated.take();
+        let (train, held) = (&work.camera.sets["train"], &work.camera.sets["validation"]);
+        crate::diagnose::camera_stage::run_loaded(train, Some(held), base, &out)?
+    } else {
+        work.dataset(dir, s, "train")?;
+        work.dataset(dir, s, "validation")?;
+        let (train, val) = (&work.datasets["train"], &work.datasets["validation"]);
+        crate::diagnose::stage::run_loaded(
+            &crate::diagnose::stage::DiagnoseRequest {
+                data: train.0.clone(),
+                out: out.clone(),
+                heldout: Some(val.0.clone()),
+                ..Default::default()
+            },
+            &train.1,
+            Some(&val.1),
+        )?
+    };
     // Every artifact records the datasets it came from.
     for name in ["diagnosis.json", "calibration.json"] {
         let p = out.join(name);

@@ -1,4 +1,4 @@
-//! Automatic identifiability analysis of an identification Jacobian (effects.md §5.3–5.4).
+//! Automatic identifiability analysis of an identification Jacobian (`docs/effects.md` §5.3–5.4).
 //!
 //! Columns are scaled to unit norm (so mm and rad parameters compare), then taken in a
 //! priority order (base, tool, then joints from the flange down to the base, then effect

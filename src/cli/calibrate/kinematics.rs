@@ -67,7 +67,8 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             }
         };
     }
-    // Strict reader + plausibility; a held-out file must be for the same robot (issue 14).
+    // Strict reader + plausibility; a held-out file must be for the same robot (a held-out
+    // error of another robot's model would judge nothing).
     let (ds, held) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     if let Some(c) = args.huber {
         anyhow::ensure!(

@@ -30,7 +30,8 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// A scan to reconstruct with the final calibration (pose records with `range`; the
-    /// `target` label names the face/surface of each point): face angles (seed 000 §2.3.3) and
+    /// `target` label names the face/surface of each point): the angles between faces (a
+    /// known block checks the whole chain) and
     /// per-face flatness are printed and written to `scan_report.json`.
     #[arg(long, value_name = "SCAN.jsonl")]
     pub scan: Option<PathBuf>,

@@ -24,7 +24,8 @@ pub struct Args {
 
 /// Run `robocal calibrate nominal`.
 pub fn exec(args: Args) -> anyhow::Result<()> {
-    // Strict reader + plausibility; a held-out file must be for the same robot (issue 14).
+    // Strict reader + plausibility; a held-out file must be for the same robot (a held-out
+    // error of another robot's model would judge nothing).
     let (ds, held) = crate::plausible::load_with_heldout(&args.data, args.heldout.as_deref())?;
     let fit = fit_nominal(
         &ds,

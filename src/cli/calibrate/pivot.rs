@@ -1,6 +1,6 @@
 //! `robocal calibrate pivot --data D.jsonl | --matrices FRAMES.txt [--tool NAME] [--out DIR]`:
 //! probe tip in the marker frame and the pivot point, by algebraic least squares and by a
-//! sphere fit (seed 001 §2.4) on every frame, then robustly (outlier frames dropped by least
+//! sphere fit of the marker origins on every frame, then robustly (outlier frames dropped by least
 //! median of squares + robust scale) with 95 % bootstrap intervals and a verdict on which
 //! method to trust (`solve::pivot_robust`).
 use std::path::PathBuf;

@@ -94,7 +94,8 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     }
     // A marker rigid on the flange leaves a fraction of a degree and of a millimetre: a fit
     // that leaves degrees or centimetres explains nothing, whatever its covariance says
-    // (issue 26 §3). Refused before anything is written, with the likely cause.
+    // (a wrong unit or pose convention fits badly, not loosely). Refused before anything is
+    // written, with the likely cause.
     if !(r.rms_rot_deg.is_finite() && r.rms_rot_deg <= MAX_RESIDUAL_DEG) {
         bail!(
             "{}: the fit leaves {:.2}° RMS between the marker orientations and the flange's \

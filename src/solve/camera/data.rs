@@ -49,7 +49,16 @@ pub struct Loaded {
 
 /// Read `path` (see the module docs). `progress` shows a bar while detecting.
 pub fn load(path: &Path, ov: &Overrides, progress: bool) -> Result<Loaded, CameraDataError> {
-    let ds = Dataset::load(path)?;
+    load_dataset(Dataset::load(path)?, path, ov, progress)
+}
+
+/// As [`load`], on the dataset `ds` already read from `path` (its images are found beside it).
+pub fn load_dataset(
+    ds: Dataset,
+    path: &Path,
+    ov: &Overrides,
+    progress: bool,
+) -> Result<Loaded, CameraDataError> {
     let file = path.display().to_string();
     let herr = |msg: String| CameraDataError::Header {
         file: file.clone(),

@@ -598,12 +598,23 @@ fn zhang_start(
     Ok((k0m, k0))
 }
 
+thread_local! {
+    static CALIBRATIONS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// How many camera calibrations ([`calibrate`]) this thread has run: a test counts the fits
+/// of a pipeline.
+pub fn calibrations_on_this_thread() -> usize {
+    CALIBRATIONS.with(|c| c.get())
+}
+
 /// Calibrate intrinsics and hand-eye (see the module docs).
 pub fn calibrate(
     train: &CameraData,
     heldout: Option<&CameraData>,
     opts: &Options,
 ) -> Result<CameraResult, CameraError> {
+    CALIBRATIONS.with(|c| c.set(c.get() + 1));
     let board = train.board;
     let mut rejected_views: Vec<(u64, String)> = vec![];
     let mut views: Vec<View> = vec![];

@@ -1,9 +1,11 @@
-//! Trials of the RCM endoscope calibration from rendered images, shared by
-//! `examples/rcm_images.rs` (prints the figures) and `tests/rcm_images.rs` (asserts them).
+//! Trials of the RCM endoscope calibration from rendered images (an evaluation harness beside
+//! the examples: it reads the world's exact silhouettes to score, so it is no part of the
+//! library), shared by `examples/rcm_images.rs` (prints the figures) and `tests/rcm_images.rs`
+//! (asserts them).
 //!
 //! Each trial plans RCM poses (seed 002's pivoting about the trocar, reachable by the UR5e),
 //! lets the simulated robot report them with its repeatability noise, renders every view
-//! (`robocal_mocks::rcm_render`) and runs the line detector ([`crate::solve::rcm::lines`]) on
+//! (`robocal_mocks::rcm_render`) and runs the line detector ([`robocal::solve::rcm::lines`]) on
 //! the pixels. The world's exact silhouettes (`RcmCell::view`) score the detector, and the same
 //! poses are calibrated three times: with the detected lines, with the exact lines and with the
 //! exact lines plus 0.5 px end-point noise (what the simulator wrote before images). Truth is
@@ -14,10 +16,10 @@ use rand_chacha::ChaCha8Rng;
 use robocal_mocks::rcm::{RcmCell, RcmScenario, RcmView};
 use robocal_mocks::rcm_render::RcmRenderer;
 
-use crate::dataset::endoscope::EndoscopeCamera;
-use crate::model::KinematicModel;
-use crate::plan::rcm::{generate, RcmPlanSpec};
-use crate::solve::rcm::{self, lines, RcmData, RcmObs};
+use robocal::dataset::endoscope::EndoscopeCamera;
+use robocal::model::KinematicModel;
+use robocal::plan::rcm::{generate, RcmPlanSpec};
+use robocal::solve::rcm::{self, lines, RcmData, RcmObs};
 
 /// What to run.
 #[derive(Debug, Clone)]

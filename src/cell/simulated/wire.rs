@@ -1,5 +1,5 @@
 //! The wire-level dry-run cell: the scenario's simulators served on loopback TCP / ptys
-//! (`robocal_mocks::serve::serve_all`) with the REAL protocol clients of `robocal_drivers`
+//! ([`SimCell::serve`]) with the REAL protocol clients of `robocal_drivers`
 //! connected to them, so a rehearsal exercises everything but the hardware.
 //!
 //! | scenario protocol | server                  | client                                    |
@@ -12,9 +12,9 @@
 //! | camera `camera`   | MJPEG over HTTP         | OpenCV `VideoCaptureSource` (feature `opencv`) |
 //!
 //! Devices with no wire protocol in this build (`optotrak`: NDI's proprietary library) fall
-//! back to the in-process `robocal_mocks::sim` device; they are listed in
+//! back to the in-process simulated device; they are listed in
 //! [`Served::unavailable`] and logged (`tracing::warn!`). The camera needs the OpenCV client:
-//! without feature `opencv` it is the in-process [`SimCamera`] (same renderer, no wire).
+//! without feature `opencv` it is the in-process simulated camera (same renderer, no wire).
 //!
 //! Units: as everywhere in the library, mm and radians.
 use std::sync::Arc;
@@ -26,12 +26,8 @@ use robocal_drivers::keyence::{Il600, Il600Config, KeyenceClient, KeyenceConfig}
 use robocal_drivers::ndi::{NdiConfig, NdiTracker, ReplyMode};
 use robocal_drivers::ur::{Backoff, UrArm, UrConfig};
 use robocal_drivers::{Arm, ImageSource, MarkerTracker, RangeSensor};
-use robocal_mocks::scenario::Protocol;
-use robocal_mocks::serve::{serve_all, Bind, Endpoint, Served};
-use robocal_mocks::sim::{SimArm, SimCamera, SimRange, SimTracker};
-use robocal_mocks::WorldHandle;
+use robocal_mocks::stated::{Bind, Endpoint, Protocol, Served, SimCell, SimDeviceSet};
 
-use crate::acquire::Devices;
 use crate::cell::CellInfo;
 
 /// Size of the synthetic tool definition loaded into a simulated NDI tracker. The simulator
@@ -88,7 +84,7 @@ fn sim_rom(tool: &str) -> Vec<u8> {
 }
 
 async fn connect_arm(
-    world: &WorldHandle,
+    world: &SimCell,
     served: &Served,
     name: &str,
     protocol: Protocol,
@@ -98,7 +94,7 @@ async fn connect_arm(
             let addr = tcp_addr(served, name, "bcap")?;
             let mut cfg = DensoConfig::new(addr.to_string());
             cfg.name = name.to_string();
-            cfg.dof = world.arm_dof(0);
+            cfg.dof = world.arm_dof();
             cfg.backoff = loopback_backoff();
             let arm = DensoArm::connect(cfg)
                 .await
@@ -120,13 +116,13 @@ async fn connect_arm(
         }
         other => {
             fallback(served, name, other);
-            Arc::new(SimArm::new(world.clone(), 0, name))
+            world.arm_in_process(name)
         }
     })
 }
 
 async fn connect_tracker(
-    world: &WorldHandle,
+    world: &SimCell,
     served: &Served,
     name: &str,
     protocol: Protocol,
@@ -155,13 +151,13 @@ async fn connect_tracker(
         }
         other => {
             fallback(served, name, other);
-            Arc::new(SimTracker::new(world.clone(), 0, name))
+            world.tracker_in_process(name)
         }
     })
 }
 
 fn connect_laser(
-    world: &WorldHandle,
+    world: &SimCell,
     served: &Served,
     name: &str,
     protocol: Protocol,
@@ -175,18 +171,17 @@ fn connect_laser(
         }
         other => {
             fallback(served, name, other);
-            Arc::new(SimRange::new(world.clone(), 0, name))
+            world.range_in_process(name)
         }
     })
 }
 
-/// The scenario's camera `index` (named `name`): with feature `opencv`, OpenCV's
+/// The scenario's first camera (named `name`): with feature `opencv`, OpenCV's
 /// `VideoCapture` reading the simulator's MJPEG stream (frames stamped by the world's clock);
-/// otherwise, or when no stream is served, the in-process [`SimCamera`].
+/// otherwise, or when no stream is served, the in-process simulated camera.
 async fn connect_camera(
-    world: &WorldHandle,
+    world: &SimCell,
     served: &Served,
-    index: usize,
     name: &str,
 ) -> anyhow::Result<Arc<dyn ImageSource>> {
     #[cfg(feature = "opencv")]
@@ -205,23 +200,26 @@ async fn connect_camera(
     }
     let _ = served;
     tracing::debug!("wire cell: camera {name} is the in-process simulated camera");
-    Ok(Arc::new(SimCamera::new(world.clone(), index, name)))
+    Ok(world.camera_in_process(name))
 }
 
-/// Serve every device of the world's scenario on loopback TCP (port 0) / ptys and connect
+/// Serve every device of the cell's scenario on loopback TCP (port 0) / ptys and connect
 /// the real drivers to the first arm, tracker and laser, plus the first camera (the same
-/// devices as [`crate::cell::sim_cell`]). The clock is the world's (`world.clock()`).
+/// devices as [`super::sim_cell`]). The clock is the cell's.
 ///
 /// The arm is NOT wrapped in the safety decorators (`robocal run` does that for every arm).
 /// Keep the returned [`Served`] alive for the whole run: dropping it does not stop the
 /// servers, [`Served::abort`] does. Devices in [`Served::unavailable`] were wired
 /// in-process instead.
-pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo, Served)> {
-    let scenario = world.scenario();
+pub async fn wire_cell(
+    world: &SimCell,
+) -> anyhow::Result<(crate::acquire::Devices, CellInfo, Served)> {
+    let scenario = world.stated();
     let Some(arm_cfg) = scenario.arms.first() else {
         bail!("scenario {:?} has no arm", scenario.name);
     };
-    let served = serve_all(world, &Bind::default())
+    let served = world
+        .serve(&Bind::default())
         .await
         .with_context(|| format!("serving the devices of {:?}", scenario.name))?;
     let built = async {
@@ -235,36 +233,22 @@ pub async fn wire_cell(world: &WorldHandle) -> anyhow::Result<(Devices, CellInfo
             None => None,
         };
         let camera = match scenario.cameras.first() {
-            Some(c) => Some(connect_camera(world, &served, 0, &c.name).await?),
+            Some(c) => Some(connect_camera(world, &served, &c.name).await?),
             None => None,
         };
-        anyhow::Ok((arm, tracker, range, camera))
-    }
-    .await;
-    let (arm, tracker, range, camera) = match built {
-        Ok(v) => v,
-        Err(e) => {
-            served.abort();
-            return Err(e);
-        }
-    };
-    let info = CellInfo {
-        serial: world.arm_identity(0).map(|(_, s)| s),
-        tracker_kind: scenario
-            .trackers
-            .first()
-            .map(|t| t.kind.as_str().to_string()),
-        range_kind: scenario.lasers.first().map(|l| l.kind.clone()),
-    };
-    Ok((
-        Devices {
+        anyhow::Ok(SimDeviceSet {
             arm,
             tracker,
             range,
-            clock: world.clock(),
             camera,
-        },
-        info,
-        served,
-    ))
+        })
+    }
+    .await;
+    match built {
+        Ok(set) => Ok((super::devices(world, set), super::info(world), served)),
+        Err(e) => {
+            served.abort();
+            Err(e)
+        }
+    }
 }
