@@ -402,6 +402,17 @@ pub fn run(world: &World, seed: u64, size: Size) -> Outcome {
     } else {
         Options::default()
     };
+    // `DIAG_MAX_EXTRAP=F`: the extrapolation limit of the selection (`inf` = no check).
+    let base = match std::env::var("DIAG_MAX_EXTRAP")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        Some(max_extrapolation) => Options {
+            max_extrapolation,
+            ..base
+        },
+        None => base,
+    };
     let opt = Options {
         exclude_kinds: world
             .library_without

@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run --release --example real_policy -- [--policy default|physics-first|kernel-benchmark]
-//!     [--max-train N] [--max-gap F] [--no-time-blocked] [SERIES ...]
+//!     [--max-train N] [--max-gap F] [--max-extrapolation F] [--no-time-blocked] [SERIES ...]
 //! ```
 //!
 //! A `SERIES` is a directory holding `train.jsonl` + `heldout.jsonl` (the layout of
@@ -90,6 +90,7 @@ fn main() -> anyhow::Result<()> {
     let mut max_train = usize::MAX;
     let mut time_blocked = true;
     let mut max_gap = None;
+    let mut max_extrapolation = None;
     let mut series: Vec<PathBuf> = Vec::new();
     let mut i = 0;
     while i < args.len() {
@@ -124,6 +125,14 @@ fn main() -> anyhow::Result<()> {
                 );
                 i += 1;
             }
+            "--max-extrapolation" => {
+                max_extrapolation = Some(
+                    args.get(i + 1)
+                        .and_then(|v| v.parse::<f64>().ok())
+                        .ok_or_else(|| anyhow::anyhow!("--max-extrapolation needs a number"))?,
+                );
+                i += 1;
+            }
             "--no-time-blocked" => time_blocked = false,
             a if a.starts_with("--") => {
                 anyhow::bail!("unknown argument {a:?} (see the file's header)")
@@ -134,6 +143,9 @@ fn main() -> anyhow::Result<()> {
     }
     if let Some(g) = max_gap {
         opt.correction_max_gap = g;
+    }
+    if let Some(x) = max_extrapolation {
+        opt.max_extrapolation = x;
     }
     if series.is_empty() {
         let p = std::env::var_os("ROBOCAL_REAL_DATA")

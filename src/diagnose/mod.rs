@@ -23,6 +23,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 pub mod camera;
 pub mod camera_stage;
 pub mod effects;
+pub mod extrapolation;
 pub mod fit;
 pub mod nonparam;
 pub mod plot;
@@ -89,6 +90,11 @@ pub struct Options {
     /// better than unseen ones has learned the poses ([`OVERFIT_GAP`] is what the report
     /// flags).
     pub correction_max_gap: f64,
+    /// A physical effect is left out when, refitted, the largest displacement it predicts at
+    /// poses inside the training poses' joint ranges exceeds this many times the largest it
+    /// predicts at a training pose ([`extrapolation::ratio`]): its coefficients cancel on
+    /// the training poses and not elsewhere. Infinite = no such check.
+    pub max_extrapolation: f64,
 }
 
 /// How [`diagnose`] chooses its chain of effects.
@@ -153,6 +159,7 @@ impl Default for Options {
             physics_first_max_effects: 6,
             policy_margin: 0.05,
             correction_max_gap: 0.10,
+            max_extrapolation: MAX_EXTRAPOLATION,
         }
     }
 }
@@ -189,6 +196,11 @@ pub struct Step {
     /// The model and effects after this step (for per-pose statistics and transfer).
     pub state_after: State,
 }
+
+/// Default of [`Options::max_extrapolation`]: no check yet (the limit is not yet measured
+/// against the simulated suite and the real series; `examples/real_policy
+/// --max-extrapolation F` and `DIAG_MAX_EXTRAP=F` with `examples/diagnose_table` try one).
+pub const MAX_EXTRAPOLATION: f64 = f64::INFINITY;
 
 /// Held-out RMS more than this fraction above the training RMS flags overfitting.
 pub const OVERFIT_GAP: f64 = 0.15;
@@ -750,6 +762,9 @@ struct Chain {
     /// The correction chosen by cross-validation and not fitted yet ([`add_correction`]):
     /// under [`Policy::Best`] only the kept chain's is fitted ([`fit_correction`]).
     pending: Option<nonparam::RbfCv>,
+    /// Effects left out because their prediction grows outside the training poses (one
+    /// sentence each, for the warnings).
+    extrapolating: Vec<String>,
 }
 
 /// Select effects one at a time from `start` under the rules of `opt` (see the module doc).
@@ -771,7 +786,9 @@ fn select_chain(
     let mut not_identifiable: Vec<Score> = Vec::new();
     // The kernel benchmark only matters to the rule that uses it.
     let use_np = opt.min_np_ratio > 0.0;
-    for _ in 0..opt.max_effects {
+    let mut extrapolating = Vec::new();
+    // Each pass accepts an effect, leaves one out (its group dropped) or stops.
+    while steps.len() < opt.max_effects {
         let t_round = std::time::Instant::now();
         // The candidate scores and the kernel benchmark are independent: both at once.
         let first = round0.take();
@@ -831,6 +848,7 @@ fn select_chain(
         };
         let before_train = rms3(&residuals(&state, train));
         let before_held = heldout_rms(&state, heldout);
+        let before_state = state.clone();
         state.effects.push(Effect::zero(best.block.clone()));
         let t_fit = std::time::Instant::now();
         let rep = fit(&mut state, train, 50);
@@ -842,6 +860,24 @@ fn select_chain(
         );
         let k_new = state.effects.len() - 1;
         refine_tau(&mut state, train, k_new);
+        if let Some((ratio, on_train, on_probes)) = (opt.max_extrapolation.is_finite())
+            .then(|| extrapolation::ratio(&state, train, k_new))
+            .flatten()
+        {
+            tracing::debug!(
+                "{}: largest displacement {on_probes:.4} mm inside the training joint ranges, {on_train:.4} mm at a training pose ({ratio:.1}×)",
+                best.label
+            );
+            if ratio > opt.max_extrapolation {
+                extrapolating.push(format!(
+                    "{} left out: refitted, it predicts up to {on_probes:.3} mm inside the training poses' joint ranges but at most {on_train:.3} mm at a training pose ({ratio:.0}×, limit {:.0}×): its coefficients cancel on the training poses only",
+                    best.label, opt.max_extrapolation
+                ));
+                state = before_state;
+                remaining.retain(|g| !g.iter().any(|b| b.label() == best.block.label()));
+                continue;
+            }
+        }
         let effect = state.effects.last().cloned().expect("just pushed");
         steps.push(Step {
             effect,
@@ -881,6 +917,7 @@ fn select_chain(
         nonparametric: None,
         cv_rms,
         pending: None,
+        extrapolating,
     }
 }
 
@@ -1100,9 +1137,11 @@ pub fn diagnose(
         rounds,
         not_identifiable,
         nonparametric,
+        extrapolating,
         ..
     } = chain;
     let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
+    warnings.extend(extrapolating);
     // Held-out RMS never counts an ambiguous pose: recompute every held-out figure on the
     // poses whose side of each change point is known.
     let scored: Vec<PoseObs> = heldout
