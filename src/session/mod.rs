@@ -974,13 +974,7 @@ pub fn effects_in_words(
             // A kinematic effect of the registry says itself what it found, with its size
             // (read back from the entry it wrote into the calibration); the camera and
             // laser findings by kind, with their parameters.
-            let (what, coefs) = match crate::diagnose::effects::Effect::from_cal(&st.calibration)
-            {
-                Ok(e) if crate::diagnose::effects::EffectModel::kind(&e.block) == kind => {
-                    (e.sentence(), vec![])
-                }
-                _ => (sensor_effect_in_words(&kind), parameters_in_words(st)),
-            };
+            let (what, coefs) = what_was_found(st);
             let (unit, _, _, hb, ha) = st.rms_with_unit();
             let prec = if unit == "px" { 4 } else { 3 };
             let mut effect_on = match (hb, ha) {
@@ -1013,6 +1007,16 @@ pub fn effects_in_words(
             }
         })
         .collect()
+}
+
+/// One finding in plain words and, for camera and laser findings, their parameters.
+fn what_was_found(st: &crate::schema::DiagnosedEffect) -> (String, Vec<String>) {
+    match crate::diagnose::effects::Effect::from_cal(&st.calibration) {
+        Ok(e) if crate::diagnose::effects::EffectModel::kind(&e.block) == st.kind => {
+            (e.sentence(), vec![])
+        }
+        _ => (sensor_effect_in_words(&st.kind), parameters_in_words(st)),
+    }
 }
 
 /// What a camera or laser finding means, in plain words (kinematic effects have their own
@@ -1192,4 +1196,63 @@ fn validate_stage(dir: &Path, s: &mut SessionFile, work: &mut Work) -> anyhow::R
         ));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod effects_in_words_tests {
+    use super::*;
+    use crate::diagnose::effects::{registry_examples, EffectModel};
+
+    /// Every effect of the registry, as a diagnosis writes it, is said in plain words with
+    /// its size (never the generic `effect <kind>`, no parameter identifiers), and so is
+    /// every camera and laser finding kind.
+    #[test]
+    fn every_effect_kind_is_said_in_plain_words() {
+        let model = KinematicModel::preset("denso-vs060").unwrap();
+        for e in registry_examples(&model) {
+            let st = crate::schema::DiagnosedEffect {
+                kind: e.block.kind().into(),
+                joint: e.block.joint(),
+                label: e.block.label(),
+                parameters: e.parameters(),
+                evidence: Default::default(),
+                train_rms_mm_before: None,
+                train_rms_mm_after: None,
+                heldout_rms_mm_before: None,
+                heldout_rms_mm_after: None,
+                train_rms_px_before: None,
+                train_rms_px_after: None,
+                heldout_rms_px_before: None,
+                heldout_rms_px_after: None,
+                hand_eye_change_mm: None,
+                hand_eye_change_deg: None,
+                calibration: e.to_cal(),
+            };
+            let (what, coefs) = what_was_found(&st);
+            assert!(coefs.is_empty(), "{}: {coefs:?}", st.kind);
+            assert!(!what.starts_with("effect "), "{}: {what}", st.kind);
+            assert!(
+                !what.contains('_') && !what.contains('@'),
+                "{}: {what}",
+                st.kind
+            );
+            assert!(
+                what.chars().any(|c| c.is_ascii_digit()),
+                "{}: {what}",
+                st.kind
+            );
+        }
+        for kind in [
+            "target_scale",
+            "target_flatness",
+            "arm_kinematics",
+            "distortion",
+            "laser_scale",
+            "laser_incidence",
+            "laser_nonlinearity",
+        ] {
+            let w = sensor_effect_in_words(kind);
+            assert!(!w.starts_with("effect ") && !w.contains('_'), "{kind}: {w}");
+        }
+    }
 }

@@ -3,7 +3,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use super::file::{self, lenient, EffectFileError};
-use super::{pm, Coefs, EffectModel, Family};
+use super::{deg_param, pm, Coefs, EffectModel, Family};
 use crate::dataset::CalEffect;
 use crate::model::KinematicModel;
 use crate::schema::EffectParameter;
@@ -60,12 +60,7 @@ impl EffectModel for Backlash {
         }
     }
     fn parameters(&self, c: &Coefs) -> Vec<EffectParameter> {
-        vec![EffectParameter::new(
-            "half_lost_motion",
-            "deg",
-            c.v(0).to_degrees(),
-            c.s(0).to_degrees(),
-        )]
+        vec![deg_param("half_lost_motion", c, 0)]
     }
     fn file_params(&self, c: &Coefs) -> Map<String, Value> {
         file::to_params(&File {

@@ -4,8 +4,8 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::file::{self, deg, lenient_vec, rad, EffectFileError};
-use super::{spread, Coefs, EffectModel, Family};
+use super::file::{self, EffectFileError};
+use super::{amplitude_deg, deg_param, q_at, spread, Coefs, EffectModel, Family, SinCosFile};
 use crate::dataset::CalEffect;
 use crate::model::KinematicModel;
 use crate::schema::EffectParameter;
@@ -23,10 +23,8 @@ pub struct Coupling {
 struct File {
     #[serde(deserialize_with = "file::count")]
     driver_joint: u64,
-    sin_deg: f64,
-    cos_deg: f64,
-    #[serde(default, deserialize_with = "lenient_vec")]
-    std_deg: Vec<f64>,
+    #[serde(flatten)]
+    pair: SinCosFile,
 }
 
 impl EffectModel for Coupling {
@@ -69,26 +67,14 @@ impl EffectModel for Coupling {
     fn parameters(&self, c: &Coefs) -> Vec<EffectParameter> {
         let d = self.driver;
         vec![
-            EffectParameter::new(
-                &format!("sin_q{d}"),
-                "deg",
-                c.v(0).to_degrees(),
-                c.s(0).to_degrees(),
-            ),
-            EffectParameter::new(
-                &format!("cos_q{d}"),
-                "deg",
-                c.v(1).to_degrees(),
-                c.s(1).to_degrees(),
-            ),
+            deg_param(&format!("sin_q{d}"), c, 0),
+            deg_param(&format!("cos_q{d}"), c, 1),
         ]
     }
     fn file_params(&self, c: &Coefs) -> Map<String, Value> {
         file::to_params(&File {
             driver_joint: self.driver as u64,
-            sin_deg: c.v(0).to_degrees(),
-            cos_deg: c.v(1).to_degrees(),
-            std_deg: deg(c.std),
+            pair: SinCosFile::of(c),
         })
     }
     fn sentence(&self, c: &Coefs) -> String {
@@ -97,16 +83,11 @@ impl EffectModel for Coupling {
              torque) with an amplitude of {}°",
             self.joint,
             self.driver,
-            super::plain_number(c.v(0).hypot(c.v(1)).to_degrees(), 4)
+            super::plain_number(amplitude_deg(c), 4)
         )
     }
     fn plot_driver(&self, _model: &KinematicModel, o: &PoseObs) -> (f64, String) {
-        let q = o
-            .ctx
-            .q
-            .get(self.driver.wrapping_sub(1))
-            .copied()
-            .unwrap_or(f64::NAN);
+        let q = q_at(o, self.driver);
         (q.to_degrees(), format!("q{} (deg)", self.driver))
     }
 }
@@ -121,13 +102,14 @@ impl Family for Coupling {
                 "\"driver_joint\" must be a joint number ≥ 1".into(),
             ));
         }
+        let (c, std) = f.pair.coefs();
         Ok((
             Coupling {
                 joint: file::joint(e)?,
                 driver: f.driver_joint as usize,
             },
-            rad(&[f.sin_deg, f.cos_deg]),
-            rad(&f.std_deg),
+            c,
+            std,
         ))
     }
     fn joint_candidates(

@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use super::file::{self, deg, lenient_vec, rad, EffectFileError};
-use super::{joint_angle, Coefs, EffectModel, Family};
+use super::{deg_param, joint_angle, q_at, Coefs, EffectModel, Family};
 use crate::dataset::CalEffect;
 use crate::model::KinematicModel;
 use crate::schema::EffectParameter;
@@ -62,7 +62,7 @@ impl EffectModel for Eccentricity {
         NAMES
             .iter()
             .enumerate()
-            .map(|(k, n)| EffectParameter::new(n, "deg", c.v(k).to_degrees(), c.s(k).to_degrees()))
+            .map(|(k, n)| deg_param(n, c, k))
             .collect()
     }
     fn file_params(&self, c: &Coefs) -> Map<String, Value> {
@@ -85,12 +85,7 @@ impl EffectModel for Eccentricity {
         )
     }
     fn plot_driver(&self, _model: &KinematicModel, o: &PoseObs) -> (f64, String) {
-        let q = o
-            .ctx
-            .q
-            .get(self.joint.wrapping_sub(1))
-            .copied()
-            .unwrap_or(f64::NAN);
+        let q = q_at(o, self.joint);
         (q.to_degrees(), format!("q{} (deg)", self.joint))
     }
 }

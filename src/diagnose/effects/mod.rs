@@ -455,6 +455,53 @@ fn pm(sd: f64, unit: &str) -> String {
     }
 }
 
+/// A parameter in degrees from coefficient `k` (rad) of `c` (`diagnosis.json`).
+fn deg_param(name: &str, c: &Coefs, k: usize) -> EffectParameter {
+    EffectParameter::new(name, "deg", c.v(k).to_degrees(), c.s(k).to_degrees())
+}
+
+/// The angle (rad) of joint `joint` (1-based) at one observation, NaN when absent (the x
+/// axis of a driver plot).
+fn q_at(o: &PoseObs, joint: usize) -> f64 {
+    o.ctx
+        .q
+        .get(joint.wrapping_sub(1))
+        .copied()
+        .unwrap_or(f64::NAN)
+}
+
+/// The file form of a sin/cos pair `a sin φ + b cos φ` (rad inside): `sin_deg`, `cos_deg`
+/// and their standard deviations `std_deg` (flattened into the family's struct).
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+struct SinCosFile {
+    sin_deg: f64,
+    cos_deg: f64,
+    #[serde(default, deserialize_with = "file::lenient_vec")]
+    std_deg: Vec<f64>,
+}
+
+impl SinCosFile {
+    fn of(c: &Coefs) -> Self {
+        SinCosFile {
+            sin_deg: c.v(0).to_degrees(),
+            cos_deg: c.v(1).to_degrees(),
+            std_deg: file::deg(c.std),
+        }
+    }
+    /// Coefficients and standard deviations (rad).
+    fn coefs(&self) -> (Vec<f64>, Vec<f64>) {
+        (
+            file::rad(&[self.sin_deg, self.cos_deg]),
+            file::rad(&self.std_deg),
+        )
+    }
+}
+
+/// The amplitude (deg) of a sin/cos pair.
+fn amplitude_deg(c: &Coefs) -> f64 {
+    c.v(0).hypot(c.v(1)).to_degrees()
+}
+
 /// A fitted effect: its block, coefficients (internal units) and their standard deviations.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Effect {

@@ -5,8 +5,10 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::file::{self, deg, lenient, lenient_vec, rad, EffectFileError};
-use super::{joint_angle, pm, spread, Coefs, EffectModel, Family};
+use super::file::{self, lenient, EffectFileError};
+use super::{
+    amplitude_deg, deg_param, joint_angle, pm, q_at, spread, Coefs, EffectModel, Family, SinCosFile,
+};
 use crate::dataset::CalEffect;
 use crate::model::KinematicModel;
 use crate::schema::EffectParameter;
@@ -68,12 +70,7 @@ impl EffectModel for Transmission {
         )
     }
     fn plot_driver(&self, _model: &KinematicModel, o: &PoseObs) -> (f64, String) {
-        let q = o
-            .ctx
-            .q
-            .get(self.joint.wrapping_sub(1))
-            .copied()
-            .unwrap_or(f64::NAN);
+        let q = q_at(o, self.joint);
         (q.to_degrees(), format!("q{} (deg)", self.joint))
     }
 }
@@ -114,10 +111,8 @@ pub struct Ripple {
 struct RippleFile {
     #[serde(deserialize_with = "file::count")]
     harmonic: u64,
-    sin_deg: f64,
-    cos_deg: f64,
-    #[serde(default, deserialize_with = "lenient_vec")]
-    std_deg: Vec<f64>,
+    #[serde(flatten)]
+    pair: SinCosFile,
 }
 
 impl EffectModel for Ripple {
@@ -170,26 +165,14 @@ impl EffectModel for Ripple {
     fn parameters(&self, c: &Coefs) -> Vec<EffectParameter> {
         let h = self.harmonic;
         vec![
-            EffectParameter::new(
-                &format!("sin{h}"),
-                "deg",
-                c.v(0).to_degrees(),
-                c.s(0).to_degrees(),
-            ),
-            EffectParameter::new(
-                &format!("cos{h}"),
-                "deg",
-                c.v(1).to_degrees(),
-                c.s(1).to_degrees(),
-            ),
+            deg_param(&format!("sin{h}"), c, 0),
+            deg_param(&format!("cos{h}"), c, 1),
         ]
     }
     fn file_params(&self, c: &Coefs) -> Map<String, Value> {
         file::to_params(&RippleFile {
             harmonic: u64::from(self.harmonic),
-            sin_deg: c.v(0).to_degrees(),
-            cos_deg: c.v(1).to_degrees(),
-            std_deg: deg(c.std),
+            pair: SinCosFile::of(c),
         })
     }
     fn sentence(&self, c: &Coefs) -> String {
@@ -197,16 +180,11 @@ impl EffectModel for Ripple {
             "joint {}'s transmission ripples {} times per turn with an amplitude of {}°",
             self.joint,
             self.harmonic,
-            super::plain_number(c.v(0).hypot(c.v(1)).to_degrees(), 4)
+            super::plain_number(amplitude_deg(c), 4)
         )
     }
     fn plot_driver(&self, _model: &KinematicModel, o: &PoseObs) -> (f64, String) {
-        let q = o
-            .ctx
-            .q
-            .get(self.joint.wrapping_sub(1))
-            .copied()
-            .unwrap_or(f64::NAN);
+        let q = q_at(o, self.joint);
         (
             (f64::from(self.harmonic) * q)
                 .to_degrees()
@@ -226,13 +204,14 @@ impl Family for Ripple {
                 "\"harmonic\" must be an integer ≥ 1".into(),
             ));
         }
+        let (c, std) = f.pair.coefs();
         Ok((
             Ripple {
                 joint: file::joint(e)?,
                 harmonic: f.harmonic as u32,
             },
-            rad(&[f.sin_deg, f.cos_deg]),
-            rad(&f.std_deg),
+            c,
+            std,
         ))
     }
     fn joint_candidates(

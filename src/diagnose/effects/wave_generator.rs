@@ -5,8 +5,10 @@
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::file::{self, deg, lenient_vec, rad, EffectFileError};
-use super::{joint_angle, spread, Coefs, EffectModel, Family};
+use super::file::{self, EffectFileError};
+use super::{
+    amplitude_deg, deg_param, joint_angle, q_at, spread, Coefs, EffectModel, Family, SinCosFile,
+};
 use crate::dataset::CalEffect;
 use crate::model::KinematicModel;
 use crate::schema::EffectParameter;
@@ -26,10 +28,8 @@ struct File {
     gear_ratio: f64,
     #[serde(deserialize_with = "file::count")]
     harmonic: u64,
-    sin_deg: f64,
-    cos_deg: f64,
-    #[serde(default, deserialize_with = "lenient_vec")]
-    std_deg: Vec<f64>,
+    #[serde(flatten)]
+    pair: SinCosFile,
 }
 
 impl EffectModel for WaveGenerator {
@@ -82,17 +82,15 @@ impl EffectModel for WaveGenerator {
     fn parameters(&self, c: &Coefs) -> Vec<EffectParameter> {
         vec![
             EffectParameter::new("ratio", "1", self.ratio, f64::NAN),
-            EffectParameter::new("sin", "deg", c.v(0).to_degrees(), c.s(0).to_degrees()),
-            EffectParameter::new("cos", "deg", c.v(1).to_degrees(), c.s(1).to_degrees()),
+            deg_param("sin", c, 0),
+            deg_param("cos", c, 1),
         ]
     }
     fn file_params(&self, c: &Coefs) -> Map<String, Value> {
         file::to_params(&File {
             gear_ratio: self.ratio,
             harmonic: u64::from(self.harmonic),
-            sin_deg: c.v(0).to_degrees(),
-            cos_deg: c.v(1).to_degrees(),
-            std_deg: deg(c.std),
+            pair: SinCosFile::of(c),
         })
     }
     fn sentence(&self, c: &Coefs) -> String {
@@ -106,16 +104,11 @@ impl EffectModel for WaveGenerator {
              {}) with an amplitude of {}°",
             self.joint,
             self.ratio,
-            super::plain_number(c.v(0).hypot(c.v(1)).to_degrees(), 5)
+            super::plain_number(amplitude_deg(c), 5)
         )
     }
     fn plot_driver(&self, _model: &KinematicModel, o: &PoseObs) -> (f64, String) {
-        let q = o
-            .ctx
-            .q
-            .get(self.joint.wrapping_sub(1))
-            .copied()
-            .unwrap_or(f64::NAN);
+        let q = q_at(o, self.joint);
         let (h, r, j) = (self.harmonic, self.ratio, self.joint);
         (
             (f64::from(h) * r * q).to_degrees().rem_euclid(360.0),
@@ -140,14 +133,15 @@ impl Family for WaveGenerator {
                 format!("\"gear_ratio\" must be > 0 (got {})", f.gear_ratio),
             ));
         }
+        let (c, std) = f.pair.coefs();
         Ok((
             WaveGenerator {
                 joint: file::joint(e)?,
                 ratio: f.gear_ratio,
                 harmonic: f.harmonic as u32,
             },
-            rad(&[f.sin_deg, f.cos_deg]),
-            rad(&f.std_deg),
+            c,
+            std,
         ))
     }
     fn joint_candidates(
