@@ -812,6 +812,19 @@ fn hospital_session_verifies_within_its_prediction_with_backlash() {
     );
     assert!(r <= 1.2 && !v.flagged, "{v:?}");
     assert!(v.approach_poses >= 1, "{v:?}");
+    // The URDF holds the geometry fitted without effects: alone it beats nominal (the
+    // diagnosed geometry, fitted with its effects, scored 1.1034 mm alone, worse than nominal).
+    let urdf = s
+        .deploy_accuracy
+        .iter()
+        .find(|a| a.artifact == "deploy/robot.urdf")
+        .expect("URDF scored");
+    let nominal = s.measured.heldout_rms_mm_before.unwrap();
+    println!(
+        "URDF alone {:.4} mm (nominal {nominal:.4})",
+        urdf.heldout_rms_mm
+    );
+    assert!(urdf.heldout_rms_mm < 0.5 * nominal, "{urdf:?}");
     // The back-off poses are in the run, not among the scored targets.
     let plan: Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("plan/verify.json")).unwrap())

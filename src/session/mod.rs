@@ -1148,8 +1148,18 @@ fn validate_stage(dir: &Path, s: &mut SessionFile, work: &mut Work) -> anyhow::R
     write_atomic(&ddir.join("calibration.json"), &bytes)?;
     let cal = crate::dataset::CalibrationFile::load(ddir.join("calibration.json"))
         .context("reading deploy/calibration.json back")?;
-    let mut model = KinematicModel::from_robot_block(&cal.robot)?;
-    model.apply_cal_params(&cal.params)?;
+    // The URDF carries no effects, so it holds the geometry fitted without them (the calibrate
+    // stage's): the diagnosed geometry was fitted jointly with its effects and is biased
+    // without them (lab: 1.647 mm held-out alone, worse than nominal, against 0.735 mm).
+    let geometric_cal = dir.join("calibrate").join("calibration.json");
+    let urdf_cal = if geometric_cal.is_file() {
+        crate::dataset::CalibrationFile::load(&geometric_cal)
+            .with_context(|| format!("reading {} back", geometric_cal.display()))?
+    } else {
+        cal
+    };
+    let mut model = KinematicModel::from_robot_block(&urdf_cal.robot)?;
+    model.apply_cal_params(&urdf_cal.params)?;
     let name = format!(
         "{}-{}",
         s.cell.robot_model,
@@ -1181,7 +1191,7 @@ fn validate_stage(dir: &Path, s: &mut SessionFile, work: &mut Work) -> anyhow::R
             },
             deploy_score::Candidate {
                 artifact: "deploy/robot.urdf",
-                contains: "calibrated geometry only, no effects".into(),
+                contains: "geometry only, fitted without effects".into(),
                 how: "loaded by ROS / the navigation software in place of the nominal model",
                 predicted: &urdf_pred,
             },
