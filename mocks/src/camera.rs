@@ -30,7 +30,8 @@
 //! # Faults
 //!
 //! `world.take_fault(device)` is polled once per request (before the status line) and once
-//! before every further frame of a stream. A fault taken at request time that is not about the
+//! before every further frame of a stream whose viewer is still connected (a stream whose viewer
+//! has closed its end ends there, without taking a fault meant for a live viewer). A fault taken at request time that is not about the
 //! reply as a whole (`Garbage`, `Truncated`, `BadCrc`) applies to the snapshot body or to the
 //! stream's first frame.
 //!
@@ -537,6 +538,14 @@ async fn snapshot(
     sock.flush().await
 }
 
+/// True when the viewer has closed its end (its FIN has arrived, or the socket failed). Polled
+/// once, never waits: a viewer that sent extra bytes is still a live viewer.
+fn peer_closed(sock: &mut TcpStream) -> bool {
+    use futures_util::FutureExt;
+    let mut b = [0u8; 1];
+    matches!(sock.peek(&mut b).now_or_never(), Some(Ok(0) | Err(_)))
+}
+
 async fn stream(
     sock: &mut TcpStream,
     shared: &Arc<Shared>,
@@ -555,6 +564,10 @@ async fn stream(
     let mut fault = Some(first);
     loop {
         ticker.tick().await;
+        if peer_closed(sock) {
+            // A viewer that has gone must not take the next fault meant for a live one.
+            return Ok(());
+        }
         let apply = match fault.take() {
             Some(a) => a,
             None => take(shared).await,
