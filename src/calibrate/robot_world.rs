@@ -42,13 +42,16 @@ pub struct Poses {
     pub skipped: Vec<(u64, String)>,
 }
 
+/// A closed form's name and its solution (`X`, `Y`).
+pub type ClosedForm = (&'static str, (Isometry3<f64>, Isometry3<f64>));
+
 /// A fitted registration: the refined solution and its closed-form starts.
 #[derive(Debug, Clone)]
 pub struct Fit {
     /// The refinement.
     pub refined: RobotWorld,
     /// The closed forms (`X`, `Y`): shah, li, tsai.
-    pub closed: [(&'static str, (Isometry3<f64>, Isometry3<f64>)); 3],
+    pub closed: [ClosedForm; 3],
     /// The noise model the weights came from.
     pub model: Option<StereoTrackerModel>,
 }
