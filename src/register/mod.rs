@@ -9,6 +9,7 @@
 //! The end-to-end error transfer to a CT target lives in [`crate::navchain`].
 
 pub mod file;
+pub mod from_files;
 pub mod icp;
 pub mod mesh;
 pub mod paired;
