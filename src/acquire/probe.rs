@@ -3,6 +3,7 @@
 //! ever moved, no program is started, the arm is never taken. The CLI prints the reports.
 use std::time::Duration;
 
+use robocal_drivers::ndi::{NdiClient, NdiConfig};
 use robocal_drivers::ErrorKind;
 
 use crate::acquire::device_check::CheckedDevices;
@@ -52,24 +53,10 @@ pub async fn probe(d: &DeviceEntry) -> Probe {
             }
         }
         Protocol::NdiTcp => {
-            use robocal_drivers::ndi::{NdiClient, NdiConfig};
-            match NdiClient::connect(&target, NdiConfig::default()).await {
-                Err(e) => fail(e),
-                Ok(c) => match c.version(0).await {
-                    Ok(v) => Probe::Ok(format!("version: {}", v.trim().replace('\n', " | "))),
-                    Err(e) => fail(e),
-                },
-            }
+            ndi_probe(NdiClient::connect(&target, NdiConfig::default()).await).await
         }
         Protocol::NdiSerial => {
-            use robocal_drivers::ndi::{NdiClient, NdiConfig};
-            match NdiClient::open_serial(&target, NdiConfig::default()) {
-                Err(e) => fail(e),
-                Ok(c) => match c.version(0).await {
-                    Ok(v) => Probe::Ok(format!("version: {}", v.trim().replace('\n', " | "))),
-                    Err(e) => fail(e),
-                },
-            }
+            ndi_probe(NdiClient::open_serial(&target, NdiConfig::default())).await
         }
         Protocol::DlRs1a => {
             use robocal_drivers::keyence::{KeyenceClient, KeyenceConfig};
@@ -116,6 +103,20 @@ pub async fn probe(d: &DeviceEntry) -> Probe {
             ErrorKind::Unsupported,
             "probing an Optotrak needs NDI's OAPI library (feature `optotrak`); not probed".into(),
         ),
+    }
+}
+
+/// An NDI tracker's version reply, once connected (over TCP or a serial port).
+async fn ndi_probe<T>(c: Result<NdiClient<T>, robocal_drivers::ndi::Error>) -> Probe
+where
+    T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send,
+{
+    match c {
+        Err(e) => fail(e),
+        Ok(c) => match c.version(0).await {
+            Ok(v) => Probe::Ok(format!("version: {}", v.trim().replace('\n', " | "))),
+            Err(e) => fail(e),
+        },
     }
 }
 
