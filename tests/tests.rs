@@ -23,6 +23,7 @@ mod live_session;
 mod model;
 mod navchain;
 mod navchain_cmd;
+mod navchain_compare;
 mod opencv_left;
 mod perf;
 mod pivot;

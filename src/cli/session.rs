@@ -100,6 +100,11 @@ pub struct Args {
     /// sessions; the probe poses are shown and confirmed like the plan).
     #[arg(long, conflicts_with = "resume")]
     pub survey: bool,
+    /// Close a kinematic session with seed 003's correction network: trained on the
+    /// training poses on top of the geometric calibration, scored on the held-out poses beside
+    /// the physical diagnosis (report, `navchain/calibration.json`).
+    #[arg(long, conflicts_with = "resume")]
+    pub navchain: bool,
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -455,6 +460,7 @@ fn start_options(a: &Args) -> session::start::StartOptions {
         kind: a.kind.clone(),
         arm_calibration: a.arm_calibration.clone(),
         survey: a.survey,
+        navchain: a.navchain,
     }
 }
 
@@ -593,6 +599,9 @@ fn print_result(
             );
             if let Some(v) = &s.verify {
                 println!("{}", session::verify::line(v));
+            }
+            if let Some(n) = &s.navchain {
+                println!("{}", session::navchain::text(n));
             }
         }
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {

@@ -305,6 +305,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     if let Some(r) = &s.rcm {
         h.push_str(&crate::session::rcm::html(r, &s.measured));
     }
+    if let Some(n) = &s.navchain {
+        h.push_str(&crate::session::navchain::html(n));
+    }
     // Effects.
     h.push_str("<h2>What the diagnosis found</h2>");
     if s.effects.is_empty() {

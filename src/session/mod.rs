@@ -23,6 +23,7 @@ pub mod deploy;
 pub mod deploy_score;
 pub mod history;
 pub mod laser;
+pub mod navchain;
 pub mod rcm;
 pub mod start;
 pub mod survey;
@@ -151,6 +152,10 @@ pub struct SessionSetup {
     /// (`--survey`, [`survey`]).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub survey: bool,
+    /// Close the kinematic session with seed 003's correction network (`--navchain`,
+    /// [`navchain`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub navchain: bool,
 }
 
 /// What a session calibrates.
@@ -300,6 +305,9 @@ pub struct SessionFile {
     pub rcm: Option<rcm::RcmSummary>,
     /// `--survey`: where the probe poses found the tracker and the marker (the plan uses it).
     pub survey: Option<survey::SurveySummary>,
+    /// `--navchain`: seed 003's correction network beside the physical diagnosis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub navchain: Option<navchain::NavchainSummary>,
 }
 
 impl SessionFile {
@@ -496,6 +504,7 @@ pub fn create(
         laser: None,
         rcm: None,
         survey: None,
+        navchain: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -627,6 +636,13 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
             validate_stage(dir, &mut s, &mut work)?;
         }
         step(&mut s, Stage::Validate)?;
+    }
+    if s.setup.navchain && !cam && s.navchain.is_none() {
+        log(
+            "navchain: seed 003's correction network on the training poses, scored on the held-out",
+        );
+        navchain::stage(dir, &mut s, &mut work)?;
+        s.save(&path)?;
     }
     if !s.done(Stage::Verify) {
         if !cam {

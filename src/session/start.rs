@@ -60,6 +60,8 @@ pub struct StartOptions {
     pub arm_calibration: Option<PathBuf>,
     /// Locate the tracker with a few probe poses before planning (kinematic sessions).
     pub survey: bool,
+    /// Close a kinematic session with seed 003's correction network.
+    pub navchain: bool,
 }
 
 fn session_kind_name(k: SessionKind) -> &'static str {
@@ -259,6 +261,13 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             bail!("--survey moves the arm to its probe poses: add --live");
         }
     }
+    if a.navchain && kind != SessionKind::Kinematic {
+        bail!(
+            "--navchain corrects a kinematic calibration: it is for kinematic sessions (this one \
+             is {})",
+            session_kind_name(kind)
+        );
+    }
     let poses = a.poses.unwrap_or(if camera || rcm { 24 } else { 120 });
     let heldout_points = a
         .heldout_points
@@ -291,6 +300,7 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             .as_ref()
             .map(|_| session::laser::ARM_CALIBRATION.to_string()),
         survey: a.survey,
+        navchain: a.navchain,
     };
     let src = cell_src;
     session::create(dir, setup, src, cell, &spec_text, accept)?;
