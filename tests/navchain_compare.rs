@@ -116,7 +116,11 @@ fn navchain_network_vs_diagnosis_on_simulated_worlds() {
             &model,
             &tr,
             &he,
-            Some(&Options::default()),
+            // The outside-library world's effect is taken out of the library.
+            Some(&Options {
+                exclude_kinds: w.library_without.iter().map(|k| k.to_string()).collect(),
+                ..Options::default()
+            }),
             &NetOptions {
                 epochs: 1500,
                 ..NetOptions::default()
@@ -336,4 +340,27 @@ fn session_navchain_closes_a_kinematic_session_with_the_network() {
         (geo - n.heldout_rms_mm_geometric).abs() < 1e-6,
         "{geo} vs {n:?}"
     );
+}
+
+/// `--navchain` corrects a kinematic calibration: another kind of session is refused before
+/// anything is created.
+#[test]
+fn session_navchain_is_refused_for_a_camera_session() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .args(["session", "--sim"])
+        .arg(root.join("mocks/scenarios/ur5e-camera.toml"))
+        .args(["--kind", "camera", "--navchain", "--plan-only", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(0), "{err}");
+    assert!(
+        err.contains("--navchain") && err.contains("camera"),
+        "{err}"
+    );
+    assert!(!dir.join("session.json").exists());
 }

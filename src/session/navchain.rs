@@ -122,3 +122,112 @@ pub fn html(n: &NavchainSummary) -> String {
         n.heldout_rms_mm_diagnosis.map_or("—".into(), f)
     )
 }
+
+/// Where the session's chain stage writes its calibration with a bootstrap covariance.
+pub const CHAIN_CALIBRATION: &str = "chain/calibration.json";
+
+/// Bootstrap fits of the chain's robot link (subsets of 75 % of the training poses).
+const CHAIN_BOOTSTRAP_K: usize = 100;
+
+/// The robot link of a session's chain report: the calibration file carrying the bootstrap
+/// covariance of the geometric calibration, the joints (deg) it is propagated at, and what
+/// to tell the user.
+#[derive(Debug, Clone)]
+pub struct ChainRobotLink {
+    pub calibration: std::path::PathBuf,
+    pub joints_deg: Vec<f64>,
+    pub notes: Vec<String>,
+}
+
+/// The session's chain robot link (issue 29 §3: the calibration's bootstrap covariance, not
+/// one robot σ): the geometric identification of the training poses is bootstrapped
+/// ([`CHAIN_BOOTSTRAP_K`] fits on 75 % subsets), its parameter covariance written with the
+/// calibration to [`CHAIN_CALIBRATION`] and propagated to the tip at `joints_deg`, or, when
+/// none are given, at the held-out pose whose tool is nearest the CT targets' centroid in the
+/// robot base (`Y · T · x̄`, registration and robot-world files).
+pub fn chain_robot_link(
+    dir: &Path,
+    registration: &Path,
+    robot_world: &Path,
+    targets: &Path,
+    joints_deg: Option<&[f64]>,
+) -> anyhow::Result<ChainRobotLink> {
+    use crate::solve::bootstrap::{bootstrap, BootstrapOptions};
+    let s = SessionFile::load(&dir.join("session.json"))?;
+    let mut work = Work::default();
+    let robot = work
+        .dataset(dir, &s, "train")?
+        .1
+        .dataset
+        .header
+        .robot
+        .clone();
+    let res = work.identification(dir, &s)?;
+    let bo = BootstrapOptions {
+        k: CHAIN_BOOTSTRAP_K,
+        ..Default::default()
+    };
+    let b = bootstrap(res, &[], &bo).context("bootstrapping the session's calibration")?;
+    let mut file = crate::solve::calfile::ident_file(&robot, res);
+    file.extra.insert("datasets".into(), s.dataset_hashes());
+    file.extra.insert(
+        "bootstrap".into(),
+        serde_json::json!({"k": CHAIN_BOOTSTRAP_K, "converged": b.samples.len(),
+            "subset": b.subset_size, "seed": bo.seed, "seconds": b.elapsed_s,
+            "covariance": crate::navchain::BootstrapCovariance::from_samples(&b.names, &b.samples)}),
+    );
+    let path = dir.join(CHAIN_CALIBRATION);
+    std::fs::create_dir_all(path.parent().unwrap_or(dir))?;
+    file.save(&path)
+        .with_context(|| format!("writing {}", path.display()))?;
+    let mut notes = vec![format!(
+        "robot link: bootstrap covariance of the session's geometric calibration ({} of {} fits \
+         on {} of {} training poses, {:.1} s), written to {CHAIN_CALIBRATION}",
+        b.samples.len(),
+        CHAIN_BOOTSTRAP_K,
+        b.subset_size,
+        res.train_obs.len(),
+        b.elapsed_s
+    )];
+    let joints_deg = match joints_deg {
+        Some(q) => q.to_vec(),
+        None => {
+            let reg = crate::register::RegistrationFile::load(registration)?;
+            let (y, _) = crate::register::robot_world::RobotWorldFile::load(robot_world)?.y()?;
+            let t = reg.transform()?;
+            let pts = crate::register::points::read_points_csv(targets)?;
+            anyhow::ensure!(!pts.is_empty(), "{}: no CT target", targets.display());
+            let c = pts
+                .iter()
+                .fold(nalgebra::Vector3::zeros(), |a, p| a + p.p.coords)
+                / pts.len() as f64;
+            let goal = y * (t * nalgebra::Point3::from(c));
+            let (o, d) = res
+                .heldout_obs
+                .iter()
+                .map(|o| {
+                    let p = res.model.tool_pose_in_base(&o.q).translation.vector;
+                    (o, (p - goal.coords).norm())
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .context("no held-out pose to take the joints of the chain's robot link from")?;
+            notes.push(format!(
+                "robot link at the joints of held-out pose {} (tool {d:.1} mm from the targets' \
+                 centroid in the robot base; give --chain-joints-deg for the pose that reaches them)",
+                o.id
+            ));
+            o.q.iter().map(|x| x.to_degrees()).collect()
+        }
+    };
+    if let Some(r) = s.measured.heldout_rms_mm_after {
+        notes.push(format!(
+            "for comparison: the session's measured held-out RMS is {r:.4} mm (tracker noise and \
+             the effects the geometric calibration does not hold included; not in this link)"
+        ));
+    }
+    Ok(ChainRobotLink {
+        calibration: path,
+        joints_deg,
+        notes,
+    })
+}
