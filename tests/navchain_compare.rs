@@ -364,3 +364,93 @@ fn session_navchain_is_refused_for_a_camera_session() {
     );
     assert!(!dir.join("session.json").exists());
 }
+
+/// The head phantom's surface registration as the seed reports it (issue 29 §1, seed 000
+/// §2.3.4 / seed 003): `register --ct-mesh` with mean ± sd of the point-to-surface distance and
+/// the check points (the CT fiducials, left out of the fit, measured in the tracker) with their
+/// errors. The simulated room of `robocal_mocks::navchain` (stereo tracker noise ∝ z²).
+#[test]
+fn register_ct_mesh_reports_surface_distance_and_check_points() {
+    use robocal_mocks::navchain::{phantom_mesh, NavNoise, NavWorld};
+    let tmp = tempfile::tempdir().unwrap();
+    let p = |n: &str| tmp.path().join(n);
+    let noise = NavNoise::default();
+    let mut w = NavWorld::new(7, noise);
+    let (v, t) = phantom_mesh(90, 180);
+    robocal::register::mesh::Mesh {
+        vertices: v
+            .into_iter()
+            .map(|x| nalgebra::Point3::new(x[0], x[1], x[2]))
+            .collect(),
+        triangles: t,
+    }
+    .write_ply(&p("head.ply"))
+    .unwrap();
+    let csv = |path: &Path, pts: &[(String, nalgebra::Point3<f64>)]| {
+        let mut s = String::from("name,x_mm,y_mm,z_mm\n");
+        for (n, q) in pts {
+            s += &format!("{n},{:.9},{:.9},{:.9}\n", q.x, q.y, q.z);
+        }
+        std::fs::write(path, s).unwrap();
+    };
+    let surf: Vec<_> = w
+        .surface_points(200)
+        .into_iter()
+        .enumerate()
+        .map(|(i, q)| (format!("S{i}"), q))
+        .collect();
+    csv(&p("surf.csv"), &surf);
+    csv(&p("check_ct.csv"), &w.ct_fiducials());
+    csv(&p("check_trk.csv"), &w.tracker_fiducials());
+    let start = w.perturbed_start(10.0, 20.0);
+    std::fs::write(
+        p("init.json"),
+        serde_json::json!({"T_tracker_ct": {"matrix": robocal::register::paired::iso_to_rows(&start).to_vec()}})
+            .to_string(),
+    )
+    .unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .arg("register")
+        .arg("--ct-mesh")
+        .arg(p("head.ply"))
+        .arg("--tracker")
+        .arg(p("surf.csv"))
+        .arg("--init")
+        .arg(p("init.json"))
+        .arg("--check-ct")
+        .arg(p("check_ct.csv"))
+        .arg("--check-tracker")
+        .arg(p("check_trk.csv"))
+        .arg("--out")
+        .arg(p("reg.json"))
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    println!("{out}");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let f = robocal::register::RegistrationFile::load(&p("reg.json")).unwrap();
+    let icp = f.icp.as_ref().unwrap();
+    let (m, sd) = (icp.distance_mean_mm.unwrap(), icp.distance_sd_mm.unwrap());
+    // Mean |d| and sd of the inliers, consistent with the file's RMS: rms² = m² + sd²·(n−1)/n.
+    let n = icp.inliers as f64;
+    let rms = (m * m + sd * sd * (n - 1.0) / n).sqrt();
+    assert!(
+        (rms - icp.rms_mm).abs() < 0.05 * icp.rms_mm,
+        "{rms} vs {icp:?}"
+    );
+    assert!(out.contains("point-to-surface distance (inliers)"), "{out}");
+    assert_eq!(f.check_points.len(), w.fiducials.len());
+    // Each check point's error is its CT point through the registration against the tracker's.
+    let t = f.transform().unwrap();
+    for c in &f.check_points {
+        let ct = nalgebra::Point3::from(c.ct);
+        let e = (t * ct - nalgebra::Point3::from(c.tracker)).norm();
+        assert!((e - c.error_mm).abs() < 1e-9);
+        // The registration is within a few mm of the truth at the fiducials (the noise of
+        // localising them in CT and in the tracker, plus the surface fit's TRE).
+        assert!(c.error_mm < 3.0, "{c:?}");
+        let truth = w.t_tracker_ct * ct;
+        assert!((t * ct - truth).norm() < 2.0);
+    }
+    assert!(out.contains("check points:"), "{out}");
+}

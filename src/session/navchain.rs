@@ -221,8 +221,9 @@ pub fn chain_robot_link(
     };
     if let Some(r) = s.measured.heldout_rms_mm_after {
         notes.push(format!(
-            "for comparison: the session's measured held-out RMS is {r:.4} mm (tracker noise and \
-             the effects the geometric calibration does not hold included; not in this link)"
+            "for comparison: the deployed model's measured held-out RMS is {r:.4} mm (validation \
+             run, tracker noise included); this link is the geometric calibration's parameter \
+             uncertainty only"
         ));
     }
     Ok(ChainRobotLink {
