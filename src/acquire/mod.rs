@@ -30,6 +30,7 @@
 pub mod device_check;
 pub mod devices;
 pub mod engine;
+pub mod probe;
 pub mod sample;
 pub mod settle;
 pub mod summary;

@@ -4,13 +4,15 @@
 //!   records with a `target` label), optional `--tracker-model M.json` / `--ct-sigma-mm`;
 //! - surface: `--ct-mesh MESH.ply|.stl --tracker TRK.csv [--init INIT.json]`.
 //!
-//! Writes `registration.json` (`robocal-registration/1`) and prints FRE, FLE and TRE.
+//! Writes `registration.json` (`robocal-registration/1`) and prints FRE, FLE and TRE. The
+//! work is in [`crate::register::from_files`]; this file parses and prints.
 use std::path::PathBuf;
 
 use anyhow::bail;
 
-use crate::register::run::{load_model, surface_file};
-use crate::register::{self as reg, file, icp, mesh, points, RegistrationFile};
+use crate::register::from_files;
+use crate::register::run::surface_file;
+use crate::register::{icp, points, RegistrationFile};
 
 /// Arguments of `robocal register`.
 #[derive(Debug, clap::Args)]
@@ -69,20 +71,13 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         None => Vec::new(),
     };
     let mut file = if let Some(ct) = &a.ct {
-        let ct_pts = points::read_points_csv(ct)?;
-        let trk = match (&a.tracker, &a.tracker_data) {
-            (Some(t), None) => points::read_points_csv(t)?,
-            (None, Some(d)) => {
-                let ds = crate::dataset::Dataset::load(d)?;
-                points::tip_points_from_dataset(&ds, &d.display().to_string())?
-            }
-            _ => bail!("paired mode needs --tracker TRK.csv or --tracker-data D.jsonl"),
-        };
-        let opts = reg::PairedOptions {
-            tracker_model: a.tracker_model.as_deref().map(load_model).transpose()?,
-            ct_sigma_mm: a.ct_sigma_mm,
-        };
-        let r = reg::register_paired(&ct_pts, &trk, &opts)?;
+        let r = from_files::paired(
+            ct,
+            a.tracker.as_deref(),
+            a.tracker_data.as_deref(),
+            a.tracker_model.as_deref(),
+            a.ct_sigma_mm,
+        )?;
         for u in &r.unpaired {
             eprintln!("warning: unpaired fiducial {u}");
         }
@@ -102,20 +97,13 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         let Some(tp) = &a.tracker else {
             bail!("surface mode needs --tracker TRK.csv (digitised surface points)")
         };
-        let m = mesh::read_mesh(mp)?;
-        let pts: Vec<_> = points::read_surface_points(tp)?.into_iter().collect();
-        let xyz: Vec<_> = pts.iter().map(|p| p.p).collect();
-        let init = a.init.as_deref().map(file::load_init).transpose()?;
-        let o = icp::IcpOptions {
-            trim_fraction: a.trim,
-            ..icp::IcpOptions::default()
-        };
-        let r = icp::register_surface(&m, &xyz, init.as_ref(), &o)?;
+        let s = from_files::surface(mp, tp, a.init.as_deref(), a.trim)?;
+        let (r, n) = (&s.result, s.points.len());
         println!(
             "surface registration: {} points ({} inliers, {} dropped as outliers beyond {} robust σ), RMS {:.3} mm, {} starts{}",
-            xyz.len(),
+            n,
             r.inliers,
-            xyz.len() - r.inliers,
+            n - r.inliers,
             icp::ROBUST_CUT,
             r.rms_mm,
             r.starts,
@@ -124,13 +112,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
                 _ => String::new(),
             }
         );
-        surface_file(
-            &r,
-            &pts,
-            &targets,
-            &mp.display().to_string(),
-            o.trim_fraction,
-        )
+        surface_file(r, &s.points, &targets, &mp.display().to_string(), s.trim)
     } else {
         bail!("give --ct CT.csv (paired fiducials) or --ct-mesh MESH (surface)")
     };

@@ -310,6 +310,14 @@ impl RunCell {
 /// error before / after per robot and the mean improvement (also `DIR/fleet.md`).
 pub fn exec(a: Args) -> anyhow::Result<i32> {
     let fleet_dir = match (&a.sim, &a.arm, &a.resume) {
+        #[cfg(not(feature = "sim"))]
+        (Some(sim), None, None) => {
+            return Err(crate::cell::without_simulators(&format!(
+                "--sim {}",
+                sim.display()
+            )))
+        }
+        #[cfg(feature = "sim")]
         (Some(sim), None, None) => {
             let arms = crate::cell::simulated::stated_scenario(sim)?.arms;
             (arms.len() > 1).then(|| {

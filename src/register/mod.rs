@@ -10,6 +10,7 @@
 
 pub mod check;
 pub mod file;
+pub mod from_files;
 pub mod icp;
 pub mod mesh;
 pub mod paired;

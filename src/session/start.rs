@@ -6,7 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _};
 
-use crate::cell::describe::{describe_devices, describe_scenario};
+use crate::cell::describe::describe_devices;
+#[cfg(feature = "sim")]
+use crate::cell::describe::describe_scenario;
 use crate::session::{self, AcceptSpec, Mode, SessionKind, SessionSetup};
 
 /// The default plan spec (seed 001 annulus).
@@ -80,6 +82,14 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
         bail!("--out DIR is required (or --resume DIR)");
     };
     let (mode, cell, cell_file, scenario_text, kind) = match (&a.sim, &a.devices) {
+        #[cfg(not(feature = "sim"))]
+        (Some(s), None) => {
+            return Err(crate::cell::without_simulators(&format!(
+                "--sim {}",
+                s.display()
+            )))
+        }
+        #[cfg(feature = "sim")]
         (Some(s), None) => {
             let arms = crate::cell::simulated::stated_scenario(s)?.arms;
             if arms.len() > 1 && a.arm.is_none() {
