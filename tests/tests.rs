@@ -8,6 +8,7 @@ mod camera_predict;
 mod camera_run;
 mod camera_session;
 mod capture;
+mod cell_safety;
 mod cli;
 mod common;
 mod correct_tool;

@@ -256,8 +256,16 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         }
         listing.push(entry);
     }
+    if let Some(sf) = &file.safety {
+        if !args.json {
+            println!("[safety]     {}", sf.summary());
+        }
+    }
     if args.json {
-        println!("{}", serde_json::json!({ "devices": listing }));
+        println!(
+            "{}",
+            serde_json::json!({ "devices": listing, "safety": file.safety })
+        );
     }
     if failures > 0 {
         anyhow::bail!(
