@@ -41,5 +41,6 @@ mod run_integrity;
 mod session;
 mod soak;
 mod solve;
+mod teach_board;
 mod wire_cell;
 mod world_vs_model;

@@ -18,6 +18,7 @@ pub mod accept;
 pub mod approach;
 pub mod briefing;
 pub mod camera;
+pub mod camera_intervals;
 pub mod camera_plots;
 pub mod deploy;
 pub mod deploy_score;
