@@ -3,52 +3,26 @@
 //! `session --live` before consent) naming the field; `run --live` refuses a plan wider than
 //! the block before consent, naming the limit; `session --live` plans inside the block.
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 
-fn run(args: &[&str]) -> (Option<i32>, String, String) {
-    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
-        .env("ROBOCAL_LOG", "warn")
-        .stdin(Stdio::null())
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        o.status.code(),
-        String::from_utf8_lossy(&o.stdout).into_owned(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
-}
+use crate::common::{bin as run, root, s as p};
 
-fn p(path: &Path) -> &str {
-    path.to_str().unwrap()
-}
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// A cell folder `dir/name` whose device file (DENSO VS060 on b-CAP, Polaris Vega with the
-/// shipped tool file, both at closed local ports) ends with `safety`.
+/// A cell folder `dir/name/cell` whose device file (DENSO VS060 on b-CAP, Polaris Vega with
+/// the shipped tool file, both at closed local ports) ends with `safety`.
 fn cell(dir: &Path, name: &str, safety: &str) -> PathBuf {
-    let cell = dir.join(name);
-    std::fs::create_dir_all(cell.join("tools")).unwrap();
-    std::fs::copy(
-        root().join("examples/tools/flange-marker.rom"),
-        cell.join("tools/flange-marker.rom"),
+    crate::live_session::cell(
+        &dir.join(name),
+        "127.0.0.1:1",
+        "127.0.0.1:2",
+        &format!("tools = [\"tools/flange-marker.rom\"]\n\n{safety}"),
     )
-    .unwrap();
-    let f = cell.join("CELL.toml");
-    std::fs::write(
-        &f,
-        format!(
-            "[[device]]\nname = \"vs060\"\nrole = \"arm\"\nvendor = \"denso\"\nprotocol = \
-             \"bcap\"\nmodel = \"denso-vs060\"\naddress = \"127.0.0.1:1\"\n\n[[device]]\nname = \
-             \"vega\"\nrole = \"tracker\"\nvendor = \"ndi\"\nprotocol = \"ndi-tcp\"\naddress = \
-             \"127.0.0.1:2\"\ntools = [\"tools/flange-marker.rom\"]\n\n{safety}\n"
-        ),
+}
+
+/// A `[safety]` block with joint 1's limits `j1` and the preset's for the others.
+fn joints(j1: &str) -> String {
+    format!(
+        "[safety]\njoint_limits_deg = [{j1}, [-120, 120], [-125, 155], [-270, 270], [-120, 120], \
+         [-360, 360]]\n"
     )
-    .unwrap();
-    f
 }
 
 /// The seed 001 spec's own limits: table z = 0 mm + 50 mm, cylinder r 900 mm, z 0…1100 mm.
@@ -59,6 +33,7 @@ const SAME_AS_SPEC: &str = "[safety]\ntable_z_mm = 0.0\ntable_clearance_mm = 50.
 #[test]
 fn device_safety_block_each_refusal_names_the_field() {
     let tmp = tempfile::tempdir().unwrap();
+    let (wide, unordered) = (joints("[-180, 180]"), joints("[170, -170]"));
     let cases = [
         (
             "metres",
@@ -74,14 +49,12 @@ fn device_safety_block_each_refusal_names_the_field() {
         ),
         (
             "wider-joints",
-            "[safety]\njoint_limits_deg = [[-180, 180], [-120, 120], [-125, 155], [-270, 270], \
-             [-120, 120], [-360, 360]]\n",
+            wide.as_str(),
             "joint_limits_deg[0] = [-180, 180] is wider than the denso-vs060's own limit",
         ),
         (
             "unordered-joints",
-            "[safety]\njoint_limits_deg = [[170, -170], [-120, 120], [-125, 155], [-270, 270], \
-             [-120, 120], [-360, 360]]\n",
+            unordered.as_str(),
             "lower must be below upper",
         ),
         (
@@ -155,6 +128,7 @@ fn run_live_refuses_a_plan_wider_than_the_cells_block() {
         p(&plan),
     ]);
     assert_eq!(code, Some(0), "{stderr}");
+    let narrow = joints("[-20, 20]");
     let cases = [
         (
             "table",
@@ -169,8 +143,7 @@ fn run_live_refuses_a_plan_wider_than_the_cells_block() {
         ),
         (
             "joints",
-            "[safety]\njoint_limits_deg = [[-20, 20], [-120, 120], [-125, 155], [-270, 270], \
-             [-120, 120], [-360, 360]]\n",
+            narrow.as_str(),
             "is outside the cell's joint limit [-20, 20]°",
         ),
         (
@@ -179,20 +152,23 @@ fn run_live_refuses_a_plan_wider_than_the_cells_block() {
             "above the cell's limit of 30 deg/s",
         ),
     ];
-    for (name, block, want) in cases {
-        let file = cell(tmp.path(), name, block);
-        let out = tmp.path().join(format!("{name}-run"));
-        let (code, stdout, stderr) = run(&[
+    let run_live = |file: &Path, out: &Path| {
+        run(&[
             "run",
             "--plan",
             p(&plan),
             "--devices",
-            p(&file),
+            p(file),
             "--live",
             "--yes",
             "--out",
-            p(&out),
-        ]);
+            p(out),
+        ])
+    };
+    for (name, block, want) in cases {
+        let file = cell(tmp.path(), name, block);
+        let out = tmp.path().join(format!("{name}-run"));
+        let (code, stdout, stderr) = run_live(&file, &out);
         assert_eq!(code, Some(1), "{name}: {stdout}\n{stderr}");
         assert!(stderr.contains(want), "{name}: want {want:?} in:\n{stderr}");
         assert!(
@@ -205,17 +181,7 @@ fn run_live_refuses_a_plan_wider_than_the_cells_block() {
     // A block the plan fits passes the checks: the run asks, then fails only to connect.
     let file = cell(tmp.path(), "same", SAME_AS_SPEC);
     let out = tmp.path().join("same-run");
-    let (code, _, stderr) = run(&[
-        "run",
-        "--plan",
-        p(&plan),
-        "--devices",
-        p(&file),
-        "--live",
-        "--yes",
-        "--out",
-        p(&out),
-    ]);
+    let (code, _, stderr) = run_live(&file, &out);
     assert_eq!(code, Some(1), "{stderr}");
     assert!(stderr.contains("will move the arm"), "{stderr}");
     assert!(!stderr.contains("never wider"), "{stderr}");

@@ -3,30 +3,8 @@
 //! pendant holds it; robocal only reads the joints) through four poses where the camera sees
 //! the board; their images alone (intrinsics, Tsai–Lenz hand-eye) locate the board in the base
 //! and the shell of viewpoints is centred on it.
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 
-fn run(args: &[&str]) -> (Option<i32>, String, String) {
-    let o = Command::new(env!("CARGO_BIN_EXE_robocal"))
-        .env("ROBOCAL_LOG", "warn")
-        .stdin(Stdio::null())
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        o.status.code(),
-        String::from_utf8_lossy(&o.stdout).into_owned(),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
-}
-
-fn p(path: &Path) -> &str {
-    path.to_str().unwrap()
-}
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+use crate::common::{bin as run, root, s as p};
 
 #[test]
 fn teach_board_locates_the_board_from_four_hand_guided_views() {
