@@ -105,6 +105,11 @@ pub struct Args {
     /// the physical diagnosis (report, `navchain/calibration.json`).
     #[arg(long, conflicts_with = "resume")]
     pub navchain: bool,
+    /// Camera sessions (seed 004): before planning, the operator guides the arm by hand to N
+    /// poses (4: the seed's) where the camera sees the whole board; their images locate the
+    /// board in the base and the shell of viewpoints is centred on it. Nothing is commanded.
+    #[arg(long, value_name = "N", conflicts_with = "resume")]
+    pub teach_board: Option<usize>,
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -246,6 +251,28 @@ impl session::Cell for RunCell {
 
     fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
         self.run_plan(plan, run_dir, None)
+    }
+
+    fn teach_views(
+        &mut self,
+        count: usize,
+        log: session::Log,
+    ) -> anyhow::Result<Vec<session::teach::TaughtView>> {
+        let live = self.mode == Mode::Live;
+        let consent = live
+            .then(|| {
+                crate::cell::confirm_live(true, self.yes, "teach: robocal reads the arm's joints and the camera while you guide the arm by hand (nothing is commanded)")
+            })
+            .transpose()?;
+        let mode = if live { "live" } else { "sim" };
+        session::teach::capture_views(
+            mode,
+            &self.cell_file,
+            count,
+            self.in_process,
+            consent.as_ref(),
+            log,
+        )
     }
 }
 
@@ -483,6 +510,7 @@ fn start_options(a: &Args) -> session::start::StartOptions {
         arm_calibration: a.arm_calibration.clone(),
         survey: a.survey,
         navchain: a.navchain,
+        teach_board: a.teach_board,
     }
 }
 
