@@ -2,6 +2,7 @@
 //! Each area adds a module here.
 mod acquire;
 mod bad_input;
+mod bad_input_trust;
 mod camera_calib;
 mod camera_charuco;
 mod camera_predict;
@@ -18,6 +19,7 @@ mod diagnose_predict;
 mod e2e;
 mod import;
 mod laser;
+mod laser_predict;
 mod laser_session;
 mod laser_world;
 mod live_session;

@@ -65,6 +65,11 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             "{what} must be a positive number, got {v}"
         );
     }
+    match args.format {
+        Format::Urscript => correct::check_script_motion(true, args.speed, args.accel)?,
+        Format::Pacscript => correct::check_script_motion(false, args.speed, args.accel)?,
+        Format::Csv => {}
+    }
     if !cal.effects.is_empty() {
         eprintln!(
             "warning: {}: {} effect(s) beyond the geometry are not inverted by `correct` \

@@ -15,6 +15,7 @@ pub mod charuco;
 pub mod clock;
 pub mod control;
 pub mod effects;
+pub mod gear;
 pub mod motion;
 pub mod operator;
 pub mod rcm_view;
@@ -875,9 +876,12 @@ impl WorldHandle {
                 return RangeReading::OutOfRange;
             }
             let e = &l.cfg.effects;
+            let u = (hit.distance_mm - 0.5 * (l.cfg.min_mm + l.cfg.max_mm))
+                / (0.5 * (l.cfg.max_mm - l.cfg.min_mm)).max(1e-9);
             let m = hit.distance_mm * (1.0 + e.scale_ppm * 1e-6)
                 + e.offset_mm
                 + e.incidence_mm * (1.0 - cos_g)
+                + e.nonlinearity_mm * u * u
                 + e.noise_mm * normal(&mut l.rng);
             if m < l.cfg.min_mm || m > l.cfg.max_mm {
                 RangeReading::OutOfRange
@@ -1045,7 +1049,8 @@ fn observe(
     if !sensors::in_volume(tr.volume, &p) {
         return ToolStatus::OutOfVolume;
     }
-    let scaled = p.coords * (1.0 + eff.scale_ppm * 1e-6);
+    let mut scaled = p.coords * (1.0 + eff.scale_ppm * 1e-6);
+    scaled.z += p.z * eff.depth_scale_ppm * 1e-6;
     let los = scaled.normalize();
     let e1 = los
         .cross(&Vector3::x())
