@@ -98,6 +98,7 @@ pub fn describe_devices(path: &Path) -> anyhow::Result<(CellDescription, Session
             .collect(),
         marker_on_flange: tracker.and_then(|t| t.marker_on_flange).map(pose_frame),
         geometry: tracker.and_then(device_geometry),
+        safety: f.safety.clone(),
         ..Default::default()
     };
     Ok((cell, kind))

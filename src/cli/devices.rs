@@ -50,9 +50,17 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             print_report(r);
         }
     })?;
+    if let Some(sf) = &file.safety {
+        if !json {
+            println!("[safety]     {}", sf.summary());
+        }
+    }
     if args.json {
         let listing: Vec<_> = reports.iter().map(DeviceReport::to_json).collect();
-        println!("{}", serde_json::json!({ "devices": listing }));
+        println!(
+            "{}",
+            serde_json::json!({ "devices": listing, "safety": file.safety })
+        );
     }
     let failures = reports.iter().filter(|r| r.failed()).count();
     if failures > 0 {

@@ -46,6 +46,13 @@ pub struct Args {
     /// the surface) and says how many; 1.0 keeps every point.
     #[arg(long, default_value_t = 0.9)]
     pub trim: f64,
+    /// Check points in CT (CSV `name,x_mm,y_mm,z_mm`), not used by the fit: their error
+    /// through the registration against `--check-tracker` (paired by name) is reported.
+    #[arg(long, value_name = "C.csv", requires = "check_tracker")]
+    pub check_ct: Option<PathBuf>,
+    /// The same check points measured in the tracker (e.g. probe tip on the landmarks).
+    #[arg(long, value_name = "C.csv", requires = "check_ct")]
+    pub check_tracker: Option<PathBuf>,
     /// CT targets (CSV `name,x_mm,y_mm,z_mm`) to predict the TRE at.
     #[arg(long, value_name = "T.csv")]
     pub targets: Option<PathBuf>,
@@ -63,7 +70,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             .collect(),
         None => Vec::new(),
     };
-    let file = if let Some(ct) = &a.ct {
+    let mut file = if let Some(ct) = &a.ct {
         let r = from_files::paired(
             ct,
             a.tracker.as_deref(),
@@ -109,6 +116,30 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     } else {
         bail!("give --ct CT.csv (paired fiducials) or --ct-mesh MESH (surface)")
     };
+    if let Some(i) = &file.icp {
+        if let (Some(m), Some(sd)) = (i.distance_mean_mm, i.distance_sd_mm) {
+            println!("point-to-surface distance (inliers): {m:.3} ± {sd:.3} mm (mean ± sd)");
+        }
+    }
+    if let (Some(c), Some(t)) = (&a.check_ct, &a.check_tracker) {
+        let (cp, unpaired) = crate::register::check::check_points(
+            &file.transform()?,
+            &points::read_points_csv(c)?,
+            &points::read_points_csv(t)?,
+            (&c.display().to_string(), &t.display().to_string()),
+        )?;
+        for u in &unpaired {
+            eprintln!("warning: check point {u} on one side only");
+        }
+        let e: Vec<f64> = cp.iter().map(|x| x.error_mm).collect();
+        let (m, sd) = crate::register::check::mean_sd(&e);
+        println!(
+            "check points: {}, error {m:.3} ± {sd:.3} mm (mean ± sd), max {:.3} mm",
+            cp.len(),
+            e.iter().cloned().fold(0.0, f64::max)
+        );
+        file.check_points = cp;
+    }
     for t in &file.targets {
         println!(
             "target {}: predicted TRE {:.3} mm RMS, 95 % ellipsoid {:.3} x {:.3} x {:.3} mm",

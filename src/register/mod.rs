@@ -8,6 +8,7 @@
 //!
 //! The end-to-end error transfer to a CT target lives in [`crate::navchain`].
 
+pub mod check;
 pub mod file;
 pub mod from_files;
 pub mod icp;

@@ -120,6 +120,7 @@ fn stated_arm(path: &Path, a: &robocal_mocks::stated::StatedArm) -> StatedArm {
                 table_z_mm: s.table_z_mm,
                 table_clearance_mm: s.table_clearance_mm.unwrap_or(0.0),
                 envelope: s.envelope.clone(),
+                joint_limits_deg: None,
             }),
         },
         vel: Some(CellLimit {
