@@ -20,7 +20,7 @@ use nalgebra::{Isometry3, Matrix3};
 
 use super::geom::Intrinsics;
 use super::problem::{BoardModel, Layout, Obs, Reproj};
-use super::select::ties;
+use super::select::{ties, PerView};
 use super::{pnp, rms, view_h, zhang, CameraError, DistModel};
 use crate::solve::lm::{minimize, LmOptions, Termination};
 
@@ -105,7 +105,7 @@ pub fn choose(
     }
     let folds = FOLDS.min(n);
     // Per model: every view's (squared error sum, corner count) when predicted.
-    let mut cv: Vec<(DistModel, Option<Vec<(f64, usize)>>)> = vec![];
+    let mut cv: Vec<(DistModel, Option<PerView>)> = vec![];
     for &m in models {
         let mut per = vec![(0.0, 0usize); n];
         let mut ok = folds >= 2;
