@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of every wire decoder and file reader (dataset, calibration, plan,
 # plan spec, scenario, device file, RCM / robot-world / camera datasets, registration, mesh,
-# accept spec, point tables, laser datasets, session record), a short fixed time each.
+# accept spec, point tables, laser datasets, session record, `correct` targets), a short fixed time each.
 # Installs cargo-fuzz when missing. `--sanitizer none` works on the stable toolchain.
 # Usage: bash .ci/fuzz.sh [seconds-per-target]   (default 25)
 set -euo pipefail
@@ -38,6 +38,7 @@ seed registration ../tests/data/*/*.csv
 seed points_csv ../tests/data/*/*.csv
 seed laser ../tests/data/laser-planes/*.jsonl
 seed session seeds/session/*
+seed correct_targets seeds/correct_targets/*
 # Build every target in one cargo invocation (links run in parallel), then run each.
 echo "== fuzz build (all targets)"
 cargo fuzz build --sanitizer none > ../target/fuzz-build.log 2>&1 || { tail -40 ../target/fuzz-build.log; echo "fuzz build FAILED"; exit 1; }

@@ -525,6 +525,109 @@ def issue26_round3(P, j, small, good, cal, lgood, lheldp):
         b(f"predict: camera calibration {name}", ["predict", "--calibration", camvar("cam-" + name.split()[0], f), "--data", good], exp)
 
 
+def issue26_round5(P, j, good, cal, lgood):
+    """Issue 26, fifth round: `correct` (targets and robot-program options), tracker points
+    on one plane for `register --ct-mesh`, `.rom` tool files of a device file, camera images
+    that cannot be read."""
+    b = P.run
+    os.makedirs(j("r5"), exist_ok=True)
+    k = lambda *p: j("r5", *p)  # noqa: E731
+
+    # ---- correct: targets and robot-program options (§3, §5)
+    def targets(name, rows, head="name,x_mm,y_mm,z_mm,qw,qx,qy,qz"):
+        path = k(name + ".csv")
+        with open(path, "w") as f:
+            f.write(head + "\n")
+            for r in rows:
+                f.write(",".join(str(x) for x in r) + "\n")
+        return path
+    tgood = targets("t-good", [["A", 400, 0, 300, 0, 1, 0, 0], ["B", 380, 60, 320, 0, 1, 0, 0]])
+    c = ["correct", "--calibration", cal, "--targets"]
+    b("ctl correct", c + [tgood], good=True)
+    b("ctl correct --format urscript", c + [tgood, "--format", "urscript", "--speed", "0.5", "--accel", "1.0"], good=True)
+    b("ctl correct --format pacscript", c + [tgood, "--format", "pacscript", "--speed", "20"], good=True)
+    for name, rows, exp in [
+            ("targets in metres", [["A", 0.4, 0, 0.3, 0, 1, 0, 0], ["B", 0.38, 0.06, 0.32, 0, 1, 0, 0]], ["metres"]),
+            ("targets 1e308", [["A", 1e308, 0, 300, 0, 1, 0, 0]], ["x_mm"]),
+            ("target NaN", [["A", "NaN", 0, 300, 0, 1, 0, 0]], ["not finite"]),
+            ("quaternion norm 2", [["A", 400, 0, 300, 0, 2, 0, 0]], ["quaternion"]),
+            ("quaternion zero", [["A", 400, 0, 300, 0, 0, 0, 0]], ["quaternion"]),
+            ("Euler angles in the quaternion", [["A", 400, 0, 300, 180, 0, 90, 0]], ["quaternion"]),
+            ("target out of reach", [["A", 5000, 0, 300, 0, 1, 0, 0]], ["unreachable"]),
+            ("branch 9", [["A", 400, 0, 300, 0, 1, 0, 0, 9]], ["branch"]),
+            ("row with a missing field", [["A", 400, 0, 300, 0, 1, 0]], ["line", "field"]),
+            ("no rows", [], ["no target"])]:
+        head = "name,x_mm,y_mm,z_mm,qw,qx,qy,qz" + (",branch" if name == "branch 9" else "")
+        b(f"correct: {name}", c + [targets("t-" + name.split()[0] + str(len(name)), rows, head)], exp)
+    b("correct: header without qw", c + [targets("t-noqw", [["A", 400, 0, 300, 1, 0, 0]], "name,x_mm,y_mm,z_mm,qx,qy,qz")], ["qw"])
+    b("correct: header in metres", c + [targets("t-m", [["A", 0.4, 0, 0.3, 0, 1, 0, 0]], "name,x_m,y_m,z_m,qw,qx,qy,qz")], ["x_mm"])
+    for name, extra, exp in [
+            ("urscript --speed 30 (deg/s as rad/s)", ["--format", "urscript", "--speed", "30"], ["rad/s"]),
+            ("urscript --speed 1e9", ["--format", "urscript", "--speed", "1e9"], ["rad/s"]),
+            ("urscript --accel 1000", ["--format", "urscript", "--accel", "1000"], ["rad/s²"]),
+            ("pacscript --speed 500", ["--format", "pacscript", "--speed", "500"], ["percentage"]),
+            ("--speed NaN", ["--format", "urscript", "--speed=NaN"], ["speed"]),
+            ("--speed -1", ["--format", "urscript", "--speed=-1"], ["speed"]),
+            ("--wait inf", ["--format", "urscript", "--wait=inf"], ["wait"])]:
+        b(f"correct: {name}", c + [tgood] + extra, exp)
+    b("correct: laser calibration", ["correct", "--calibration", j("o-las", "calibration.json"), "--targets", tgood], ["kinematic"])
+    b("correct: calibration is a dataset", ["correct", "--calibration", good, "--targets", tgood], ["calibration"])
+    b("correct: targets file is a directory", c + [k()], ["directory"])
+
+    # ---- register --ct-mesh with tracker points on one plane: unconstrained directions (§3)
+    tris, z = bumpy_surface(1.0)
+    mesh = ascii_stl(k("mesh.stl"), tris)
+    rng = random.Random(11)
+    flat = k("flat.csv")
+    with open(flat, "w") as f:
+        f.write("name,x_mm,y_mm,z_mm\n")
+        for i in range(60):
+            f.write(f"f{i},{rng.uniform(-50, 50)},{rng.uniform(-50, 50)},{40.0 + rng.gauss(0, 0.05)}\n")
+    line = k("line.csv")
+    with open(line, "w") as f:
+        f.write("name,x_mm,y_mm,z_mm\n")
+        for i in range(40):
+            x = -50 + 2.5 * i
+            f.write(f"l{i},{x},{0.0},{z(x, 0.0)}\n")
+    b("register --ct-mesh: tracker points on one flat plane", ["register", "--ct-mesh", mesh, "--tracker", flat, "--out", k("reg-flat.json")], ["unconstrained", "plane", "slide"], timeout=120)
+    b("register --ct-mesh: tracker points along one line", ["register", "--ct-mesh", mesh, "--tracker", line, "--out", k("reg-line.json")], ["unconstrained", "line", "slide"], timeout=120)
+
+    # ---- device file: the tracker's `.rom` tool files (§5)
+    cell = k("cell")
+    os.makedirs(os.path.join(cell, "tools"), exist_ok=True)
+    text = open(os.path.join(ROOT, "examples/CELL.toml")).read()
+    for name, setup, exp in [
+            ("missing .rom", lambda: None, ["rom"]),
+            (".rom is a directory", lambda: os.makedirs(os.path.join(cell, "tools", "flange-marker.rom"), exist_ok=True), ["rom"]),
+    ]:
+        setup()
+        dev = os.path.join(cell, "CELL.toml")
+        open(dev, "w").write(text)
+        b(f"devices --probe: {name}", ["devices", "--devices", dev, "--probe", "--timeout-s", "1"], exp, timeout=30)
+    os.rmdir(os.path.join(cell, "tools", "flange-marker.rom"))
+    open(os.path.join(cell, "tools", "flange-marker.rom"), "wb").write(bytes([0x5a]) * 752)
+    b("devices --probe: garbage .rom", ["devices", "--devices", os.path.join(cell, "CELL.toml"), "--probe", "--timeout-s", "1"], ["rom"], timeout=30)
+
+    # ---- camera images that cannot be read: each named with its reason (§6)
+    hdr = {"format": "robocal-dataset/1", "robot": {"model": "ur5e"},
+           "camera": {"kind": "mono", "width": 640, "height": 480, "mount": "flange"},
+           "target": {"kind": "chessboard", "cols": 9, "rows": 6, "square_mm": 30.0}}
+    imgs = k("imgs")
+    os.makedirs(os.path.join(imgs, "adir.png"), exist_ok=True)
+    open(os.path.join(imgs, "garbage.png"), "wb").write(bytes(range(256)) * 8)
+    open(os.path.join(imgs, "trunc.pgm"), "wb").write(b"P5\n640 480\n255\n" + bytes(1000))
+    open(os.path.join(imgs, "small.pgm"), "wb").write(b"P5\n64 48\n255\n" + bytes(64 * 48))
+    open(os.path.join(imgs, "empty.png"), "wb").write(b"")
+    names = ["missing.png", "adir.png", "garbage.png", "trunc.pgm", "small.pgm", "empty.png", "/etc/passwd"]
+    rows = [hdr]
+    for i, n in enumerate(names * 2):
+        rows.append({"kind": "pose", "id": i, "t": float(i), "q": [0, -90, 90, 0, 90, 0],
+                     "image": n if n.startswith("/") else "imgs/" + n})
+    camds = write_jsonl(k("cam.jsonl"), rows)
+    b("calibrate camera: no image readable (missing, directory, garbage, truncated, wrong size, empty, /etc/passwd)",
+      ["calibrate", "camera", "--data", camds, "--out", k("cam-out")], ["missing", "not an image", "truncated", "directory"], timeout=60)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--bin", default=os.path.join(ROOT, "target/debug/robocal"))
@@ -770,6 +873,7 @@ def main():
 
     issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood)
     issue26_round3(P, j, small, good, cal, lgood, lheldp)
+    issue26_round5(P, j, good, cal, lgood)
 
     # ---- summary
     cats = {}

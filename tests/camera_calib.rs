@@ -25,7 +25,7 @@ fn s(p: &Path) -> &str {
 
 /// The UR5e camera scenario with a perfect arm (the hand-eye then has an exact truth) and the
 /// board's true square `square`.
-fn scenario(dir: &Path, square: f64) -> PathBuf {
+pub(crate) fn scenario(dir: &Path, square: f64) -> PathBuf {
     let text = std::fs::read_to_string(root().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
     let text = text
         .replace(

@@ -11,7 +11,7 @@ use robocal::plan::rcm::{generate, RcmPlanSpec};
 use robocal::solve::rcm::{self, RcmData, RcmError, RcmObs};
 use robocal_mocks::rcm::{RcmCell, RcmScenario};
 
-fn cell() -> RcmCell {
+pub(crate) fn cell() -> RcmCell {
     RcmCell::new(RcmScenario::builtin())
 }
 
@@ -62,7 +62,7 @@ fn observe(cell: &RcmCell, poses: &[Isometry3<f64>], sigma: f64, seed: u64) -> R
     RcmData::new(camera(cell), cell.scenario.instrument.shaft_radius_mm, obs)
 }
 
-fn planned(cell: &RcmCell, pivot: f64, n: usize) -> Vec<Isometry3<f64>> {
+pub(crate) fn planned(cell: &RcmCell, pivot: f64, n: usize) -> Vec<Isometry3<f64>> {
     let m = KinematicModel::preset("ur5e").unwrap();
     generate(&spec(cell, pivot, n, 3), Some(&m))
         .unwrap()

@@ -312,6 +312,10 @@ pub struct TrackerEffects {
     /// Scale error of every reading about the tracker origin (ppm).
     #[serde(default)]
     pub scale_ppm: f64,
+    /// Scale error of the depth (the tracker's z axis, its viewing axis) alone (ppm): a
+    /// camera-bar baseline error.
+    #[serde(default)]
+    pub depth_scale_ppm: f64,
     /// Measurement volume (default: the kind's pyramid).
     #[serde(default)]
     pub volume: Option<VolumeKind>,
@@ -384,6 +388,10 @@ pub struct LaserEffects {
     /// Incidence bias: reading += incidence_mm · (1 − cos γ).
     #[serde(default)]
     pub incidence_mm: f64,
+    /// Range nonlinearity, a bow over the measuring range: reading += nonlinearity_mm · u²,
+    /// u = (d − mid) / half (−1 at `min_mm`, +1 at `max_mm`).
+    #[serde(default)]
+    pub nonlinearity_mm: f64,
 }
 
 /// A laser displacement sensor on one arm's flange.
@@ -711,7 +719,16 @@ impl Scenario {
             }
         }
         if let Some(op) = &self.operator {
-            if !self.trackers.iter().any(|t| t.name == op.tracker) {
+            let probe = op.steps.iter().any(|s| {
+                matches!(
+                    s,
+                    crate::world::operator::Step::Pivot { .. }
+                        | crate::world::operator::Step::Touch { .. }
+                )
+            });
+            if (probe || !op.tracker.is_empty())
+                && !self.trackers.iter().any(|t| t.name == op.tracker)
+            {
                 return bad(format!(
                     "operator.tracker: no tracker named {:?}",
                     op.tracker

@@ -67,6 +67,11 @@ pub struct SynthConfig {
     pub arm: usize,
     /// Tracker index.
     pub tracker: usize,
+    /// Measure on the fly instead of stop-and-measure: one tracker frame taken at this
+    /// fraction (0–1) of each move, with the joint state of the same instant, and the
+    /// records carry the joint velocities `qd` (deg/s). `None`: settle, then average
+    /// `frames_per_pose` frames.
+    pub in_motion: Option<f64>,
 }
 
 impl Default for SynthConfig {
@@ -86,6 +91,7 @@ impl Default for SynthConfig {
             created: "2026-11-21T08:00:00Z".into(),
             arm: 0,
             tracker: 0,
+            in_motion: None,
         }
     }
 }
@@ -204,6 +210,23 @@ pub fn effects_list(world: &WorldHandle, arm: usize, tracker: Option<usize>) -> 
                 "expansion_per_k": t.expansion_per_k, "offset_drift_deg_per_k": t.offset_drift_deg_per_k,
                 "t_power_on_s": t.t_power_on_s}));
         }
+        for r in &e.ripple {
+            v.push(
+                json!({"kind": "transmission_ripple", "joint": r.joint, "harmonic": r.harmonic,
+                "amplitude_deg": r.amplitude_deg, "phase_deg": r.phase_deg}),
+            );
+        }
+        for c in &e.coupling {
+            v.push(json!({"kind": "joint_coupling", "joint": c.joint, "driver": c.driver,
+                "harmonic": c.harmonic, "amplitude_deg": c.amplitude_deg, "phase_deg": c.phase_deg}));
+        }
+        for w in &e.wave_generator {
+            v.push(json!({"kind": "wave_generator", "joint": w.joint, "gear_ratio": w.gear_ratio,
+                "harmonic": w.harmonic, "amplitude_deg": w.amplitude_deg, "phase_deg": w.phase_deg}));
+        }
+        for c in &e.nonlinear_compliance {
+            v.push(json!({"kind": "nonlinear_compliance", "joint": c.joint, "rad_per_nm2": c.rad_per_nm2}));
+        }
         if e.servo_error_deg > 0.0 {
             v.push(json!({"kind": "servo_error", "servo_error_deg": e.servo_error_deg}));
         }
@@ -212,6 +235,9 @@ pub fn effects_list(world: &WorldHandle, arm: usize, tracker: Option<usize>) -> 
         let e = &t.effects;
         if e.scale_ppm != 0.0 {
             v.push(json!({"kind": "tracker_scale", "scale_ppm": e.scale_ppm}));
+        }
+        if e.depth_scale_ppm != 0.0 {
+            v.push(json!({"kind": "tracker_depth_scale", "depth_scale_ppm": e.depth_scale_ppm}));
         }
         if let Some(b) = &e.base_bump {
             v.push(json!({"kind": "base_shift", "t_s": b.t_s, "shift_mm": b.shift_mm, "rot_deg": b.rot_deg}));
@@ -368,13 +394,46 @@ pub fn synthesize(world: &WorldHandle, cfg: &SynthConfig) -> Result<SynthOutput,
         let q_from = world.arm_joint_state(arm).q;
         world.arm_start_move(arm, q_cmd, cfg.speed)?;
         let end = world.arm_motion_end(arm);
-        world.advance(end - world.now());
-        let js = world.arm_joint_state(arm);
-        let approach = world.truth().arms[arm].approach.clone();
-        let flange = world.arm_controller_flange(arm);
-        let marker_true = world.marker_truth(tracker);
-        let avg = average_frames(world, tracker, cfg.frames_per_pose);
-        let t = world.now();
+        let (js, approach, flange, marker_true, avg) =
+            match cfg.in_motion {
+                Some(f) => {
+                    // The frame advances the clock by one frame period first: start one period
+                    // early so that the frame and the joint state are of the same instant.
+                    let period = world.tracker_info(tracker).map_or(0.0, |(_, r)| {
+                        if r > 0.0 {
+                            1.0 / r
+                        } else {
+                            0.0
+                        }
+                    });
+                    let at = world.now() + f.clamp(0.0, 1.0) * (end - world.now()) - period;
+                    if at > world.now() {
+                        world.advance(at - world.now());
+                    }
+                    let avg = average_frames(world, tracker, 1);
+                    let js = world.arm_joint_state(arm);
+                    let approach = world.truth().arms[arm].approach.clone();
+                    let flange = world.arm_controller_flange(arm);
+                    let marker_true = world.marker_truth(tracker);
+                    // Finish the move before the next one.
+                    world.advance((end - world.now()).max(0.0));
+                    (js, approach, flange, marker_true, avg)
+                }
+                None => {
+                    world.advance(end - world.now());
+                    let js = world.arm_joint_state(arm);
+                    let approach = world.truth().arms[arm].approach.clone();
+                    let flange = world.arm_controller_flange(arm);
+                    let marker_true = world.marker_truth(tracker);
+                    let avg = average_frames(world, tracker, cfg.frames_per_pose);
+                    (js, approach, flange, marker_true, avg)
+                }
+            };
+        let t = if cfg.in_motion.is_some() {
+            js.t
+        } else {
+            world.now()
+        };
         let mut rec = json!({
             "kind": "pose", "id": id, "t": t, "point": id, "branch": 0,
             "group": if validation { "validation" } else { "train" },
@@ -389,6 +448,9 @@ pub fn synthesize(world: &WorldHandle, cfg: &SynthConfig) -> Result<SynthOutput,
         };
         rec["marker"] = marker;
         rec["approach"] = json!(approach);
+        if let (Some(_), Some(qd)) = (cfg.in_motion, &js.qd) {
+            rec["qd"] = json!(deg(qd));
+        }
         if let Some(th) = &thermal {
             rec["temp_c"] = json!(22.0 + th.delta_t_k(t));
         }

@@ -23,6 +23,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 pub mod camera;
 pub mod camera_stage;
 pub mod effects;
+pub mod error;
 pub mod extrapolation;
 pub mod fit;
 pub mod foldchol;

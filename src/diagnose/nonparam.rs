@@ -6,6 +6,7 @@ use faer::{linalg::solvers::Solve, Mat, Side};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use super::error::RbfFileError;
 use crate::model::KinematicModel;
 use serde_json::{json, Map, Value};
 
@@ -348,25 +349,25 @@ impl Rbf {
     }
 
     /// Read the file form.
-    pub fn from_json(p: &Map<String, Value>) -> anyhow::Result<Rbf> {
+    pub fn from_json(p: &Map<String, Value>) -> Result<Rbf, RbfFileError> {
         let ell = p
             .get("length_scale_deg")
             .and_then(|v| v.as_f64())
             .filter(|v| v.is_finite() && *v > 0.0)
-            .ok_or_else(|| anyhow::anyhow!("nonparametric: bad \"length_scale_deg\""))?;
-        let rows = |k: &str| -> anyhow::Result<Vec<Vec<f64>>> {
+            .ok_or(RbfFileError::LengthScale)?;
+        let rows = |k: &str| -> Result<Vec<Vec<f64>>, RbfFileError> {
             p.get(k)
                 .and_then(|v| v.as_array())
-                .ok_or_else(|| anyhow::anyhow!("nonparametric: missing \"{k}\""))?
+                .ok_or_else(|| RbfFileError::Missing(k.into()))?
                 .iter()
                 .map(|r| {
                     r.as_array()
-                        .ok_or_else(|| anyhow::anyhow!("nonparametric: bad row in \"{k}\""))?
+                        .ok_or_else(|| RbfFileError::Row(k.into()))?
                         .iter()
                         .map(|x| {
-                            x.as_f64().filter(|v| v.is_finite()).ok_or_else(|| {
-                                anyhow::anyhow!("nonparametric: bad number in \"{k}\"")
-                            })
+                            x.as_f64()
+                                .filter(|v| v.is_finite())
+                                .ok_or_else(|| RbfFileError::Number(k.into()))
                         })
                         .collect()
                 })
@@ -378,7 +379,7 @@ impl Rbf {
             .collect();
         let w = rows("weights_mm")?;
         if w.len() != centers.len() || w.iter().any(|r| r.len() != 3) {
-            anyhow::bail!("nonparametric: weights must be one [x, y, z] per centre");
+            return Err(RbfFileError::Weights);
         }
         Ok(Rbf {
             arm_frame: p.get("frame").and_then(|v| v.as_str()) == Some("joint1"),

@@ -103,7 +103,48 @@ pub fn parse_targets(file: &str, text: &str) -> anyhow::Result<Vec<Target>> {
     if out.is_empty() {
         bail!("{file}: no target rows");
     }
+    // Every target within 5 mm of the base origin (inside the robot's base): positions in
+    // metres read as mm.
+    let far = out
+        .iter()
+        .map(|t| t.pose.translation.vector.norm())
+        .fold(0.0, f64::max);
+    if far < 5.0 {
+        bail!(
+            "{file}: field `x_mm`..`z_mm`: every target is within {far:.3} mm of the robot's \
+             base origin (inside the base): positions in metres instead of mm?"
+        );
+    }
     Ok(out)
+}
+
+/// The fastest joint speed (rad/s) a URScript `movej` of `robocal correct` may ask for: the
+/// wrist joints of UR e-Series arms turn at most 360 °/s.
+pub const UR_MAX_SPEED_RAD_S: f64 = std::f64::consts::TAU;
+/// The largest joint acceleration (rad/s²) a URScript `movej` of `robocal correct` may ask for.
+pub const UR_MAX_ACCEL_RAD_S2: f64 = 40.0;
+
+/// Checks the motion options of a robot program before anything is computed: URScript
+/// `--speed` (rad/s) and `--accel` (rad/s²) within what a UR arm can do (a larger value is
+/// most likely in degrees), PacScript `--speed` a percentage in (0, 100].
+pub fn check_script_motion(urscript: bool, speed: f64, accel: f64) -> anyhow::Result<()> {
+    if urscript {
+        if speed > UR_MAX_SPEED_RAD_S {
+            bail!(
+                "--speed {speed}: a URScript joint speed is in rad/s and at most \
+                 {UR_MAX_SPEED_RAD_S:.3} (360 °/s); degrees per second given as rad/s?"
+            );
+        }
+        if accel > UR_MAX_ACCEL_RAD_S2 {
+            bail!(
+                "--accel {accel}: a URScript joint acceleration is in rad/s² and at most \
+                 {UR_MAX_ACCEL_RAD_S2}; degrees per second² given as rad/s²?"
+            );
+        }
+    } else if speed > 100.0 {
+        bail!("--speed {speed}: a PacScript speed is a percentage in (0, 100]");
+    }
+    Ok(())
 }
 
 /// Read a targets table.

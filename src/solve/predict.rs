@@ -172,6 +172,28 @@ impl Predictor {
         ds: &Dataset,
         session: &[&PoseRecord],
     ) -> anyhow::Result<(Vec<PredictedPoint>, Vec<String>)> {
+        if let Engine::Laser {
+            beam,
+            effects,
+            model,
+        } = &self.engine
+        {
+            // The whole file at once: the incidence term needs the validation plate.
+            use crate::solve::laser::predict::{incidence_note, predict_spots};
+            let recs: Vec<&PoseRecord> = ds.poses().collect();
+            let spots = predict_spots(beam, effects, &recs, model.as_deref())?;
+            let rows = recs
+                .iter()
+                .zip(spots)
+                .map(|(rec, p)| match p {
+                    Some(p) => Ok(PredictedPoint { id: rec.id, p }),
+                    None => self
+                        .predict_record(rec, ds)
+                        .map(|p| PredictedPoint { id: rec.id, p }),
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            return Ok((rows, incidence_note(effects, &recs).into_iter().collect()));
+        }
         let Engine::Kinematic { model, effects } = &self.engine else {
             let rows = ds
                 .poses()

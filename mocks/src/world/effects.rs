@@ -12,6 +12,7 @@
 //! the gravity moment the joint transmits. Units inside: mm, rad, s, N·m, kg.
 
 use super::chain::{ChainFrames, JointTilt, UrdfChain};
+use super::gear::{add_gear_errors, Coupling, NonlinearCompliance, Ripple, WaveGenerator};
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -133,6 +134,18 @@ pub struct ArmEffects {
     /// Thermal warm-up drift.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub thermal: Option<Thermal>,
+    /// Transmission ripple (see [`super::gear`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub ripple: Vec<Ripple>,
+    /// Joint coupling (see [`super::gear`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub coupling: Vec<Coupling>,
+    /// Harmonic-drive wave-generator errors (see [`super::gear`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub wave_generator: Vec<WaveGenerator>,
+    /// Load-dependent reducer stiffness (see [`super::gear::NonlinearCompliance`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub nonlinear_compliance: Vec<NonlinearCompliance>,
     /// Servo positioning error at the end of each move, 1σ per joint (deg): the arm settles at
     /// `q_cmd + e`, and the encoders read where it settled.
     #[serde(default)]
@@ -232,6 +245,7 @@ impl ArmPhysics {
                 th[k] += 0.5 * b.lost_motion_deg.to_radians() * s;
             }
         }
+        add_gear_errors(&e.ripple, &e.coupling, &e.wave_generator, q, &mut th);
         if let Some(tm) = &e.thermal {
             let dt = tm.delta_t_k(ctx.t_s);
             for (k, kappa) in tm.offset_drift_deg_per_k.iter().enumerate() {
@@ -301,7 +315,10 @@ impl ArmPhysics {
     pub fn true_state(&self, q: &[f64], ctx: &JointContext) -> (Vec<f64>, Option<Vec<JointTilt>>) {
         let mut th = self.kinematic_angles(q, ctx);
         let e = &self.effects;
-        if e.joint_compliance.is_empty() && e.link_deflection.is_empty() {
+        if e.joint_compliance.is_empty()
+            && e.link_deflection.is_empty()
+            && e.nonlinear_compliance.is_empty()
+        {
             return (th, None);
         }
         let growth = self.growth(ctx.t_s);
@@ -311,6 +328,12 @@ impl ArmPhysics {
             if let Some(k) = c.joint.checked_sub(1).filter(|&k| k < th.len()) {
                 let tau = moments[k].dot(&frames.joint_axis(&self.chain, k));
                 th[k] += c.rad_per_nm * tau;
+            }
+        }
+        for c in &e.nonlinear_compliance {
+            if let Some(k) = c.joint.checked_sub(1).filter(|&k| k < th.len()) {
+                let tau = moments[k].dot(&frames.joint_axis(&self.chain, k));
+                th[k] += c.rad_per_nm2 * tau * tau.abs();
             }
         }
         if e.link_deflection.is_empty() {

@@ -15,6 +15,7 @@ pub mod charuco;
 pub mod clock;
 pub mod control;
 pub mod effects;
+pub mod gear;
 pub mod motion;
 pub mod operator;
 pub mod rcm_view;
@@ -153,7 +154,7 @@ pub(crate) struct World {
 /// The simulated operator's script and when it started.
 pub(crate) struct OperatorRuntime {
     cfg: operator::OperatorConfig,
-    tracker: usize,
+    tracker: Option<usize>,
     t0: Option<f64>,
     /// Joint angles of each arm when the script started (where a first drag starts from).
     arm_start: Vec<Vec<f64>>,
@@ -406,16 +407,19 @@ impl WorldHandle {
                 operator: match &s.operator {
                     None => None,
                     Some(op) => Some(OperatorRuntime {
-                        tracker: s
-                            .trackers
-                            .iter()
-                            .position(|t| t.name == op.tracker)
-                            .ok_or_else(|| {
-                                ScenarioError::Invalid(format!(
-                                    "operator.tracker: no tracker named {:?}",
-                                    op.tracker
-                                ))
-                            })?,
+                        // No tracker: a script that only drags the arm.
+                        tracker: match op.tracker.as_str() {
+                            "" => None,
+                            name => {
+                                Some(s.trackers.iter().position(|t| t.name == name).ok_or_else(
+                                    || {
+                                        ScenarioError::Invalid(format!(
+                                            "operator.tracker: no tracker named {name:?}"
+                                        ))
+                                    },
+                                )?)
+                            }
+                        },
                         cfg: op.clone(),
                         t0: None,
                         arm_start: Vec::new(),
@@ -759,7 +763,11 @@ impl WorldHandle {
         if rate > 0.0 {
             self.advance(1.0 / rate);
         }
-        if self.with(|w| w.operator.as_ref().is_some_and(|o| o.tracker == tracker)) {
+        if self.with(|w| {
+            w.operator
+                .as_ref()
+                .is_some_and(|o| o.tracker == Some(tracker))
+        }) {
             self.operator_start();
         }
         let t = self.now();
@@ -773,7 +781,7 @@ impl WorldHandle {
                         .map_or(0.0, |tr| tr.cfg.effects.latency_s),
                 ),
             ) {
-                (Some(o), Some(operator::Act::Probe(m))) if o.tracker == tracker => {
+                (Some(o), Some(operator::Act::Probe(m))) if o.tracker == Some(tracker) => {
                     Some((o.cfg.probe_tool.clone(), m))
                 }
                 _ => None,
@@ -868,9 +876,12 @@ impl WorldHandle {
                 return RangeReading::OutOfRange;
             }
             let e = &l.cfg.effects;
+            let u = (hit.distance_mm - 0.5 * (l.cfg.min_mm + l.cfg.max_mm))
+                / (0.5 * (l.cfg.max_mm - l.cfg.min_mm)).max(1e-9);
             let m = hit.distance_mm * (1.0 + e.scale_ppm * 1e-6)
                 + e.offset_mm
                 + e.incidence_mm * (1.0 - cos_g)
+                + e.nonlinearity_mm * u * u
                 + e.noise_mm * normal(&mut l.rng);
             if m < l.cfg.min_mm || m > l.cfg.max_mm {
                 RangeReading::OutOfRange
@@ -1038,7 +1049,8 @@ fn observe(
     if !sensors::in_volume(tr.volume, &p) {
         return ToolStatus::OutOfVolume;
     }
-    let scaled = p.coords * (1.0 + eff.scale_ppm * 1e-6);
+    let mut scaled = p.coords * (1.0 + eff.scale_ppm * 1e-6);
+    scaled.z += p.z * eff.depth_scale_ppm * 1e-6;
     let los = scaled.normalize();
     let e1 = los
         .cross(&Vector3::x())
@@ -1068,9 +1080,15 @@ impl World {
     fn operator_act(&self, now: f64) -> Option<operator::Act> {
         let o = self.operator.as_ref()?;
         let t0 = o.t0?;
-        let tr = self.trackers.get(o.tracker)?;
-        let tib = tracker_in_base_at(tr.tracker_in_base, &tr.cfg.effects, now);
-        let origin = Point3::from(tib.translation.vector);
+        // The probe faces the tracker; a script without a tracker only drags the arm.
+        let origin = match o.tracker.and_then(|i| self.trackers.get(i)) {
+            Some(tr) => Point3::from(
+                tracker_in_base_at(tr.tracker_in_base, &tr.cfg.effects, now)
+                    .translation
+                    .vector,
+            ),
+            None => Point3::origin(),
+        };
         Some(operator::act(
             &o.cfg,
             now - t0,

@@ -23,6 +23,7 @@
 
 pub mod effects;
 pub mod fit;
+pub mod predict;
 pub mod stage;
 pub mod validate;
 
