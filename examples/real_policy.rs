@@ -107,6 +107,39 @@ fn explain(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], opt: &O
             ((total - top) / (e.len() - worst).max(1) as f64).sqrt()
         );
     }
+    // The three worst held-out poses: the final and geometric models' errors there and the
+    // nearest training pose in joint space (does the chain add the error, or the data lack it?).
+    let err = |st: &State, o: &PoseObs| rms(st, std::slice::from_ref(o));
+    let mut worst: Vec<&PoseObs> = held.iter().collect();
+    worst.sort_by(|a, b| err(&d.state, b).total_cmp(&err(&d.state, a)));
+    for o in worst.iter().take(3) {
+        let near = train
+            .iter()
+            .map(|t| {
+                t.ctx
+                    .q
+                    .iter()
+                    .zip(&o.ctx.q)
+                    .map(|(a, b)| (a - b).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .fold(f64::INFINITY, f64::min);
+        let q: Vec<String> = o
+            .ctx
+            .q
+            .iter()
+            .map(|v| format!("{:.1}", v.to_degrees()))
+            .collect();
+        println!(
+            "    held-out pose {}: final {:.3} mm, geometric {:.3} mm, q [{}]°, nearest training pose {:.1}° away",
+            o.ctx.id,
+            err(&d.state, o),
+            err(&d.geometric, o),
+            q.join(", "),
+            near.to_degrees()
+        );
+    }
     if let Some(p) = d.policy_line() {
         println!("    {p}");
     }
