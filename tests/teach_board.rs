@@ -115,3 +115,41 @@ fn teach_board_locates_the_board_from_four_hand_guided_views() {
     assert_ne!(code, Some(0));
     assert!(stderr.contains("for camera sessions"), "{stderr}");
 }
+
+/// A device file's `[board]` may leave its centre out when the session teaches it; without
+/// `--teach-board` the missing centre is refused, naming the option.
+#[test]
+fn teach_board_reads_a_device_board_without_centre() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(tmp.path().join("images")).unwrap();
+    let file = tmp.path().join("CELL.toml");
+    std::fs::write(
+        &file,
+        "[[device]]\nname = \"vs060\"\nrole = \"arm\"\nvendor = \"denso\"\nprotocol = \"bcap\"\n\
+         model = \"denso-vs060\"\naddress = \"127.0.0.1:1\"\n\n[[device]]\nname = \"cam\"\n\
+         role = \"camera\"\nvendor = \"generic\"\nprotocol = \"pgm-folder\"\npath = \"images\"\n\n\
+         [board]\ncols = 8\nrows = 5\nsquare_mm = 20.0\n",
+    )
+    .unwrap();
+    let session = |extra: &[&str], out: &str| {
+        let out = tmp.path().join(out);
+        let mut args = vec!["session", "--devices", p(&file), "--live", "--plan-only"];
+        args.extend(extra);
+        args.extend(["--out", p(&out), "--no-history"]);
+        let r = run(&args);
+        (r, out)
+    };
+    let ((code, _, stderr), out) = session(&[], "plain");
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("[board] has no center_mm") && stderr.contains("--teach-board"),
+        "{stderr}"
+    );
+    assert!(!out.exists());
+    // With --teach-board the session is created and stops at the operator's consent (no
+    // terminal, no --yes): nothing was opened, nothing planned.
+    let ((code, _, stderr), out) = session(&["--teach-board", "4"], "taught");
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("confirmation needed"), "{stderr}");
+    assert!(out.join("session.json").is_file() && !out.join("plan/train.json").exists());
+}

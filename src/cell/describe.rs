@@ -23,6 +23,16 @@ fn protocol_name<T: serde::Serialize>(p: &T) -> String {
 /// The cell as a device file states it (no geometry: visibility from the plan spec), and the
 /// kind of session it makes: kinematic with a tracker, camera with a camera and no tracker.
 pub fn describe_devices(path: &Path) -> anyhow::Result<(CellDescription, SessionKind)> {
+    describe_devices_taught(path, false)
+}
+
+/// [`describe_devices`]; with `taught_board` (`session --teach-board`) a `[board]` without
+/// `center_mm` is read (the taught views locate it before planning; the centre stays at the
+/// base origin until then).
+pub fn describe_devices_taught(
+    path: &Path,
+    taught_board: bool,
+) -> anyhow::Result<(CellDescription, SessionKind)> {
     use crate::acquire::devices::{DevicesFile, Role};
     let f = DevicesFile::read(path)?;
     let arm = f
@@ -58,13 +68,16 @@ pub fn describe_devices(path: &Path) -> anyhow::Result<(CellDescription, Session
                     path.display()
                 )
             })?;
-            let center_mm = b.center_mm.with_context(|| {
-                format!(
+            let center_mm = match (b.center_mm, taught_board) {
+                (Some(c), _) => c,
+                (None, true) => [0.0; 3],
+                (None, false) => bail!(
                     "{}: [board] has no center_mm: give the board's centre in the robot base \
-                     (mm), where the session's viewpoints look",
+                     (mm), where the session's viewpoints look, or locate it with \
+                     `--teach-board 4` (hand-guided poses)",
                     path.display()
-                )
-            })?;
+                ),
+            };
             Some(session::camera::CameraCell {
                 name: c.name.clone(),
                 // Known from the first image (the dataset header records it).

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _};
 
-use crate::cell::describe::describe_devices;
+use crate::cell::describe::describe_devices_taught;
 #[cfg(feature = "sim")]
 use crate::cell::describe::describe_scenario;
 use crate::session::{self, AcceptSpec, Mode, SessionKind, SessionSetup};
@@ -159,7 +159,7 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             // anything is created (and long before consent).
             let checked = crate::acquire::device_check::check_file(d)?;
             checked.require_valid()?;
-            let (cell, kind) = describe_devices(d)?;
+            let (cell, kind) = describe_devices_taught(d, a.teach_board.is_some())?;
             let kind = if a.kind.as_deref() == Some("laser") {
                 SessionKind::Laser
             } else {

@@ -304,13 +304,23 @@ pub fn run(dir: &Path, s: &mut SessionFile, cell: &mut dyn Cell, log: Log) -> an
     );
     let file = dir.join("teach").join("poses.csv");
     write_atomic(&file, csv.as_bytes())?;
+    // A device file may leave the centre out (the taught views find it).
+    let stated_center = match s.setup.mode {
+        super::Mode::Sim => Some(b.center_mm),
+        super::Mode::Live => {
+            crate::acquire::devices::DevicesFile::read(dir.join(&s.setup.cell_file))
+                .ok()
+                .and_then(|f| f.board)
+                .and_then(|b| b.center_mm)
+        }
+    };
     let c = found.center;
     let t = found.camera_in_flange.translation.vector;
     let summary = TeachSummary {
         poses: views.len(),
         views_with_board: found.used,
         center_mm: [c.x, c.y, c.z],
-        center_stated_mm: Some(b.center_mm),
+        center_stated_mm: stated_center,
         hand_eye: found.hand_eye.into(),
         hand_eye_xyz_mm: [t.x, t.y, t.z],
         fx_px: found.fx_px,
