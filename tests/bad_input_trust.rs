@@ -20,9 +20,12 @@ fn run(args: &[&str]) -> (i32, String) {
     )
 }
 
+/// An edit of a dataset's JSON values (header first).
+type Edit = fn(&mut [serde_json::Value]);
+
 /// An RCM dataset of the simulated cell (15 planned poses, 0.2 px noise), edited by `edit`
 /// (header first, then one JSON value per record).
-fn rcm_file(dir: &std::path::Path, name: &str, edit: fn(&mut [serde_json::Value])) -> String {
+fn rcm_file(dir: &std::path::Path, name: &str, edit: Edit) -> String {
     let cell = crate::rcm::cell();
     let poses = crate::rcm::planned(&cell, 25.0, 15);
     let mut rng = ChaCha8Rng::seed_from_u64(9);
@@ -62,7 +65,7 @@ fn bad_input_rcm_units_and_corrupt_pixels_are_refused() {
         "0",
     ]);
     assert_eq!(code, 0, "control: {err}");
-    let cases: [(&str, fn(&mut [serde_json::Value]), &[&str]); 3] = [
+    let cases: [(&str, Edit, &[&str]); 3] = [
         (
             "radius-m.jsonl",
             |r| {
