@@ -42,9 +42,16 @@ fn root() -> PathBuf {
 }
 
 /// Wall time (s) and peak resident memory (MB) of one `robocal` process.
+fn run_robocal(args: &[&str]) -> (f64, f64) {
+    let (wall, _, rss) = run_robocal_cpu(args);
+    (wall, rss)
+}
+
+/// Wall time (s), CPU time (user + system, s) and peak resident memory (MB) of one `robocal`
+/// process.
 // The child is reaped by `libc::wait4` (for its rusage), which clippy cannot see.
 #[allow(clippy::zombie_processes)]
-fn run_robocal(args: &[&str]) -> (f64, f64) {
+fn run_robocal_cpu(args: &[&str]) -> (f64, f64, f64) {
     let t0 = Instant::now();
     let child = Command::new(BIN)
         .args(args)
@@ -63,7 +70,12 @@ fn run_robocal(args: &[&str]) -> (f64, f64) {
         libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
         "robocal {args:?} failed ({status})"
     );
-    (wall, ru.ru_maxrss as f64 / 1024.0)
+    let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    (
+        wall,
+        secs(ru.ru_utime) + secs(ru.ru_stime),
+        ru.ru_maxrss as f64 / 1024.0,
+    )
 }
 
 /// Writes `n` poses near the 500 public ones (joints jittered ±2°), measured through `truth`
@@ -244,9 +256,24 @@ fn camera_row(tmp: &Path) {
     let out = tmp.join("cam");
     let d = data.to_str().expect("utf-8 path");
     let o = out.to_str().expect("utf-8 path");
-    let (w, rss) = run_robocal(&["calibrate", "camera", "--data", d, "--out", o]);
+    let (w, cpu, rss) = run_robocal_cpu(&["calibrate", "camera", "--data", d, "--out", o]);
+    // The split the command itself measured (detection = image decode + board detection).
+    let split = std::fs::read_to_string(out.join("camera_report.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+        .map(|v| {
+            format!(
+                "; in process: detection {:.2} s, then calibration {:.2} s (wall)",
+                v["timing_s"]["detection"].as_f64().unwrap_or(f64::NAN),
+                v["timing_s"]["total"].as_f64().unwrap_or(f64::NAN)
+                    - v["timing_s"]["detection"].as_f64().unwrap_or(f64::NAN)
+            )
+        })
+        .unwrap_or_default();
     println!(
-        "camera 60 x 1280x1024 (calibrate camera, whole process): {w:.2} s wall, peak {rss:.0} MB"
+        "camera 60 x 1280x1024 (calibrate camera, whole process): {w:.2} s wall, {cpu:.2} s CPU \
+         on {} cores, peak {rss:.0} MB{split}",
+        std::thread::available_parallelism().map_or(0, |n| n.get())
     );
     let py = root().join(".venv/peers-cv2/bin/python");
     if !py.is_file() {

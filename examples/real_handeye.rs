@@ -10,6 +10,11 @@
 //!     cargo run --release --example real_handeye -- ur3e    # one set
 //!
 //! `ROBOCAL_SHARED_DATA` overrides `../shared/data`. A set that is absent is reported SKIPPED.
+//! RWHE-Calib `kuka_2`, the set kept for evaluation (never tuned on, not in `../shared/data`),
+//! is read from `ROBOCAL_REAL_KUKA2` (the repository `ihtishamaliktk/RWHE-Calib`'s
+//! `Datasets/kuka_2` folder, unpacked anywhere outside the project):
+//!
+//!     ROBOCAL_REAL_KUKA2=/tmp/kuka_2 cargo run --release --example real_handeye -- kuka2
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -34,18 +39,22 @@ fn main() {
         );
     }
     type Loader = fn(&std::path::Path) -> Result<RealSet, String>;
-    let sets: [(&str, &str, Loader); 2] = [
+    let sets: [(&str, &str, Loader); 3] = [
         ("kuka1", "real-handeye-kuka1", realeval::load_kuka1),
         ("ur3e", "real-handeye-ur3e", |d| {
             realeval::load_ur3e(d, 12.5)
         }),
+        ("kuka2", "real-handeye-kuka2", realeval::load_kuka2),
     ];
     let mut summary = vec![];
     for (key, dir, load) in sets {
         if filter.as_deref().is_some_and(|f| !key.contains(f)) {
             continue;
         }
-        let dir = data.join(dir);
+        let dir = match (key, std::env::var_os("ROBOCAL_REAL_KUKA2")) {
+            ("kuka2", Some(d)) => PathBuf::from(d),
+            _ => data.join(dir),
+        };
         if !dir.exists() {
             println!("\n=== {key}: SKIPPED — {} is absent ===", dir.display());
             continue;

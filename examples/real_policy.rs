@@ -4,8 +4,15 @@
 //!
 //! ```text
 //! cargo run --release --example real_policy -- [--policy default|physics-first|kernel-benchmark]
-//!     [--max-train N] [--max-gap F] [--max-extrapolation F] [--no-time-blocked] [SERIES ...]
+//!     [--max-train N] [--max-gap F] [--max-extrapolation F] [--pf-max N] [--no-time-blocked]
+//!     [--why] [SERIES ...]
 //! ```
+//!
+//! `--pf-max N`: at most `N` physical effects in the physics-first chain (default 6).
+//! `--why`: after each split, what the final model leaves: the held-out error's distribution
+//! (median, p95, max, share of the squared error on the worst 5 % of poses) and the library
+//! candidates scored against the final physical model's training residual (the strongest
+//! first, with whether they pass the selection's tests).
 //!
 //! A `SERIES` is a directory holding `train.jsonl` + `heldout.jsonl` (the layout of
 //! `../shared/data/real-ur10-ipa-grid`) or one dataset file whose `group: validation` records
@@ -20,6 +27,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::fit::{residuals, rms3, State};
 use robocal::diagnose::transfer::refit_setup;
 use robocal::diagnose::{self, Options, OVERFIT_GAP};
@@ -77,6 +85,64 @@ fn chain(d: &diagnose::Diagnosis) -> String {
     }
 }
 
+/// What the final model of `d` leaves (`--why`): the held-out error's distribution and the
+/// library candidates scored against the final physical model's training residual.
+fn explain(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], opt: &Options) {
+    let mut e: Vec<f64> = residuals(&d.state, held)
+        .as_slice()
+        .chunks(3)
+        .map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .collect();
+    e.sort_by(f64::total_cmp);
+    if let Some(&max) = e.last() {
+        let total: f64 = e.iter().map(|v| v * v).sum();
+        let worst = e.len().div_ceil(20);
+        let top: f64 = e[e.len() - worst..].iter().map(|v| v * v).sum();
+        println!(
+            "    held-out 3-D error: median {:.4}, p95 {:.4}, max {:.4} mm; the worst {worst} poses carry {:.1} % of the squared error; without them RMS {:.4} mm",
+            e[e.len() / 2],
+            e[(e.len() * 95 / 100).min(e.len() - 1)],
+            max,
+            100.0 * top / total.max(1e-300),
+            ((total - top) / (e.len() - worst).max(1) as f64).sqrt()
+        );
+    }
+    if let Some(p) = d.policy_line() {
+        println!("    {p}");
+    }
+    if let Some((b, a)) = d.nonparametric {
+        println!("    correction: CV RMS {b:.4} -> {a:.4} mm");
+    } else {
+        println!("    no correction (none of the kernel grid passed the gap and gain rules; ROBOCAL_LOG=robocal::diagnose=debug lists the grid)");
+    }
+    // The physical part of the final model and what the library still finds in its residual.
+    let mut phys = d.state.clone();
+    phys.effects
+        .retain(|e| !matches!(e.block, diagnose::effects::Block::Nonparametric(_)));
+    let (mut cands, _) = diagnose::candidates_with(&phys.model, train, opt);
+    for g in cands.iter_mut() {
+        g.retain(|b| !phys.effects.iter().any(|e| e.block.label() == b.label()));
+    }
+    cands.retain(|g| !g.is_empty());
+    let m_tests: usize = cands.iter().map(Vec::len).sum::<usize>().max(1);
+    let scores = diagnose::score_round(&phys, train, &cands, opt);
+    for s in scores.iter().take(8) {
+        let signif = s.p_value < opt.alpha / m_tests as f64 && s.delta_bic > opt.min_delta_bic;
+        println!(
+            "    left in the residual: {} ΔBIC {:.1}, CV gain {:+.2} %, independence {:.2}{}",
+            s.label,
+            s.delta_bic,
+            100.0 * s.cv_gain,
+            s.independence,
+            if signif && s.cv_gain > opt.min_cv_gain && s.independence >= opt.min_independence {
+                " (passes the tests)"
+            } else {
+                ""
+            }
+        );
+    }
+}
+
 fn main() -> anyhow::Result<()> {
     if let Ok(f) = tracing_subscriber::EnvFilter::try_from_env("ROBOCAL_LOG") {
         let _ = tracing_subscriber::fmt()
@@ -91,6 +157,8 @@ fn main() -> anyhow::Result<()> {
     let mut time_blocked = true;
     let mut max_gap = None;
     let mut max_extrapolation = None;
+    let mut pf_max = None;
+    let mut why = false;
     let mut series: Vec<PathBuf> = Vec::new();
     let mut i = 0;
     while i < args.len() {
@@ -133,6 +201,15 @@ fn main() -> anyhow::Result<()> {
                 );
                 i += 1;
             }
+            "--pf-max" => {
+                pf_max = Some(
+                    args.get(i + 1)
+                        .and_then(|v| v.parse::<usize>().ok())
+                        .ok_or_else(|| anyhow::anyhow!("--pf-max needs a number"))?,
+                );
+                i += 1;
+            }
+            "--why" => why = true,
             "--no-time-blocked" => time_blocked = false,
             a if a.starts_with("--") => {
                 anyhow::bail!("unknown argument {a:?} (see the file's header)")
@@ -146,6 +223,12 @@ fn main() -> anyhow::Result<()> {
     }
     if let Some(x) = max_extrapolation {
         opt.max_extrapolation = x;
+    }
+    if let Some(n) = pf_max {
+        opt.physics_first_max_effects = n;
+        if policy == "physics-first" {
+            opt.max_effects = n;
+        }
     }
     if series.is_empty() {
         let p = std::env::var_os("ROBOCAL_REAL_DATA")
@@ -212,6 +295,9 @@ fn main() -> anyhow::Result<()> {
                 secs,
                 &chain(&d),
             ) as usize;
+            if why {
+                explain(&d, &tr, &he, &opt);
+            }
             if split == "interleaved" {
                 match &first {
                     None => first = Some(d.state.clone()),

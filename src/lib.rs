@@ -10,6 +10,7 @@
 //! there fails when any other file names them.
 
 pub mod acquire;
+pub mod calibrate;
 pub mod capture;
 pub mod cell;
 pub mod cli;

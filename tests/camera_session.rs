@@ -225,6 +225,13 @@ fn camera_session_judges_the_hand_eye_on_independent_views_and_the_report_shows_
     ] {
         assert!(html.contains(id), "report lacks {id}");
     }
+    // The intervals plotted (issue 28 §3): intrinsics (px), positions (mm), rotation (°).
+    assert_eq!(
+        html.matches("class=\"plot-camera-intervals\"").count(),
+        3,
+        "the camera report's interval plots"
+    );
+    assert!(html.contains("Hand-eye rotation: 95 % intervals"));
     assert!(html.contains("arm&#39;s joint zeros") || html.contains("arm's joint zeros"));
     assert!(html.contains("link dimensions"));
     // `robocal report` reads the camera diagnosis (no warning) and shows its effect in px.

@@ -39,6 +39,22 @@ pub fn predict_cli(cal: &Path, data: &Path, out: &Path) -> i32 {
     ])
 }
 
+/// Runs the robocal binary (stdin closed, `ROBOCAL_LOG=warn`); returns its exit code, stdout
+/// and stderr.
+pub fn bin(args: &[&str]) -> (Option<i32>, String, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_robocal"))
+        .env("ROBOCAL_LOG", "warn")
+        .stdin(std::process::Stdio::null())
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
 /// A path as `&str` (test paths are UTF-8).
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()

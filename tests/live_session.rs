@@ -35,7 +35,7 @@ fn root() -> PathBuf {
 
 /// A cell folder with the shipped example tool definition in `tools/` and a device file
 /// `CELL.toml` whose tracker entry ends with `tracker_extra` (tools, pose, ...).
-fn cell(dir: &Path, bcap: &str, ndi: &str, tracker_extra: &str) -> PathBuf {
+pub(crate) fn cell(dir: &Path, bcap: &str, ndi: &str, tracker_extra: &str) -> PathBuf {
     let cell = dir.join("cell");
     std::fs::create_dir_all(cell.join("tools")).unwrap();
     std::fs::copy(

@@ -15,7 +15,7 @@ use crate::diagnose::table;
 
 /// Held-out RMS (mm) of `robocal predict --calibration cal --data held --session train`
 /// against the held-out measurements, and the number of poses scored.
-fn predicted_rms(cal: &Path, train: &Path, held: &Path, out: &Path) -> (f64, usize) {
+pub(crate) fn predicted_rms(cal: &Path, train: &Path, held: &Path, out: &Path) -> (f64, usize) {
     let code = cli(&[
         "predict",
         "--calibration",

@@ -616,7 +616,7 @@ fn json_output_of_calibrate_kinematics() {
 }
 
 /// Issue 19: a session can end with the navigation-chain report for a set of CT targets — the
-/// validation run's measured held-out error is the robot link, first order and Monte Carlo agree.
+/// robot link is the calibration's bootstrap covariance (issue 29), first order and Monte Carlo agree.
 /// A calibration without any uncertainty is refused by `robocal chain` rather than read as a
 /// perfect robot.
 #[test]
@@ -650,6 +650,14 @@ fn session_ends_with_a_chain_report_for_ct_targets() {
     assert!(
         out.contains("chain report") && out.contains("robot link"),
         "{out}"
+    );
+    // Issue 29: the robot link is the calibration's bootstrap covariance, not one robot σ.
+    assert!(out.contains("bootstrap covariance"), "{out}");
+    let cal = robocal::dataset::CalibrationFile::load(copy.join("chain/calibration.json")).unwrap();
+    assert!(
+        cal.extra["bootstrap"]["covariance"].is_object(),
+        "{:?}",
+        cal.extra
     );
     let r =
         robocal::navchain::ChainReport::load(&copy.join("chain.json")).expect("chain.json loads");

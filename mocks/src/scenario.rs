@@ -719,7 +719,16 @@ impl Scenario {
             }
         }
         if let Some(op) = &self.operator {
-            if !self.trackers.iter().any(|t| t.name == op.tracker) {
+            let probe = op.steps.iter().any(|s| {
+                matches!(
+                    s,
+                    crate::world::operator::Step::Pivot { .. }
+                        | crate::world::operator::Step::Touch { .. }
+                )
+            });
+            if (probe || !op.tracker.is_empty())
+                && !self.trackers.iter().any(|t| t.name == op.tracker)
+            {
                 return bad(format!(
                     "operator.tracker: no tracker named {:?}",
                     op.tracker

@@ -30,6 +30,14 @@
 //! rows = 5
 //! square_mm = 30.0
 //! center_mm = [-441.9, -133.3, 0.0]   # the board's centre in the robot base (sessions)
+//!
+//! # The cell's safety limits (optional; see `device_safety`): a plan may be stricter, never wider.
+//! [safety]
+//! table_z_mm = 0.0
+//! table_clearance_mm = 50.0
+//! envelope = { shape = "box", min = [-900.0, -900.0, 0.0], max = [900.0, 900.0, 1200.0] }
+//! joint_limits_deg = [[-170, 170], [-120, 120], [-125, 155], [-270, 270], [-120, 120], [-360, 360]]
+//! max_speed_deg_s = 60.0
 //! ```
 use std::path::Path;
 
@@ -45,6 +53,9 @@ pub struct DevicesFile {
     /// The calibration board of a camera cell.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board: Option<BoardEntry>,
+    /// The cell's safety limits (`[safety]`: table, envelope, joint limits, speed cap).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub safety: Option<super::device_safety::SafetyEntry>,
 }
 
 /// The calibration board of a camera cell (`[board]`).
@@ -284,6 +295,22 @@ impl DevicesFile {
     }
 
     fn validate(&self, path: &str) -> Result<(), DevicesError> {
+        if let Some(sf) = &self.safety {
+            let arm = self.devices.iter().find(|d| d.role == Role::Arm);
+            sf.validate(arm.and_then(|a| a.model.as_deref()))
+                .map_err(|message| DevicesError::Invalid {
+                    path: path.into(),
+                    device: "[safety]".into(),
+                    message,
+                })?;
+            if arm.is_none() {
+                return Err(DevicesError::Invalid {
+                    path: path.into(),
+                    device: "[safety]".into(),
+                    message: "a [safety] block without an arm (role = \"arm\")".into(),
+                });
+            }
+        }
         if let Some(b) = &self.board {
             let bad = |message: String| DevicesError::Invalid {
                 path: path.into(),

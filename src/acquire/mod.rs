@@ -28,8 +28,10 @@
 //! never depends on the simulators. Units inside: rad, mm, s; the journal uses deg, mm, s.
 
 pub mod device_check;
+pub mod device_safety;
 pub mod devices;
 pub mod engine;
+pub mod probe;
 pub mod sample;
 pub mod settle;
 pub mod summary;

@@ -1,5 +1,5 @@
 //! What a cell file says about the cell, for planning a session: a device file (or, through
-//! [`super::simulated`], a scenario: one arm of it) read into a [`CellDescription`] (robot, controller, tracker, where it
+//! `super::simulated`, a scenario: one arm of it) read into a [`CellDescription`] (robot, controller, tracker, where it
 //! stands and what it sees, the camera and its board) and the kind of session it makes.
 use std::path::Path;
 
@@ -9,6 +9,7 @@ use crate::plan::cell::{CellGeometry, VolumeFrustum};
 use crate::plan::spec::FrameSpec;
 use crate::session::{self, CellDescription, SessionKind};
 
+#[cfg(feature = "sim")]
 pub use super::simulated::describe_scenario;
 
 /// A protocol's name as the file spells it.
@@ -97,6 +98,7 @@ pub fn describe_devices(path: &Path) -> anyhow::Result<(CellDescription, Session
             .collect(),
         marker_on_flange: tracker.and_then(|t| t.marker_on_flange).map(pose_frame),
         geometry: tracker.and_then(device_geometry),
+        safety: f.safety.clone(),
         ..Default::default()
     };
     Ok((cell, kind))

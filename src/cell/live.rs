@@ -195,8 +195,8 @@ impl DeviceFileCell {
 }
 
 impl super::CellSource for DeviceFileCell {
-    /// The device file's arm (its `model` compared only when it names a built-in preset; no
-    /// safety block yet) and first camera (size from its first image) with the `[board]`.
+    /// The device file's arm (its `model` compared only when it names a built-in preset; the
+    /// `[safety]` block's table, envelope, joint limits and caps) and first camera (size from its first image) with the `[board]`.
     fn stated(&self, _arm: Option<&str>) -> anyhow::Result<super::StatedCell> {
         use crate::plausible::limits::CellLimit;
         let config = &self.path;
@@ -212,6 +212,16 @@ impl super::CellSource for DeviceFileCell {
                 value,
                 source: format!("{}: device \"{name}\" {k}", config.display()),
             })
+        };
+        // The `[safety]` block's caps, when stricter than (or instead of) the arm entry's.
+        let sf = f.safety.clone().unwrap_or_default();
+        let stricter = |dev: Option<CellLimit>, v: Option<f64>, k: &str| match (dev, v) {
+            (Some(d), Some(v)) if d.value <= v => Some(d),
+            (d, None) => d,
+            (_, Some(value)) => Some(CellLimit {
+                value,
+                source: format!("{}: [safety] {k}", config.display()),
+            }),
         };
         let camera = first(&f, Role::Camera).map(|c| super::StatedCamera {
             name: c.name.clone(),
@@ -236,10 +246,18 @@ impl super::CellSource for DeviceFileCell {
                 robot: crate::plan::recheck::CellRobot {
                     source: format!("{}: device \"{name}\"", config.display()),
                     model,
-                    safety: None,
+                    safety: f.safety.as_ref().map(|b| b.cell_safety()),
                 },
-                vel: limit(arm.and_then(|d| d.max_speed_deg_s), "max_speed_deg_s"),
-                acc: limit(arm.and_then(|d| d.max_accel_deg_s2), "max_accel_deg_s2"),
+                vel: stricter(
+                    limit(arm.and_then(|d| d.max_speed_deg_s), "max_speed_deg_s"),
+                    sf.max_speed_deg_s,
+                    "max_speed_deg_s",
+                ),
+                acc: stricter(
+                    limit(arm.and_then(|d| d.max_accel_deg_s2), "max_accel_deg_s2"),
+                    sf.max_accel_deg_s2,
+                    "max_accel_deg_s2",
+                ),
             },
             camera,
         })

@@ -328,7 +328,12 @@ fn acquire_in(
             config_path.display()
         );
     }
-    let (limits, geometry) = safety_limits(&plan, cfg.speed)?;
+    let (mut limits, geometry) = safety_limits(&plan, cfg.speed)?;
+    // The cell's own joint limits (a device file's `[safety]`) narrow the robot's.
+    crate::acquire::device_safety::narrow_joint_limits(
+        &mut limits,
+        stated.arm.robot.safety.as_ref(),
+    );
     // The transfers are planned against the very limits and geometry the guard checks.
     let transfer = acquire::TransferSafety {
         limits: Arc::new(limits.clone()),

@@ -1,5 +1,5 @@
 //! One interface over the two kinds of cell a run opens: a simulated one (a scenario file,
-//! [`super::simulated`]) and a real one (a device file, [`super::live`]). Each says what its
+//! `super::simulated`, feature `sim`) and a real one (a device file, [`super::live`]). Each says what its
 //! file states ([`StatedCell`]: the arm's limits and safety block, the camera and its board)
 //! and opens its devices ([`OpenCell`]); the run never asks which kind it has beyond that.
 use std::path::Path;
@@ -98,7 +98,16 @@ pub struct OpenOptions {
 /// device file at `path`).
 pub fn source(mode: &str, path: &Path, opts: OpenOptions) -> anyhow::Result<Box<dyn CellSource>> {
     Ok(match mode {
+        #[cfg(feature = "sim")]
         "sim" => Box::new(super::simulated::ScenarioCell::new(path, opts)),
+        #[cfg(not(feature = "sim"))]
+        "sim" => {
+            let _ = opts;
+            return Err(super::without_simulators(&format!(
+                "scenario {}",
+                path.display()
+            )));
+        }
         "live" => Box::new(super::live::DeviceFileCell::new(path, opts)),
         other => anyhow::bail!("unknown cell mode {other:?} (sim or live)"),
     })

@@ -322,17 +322,8 @@ fn points(a: PointsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The freedrive program of a UR: freedrive until the program is replaced or stopped.
-fn freedrive_program(seconds: f64) -> String {
-    format!(
-        "def robocal_freedrive():\n  freedrive_mode()\n  sleep({:.1})\n  end_freedrive_mode()\nend\n",
-        seconds
-    )
-}
-
 fn poses(a: PosesArgs) -> anyhow::Result<()> {
     use crate::acquire::devices::{Protocol, Role};
-    use robocal_drivers::JointReadout;
     anyhow::ensure!(
         a.count >= 1 && a.count <= 1000,
         "--count {}: give 1 to 1000",
@@ -345,8 +336,7 @@ fn poses(a: PosesArgs) -> anyhow::Result<()> {
     );
     let cell = capture::cell::checked(&a.devices)?;
     let arm = capture::cell::entry(&cell, Role::Arm)?.clone();
-    let ur = arm.protocol == Protocol::Rtde;
-    if ur {
+    if arm.protocol == Protocol::Rtde {
         // Freedrive makes the arm movable by hand: the same rule as motion.
         anyhow::ensure!(
             a.live,
@@ -372,60 +362,21 @@ fn poses(a: PosesArgs) -> anyhow::Result<()> {
             arm.name
         );
     }
-    let on_key = std::io::stdin().is_terminal();
-    let keys = keys();
     let opt = capture::poses::PoseOptions {
         count: a.count,
-        on_key,
+        on_key: std::io::stdin().is_terminal(),
         max_seconds: a.max_seconds,
         ..Default::default()
     };
+    let keys = keys();
     let clock = robocal_drivers::SystemClock::default();
-    let taught = runtime()?.block_on(async {
-        let mut script: Option<robocal_drivers::ur::script::ScriptClient> = None;
-        let reader: Box<dyn JointReadout> = match arm.protocol {
-            Protocol::Bcap => {
-                let mut cfg = robocal_drivers::bcap::DensoConfig::new(arm.target());
-                cfg.name = arm.name.clone();
-                Box::new(
-                    robocal_drivers::bcap::DensoArm::connect(cfg)
-                        .await
-                        .with_context(|| format!("b-CAP arm {:?} at {}", arm.name, arm.target()))?,
-                )
-            }
-            Protocol::Rtde => {
-                let mut cfg = robocal_drivers::ur::UrConfig::new(arm.target());
-                cfg.name = arm.name.clone();
-                if let Some(p) = arm.ports {
-                    cfg.rtde_port = p.rtde.unwrap_or(cfg.rtde_port);
-                    cfg.dashboard_port = p.dashboard.unwrap_or(cfg.dashboard_port);
-                    cfg.script_port = p.script.unwrap_or(cfg.script_port);
-                }
-                let script_addr = format!("{}:{}", cfg.host, cfg.script_port);
-                let ur = robocal_drivers::ur::UrArm::connect(cfg)
-                    .await
-                    .with_context(|| format!("UR arm {:?} at {}", arm.name, arm.target()))?;
-                let s = robocal_drivers::ur::script::ScriptClient::connect(
-                    &script_addr,
-                    std::time::Duration::from_secs(5),
-                )
-                .await
-                .with_context(|| format!("UR script interface at {script_addr}"))?;
-                s.send(&freedrive_program(a.max_seconds)).await?;
-                script = Some(s);
-                Box::new(ur)
-            }
-            other => anyhow::bail!("device {:?}: protocol {other:?} is not an arm", arm.name),
-        };
-        let r =
-            capture::poses::capture_poses(&*reader, &clock, &opt, &keys, &mut |l| eprintln!("{l}"))
-                .await;
-        if let Some(s) = &script {
-            // Replace the freedrive program: the arm holds again.
-            s.send("end_freedrive_mode()\n").await.ok();
-        }
-        r
-    })?;
+    let taught = runtime()?.block_on(capture::teach::teach_poses(
+        &arm,
+        &clock,
+        &opt,
+        &keys,
+        &mut |l| eprintln!("{l}"),
+    ))?;
     crate::fsio::write_atomic(&a.out, capture::poses::poses_csv(&taught).as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;
     let text = crate::fsio::read_to_string(&a.out)?;

@@ -81,7 +81,26 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let (calibrated, nominal) =
         correct::models_of(&cal).with_context(|| format!("{}", args.calibration.display()))?;
     let targets = correct::read_targets(&args.targets)?;
-    let rows = correct::correct_targets(&calibrated, &nominal, &targets)?;
+    // Seed 003's correction network of the file (`calibrate navchain`), when it has one.
+    let net = crate::navchain::correction::from_calibration(&cal)
+        .with_context(|| format!("{}", args.calibration.display()))?;
+    let rows = match &net {
+        Some(b) => {
+            let (rows, largest) = crate::navchain::correct_targets::correct_targets_with_net(
+                &calibrated,
+                &nominal,
+                &targets,
+                b,
+            )?;
+            eprintln!(
+                "the calibration's correction network (navchain_net, 6-{}-6) is applied: \
+                 positions corrected by up to {largest:.3} mm",
+                b.hidden
+            );
+            rows
+        }
+        None => correct::correct_targets(&calibrated, &nominal, &targets)?,
+    };
     let errs: Vec<f64> = rows.iter().filter_map(|r| r.nominal_pos_err_mm).collect();
     eprintln!(
         "{} targets → {} corrected joint targets (every branch within the limits); the nominal \

@@ -4,13 +4,15 @@
 //!   records with a `target` label), optional `--tracker-model M.json` / `--ct-sigma-mm`;
 //! - surface: `--ct-mesh MESH.ply|.stl --tracker TRK.csv [--init INIT.json]`.
 //!
-//! Writes `registration.json` (`robocal-registration/1`) and prints FRE, FLE and TRE.
+//! Writes `registration.json` (`robocal-registration/1`) and prints FRE, FLE and TRE. The
+//! work is in [`crate::register::from_files`]; this file parses and prints.
 use std::path::PathBuf;
 
 use anyhow::bail;
 
-use crate::register::run::{load_model, surface_file};
-use crate::register::{self as reg, file, icp, mesh, points, RegistrationFile};
+use crate::register::from_files;
+use crate::register::run::surface_file;
+use crate::register::{icp, points, RegistrationFile};
 
 /// Arguments of `robocal register`.
 #[derive(Debug, clap::Args)]
@@ -44,6 +46,13 @@ pub struct Args {
     /// the surface) and says how many; 1.0 keeps every point.
     #[arg(long, default_value_t = 0.9)]
     pub trim: f64,
+    /// Check points in CT (CSV `name,x_mm,y_mm,z_mm`), not used by the fit: their error
+    /// through the registration against `--check-tracker` (paired by name) is reported.
+    #[arg(long, value_name = "C.csv", requires = "check_tracker")]
+    pub check_ct: Option<PathBuf>,
+    /// The same check points measured in the tracker (e.g. probe tip on the landmarks).
+    #[arg(long, value_name = "C.csv", requires = "check_ct")]
+    pub check_tracker: Option<PathBuf>,
     /// CT targets (CSV `name,x_mm,y_mm,z_mm`) to predict the TRE at.
     #[arg(long, value_name = "T.csv")]
     pub targets: Option<PathBuf>,
@@ -61,21 +70,14 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
             .collect(),
         None => Vec::new(),
     };
-    let file = if let Some(ct) = &a.ct {
-        let ct_pts = points::read_points_csv(ct)?;
-        let trk = match (&a.tracker, &a.tracker_data) {
-            (Some(t), None) => points::read_points_csv(t)?,
-            (None, Some(d)) => {
-                let ds = crate::dataset::Dataset::load(d)?;
-                points::tip_points_from_dataset(&ds, &d.display().to_string())?
-            }
-            _ => bail!("paired mode needs --tracker TRK.csv or --tracker-data D.jsonl"),
-        };
-        let opts = reg::PairedOptions {
-            tracker_model: a.tracker_model.as_deref().map(load_model).transpose()?,
-            ct_sigma_mm: a.ct_sigma_mm,
-        };
-        let r = reg::register_paired(&ct_pts, &trk, &opts)?;
+    let mut file = if let Some(ct) = &a.ct {
+        let r = from_files::paired(
+            ct,
+            a.tracker.as_deref(),
+            a.tracker_data.as_deref(),
+            a.tracker_model.as_deref(),
+            a.ct_sigma_mm,
+        )?;
         for u in &r.unpaired {
             eprintln!("warning: unpaired fiducial {u}");
         }
@@ -95,20 +97,13 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         let Some(tp) = &a.tracker else {
             bail!("surface mode needs --tracker TRK.csv (digitised surface points)")
         };
-        let m = mesh::read_mesh(mp)?;
-        let pts: Vec<_> = points::read_surface_points(tp)?.into_iter().collect();
-        let xyz: Vec<_> = pts.iter().map(|p| p.p).collect();
-        let init = a.init.as_deref().map(file::load_init).transpose()?;
-        let o = icp::IcpOptions {
-            trim_fraction: a.trim,
-            ..icp::IcpOptions::default()
-        };
-        let r = icp::register_surface(&m, &xyz, init.as_ref(), &o)?;
+        let s = from_files::surface(mp, tp, a.init.as_deref(), a.trim)?;
+        let (r, n) = (&s.result, s.points.len());
         println!(
             "surface registration: {} points ({} inliers, {} dropped as outliers beyond {} robust σ), RMS {:.3} mm, {} starts{}",
-            xyz.len(),
+            n,
             r.inliers,
-            xyz.len() - r.inliers,
+            n - r.inliers,
             icp::ROBUST_CUT,
             r.rms_mm,
             r.starts,
@@ -117,16 +112,34 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
                 _ => String::new(),
             }
         );
-        surface_file(
-            &r,
-            &pts,
-            &targets,
-            &mp.display().to_string(),
-            o.trim_fraction,
-        )
+        surface_file(r, &s.points, &targets, &mp.display().to_string(), s.trim)
     } else {
         bail!("give --ct CT.csv (paired fiducials) or --ct-mesh MESH (surface)")
     };
+    if let Some(i) = &file.icp {
+        if let (Some(m), Some(sd)) = (i.distance_mean_mm, i.distance_sd_mm) {
+            println!("point-to-surface distance (inliers): {m:.3} ± {sd:.3} mm (mean ± sd)");
+        }
+    }
+    if let (Some(c), Some(t)) = (&a.check_ct, &a.check_tracker) {
+        let (cp, unpaired) = crate::register::check::check_points(
+            &file.transform()?,
+            &points::read_points_csv(c)?,
+            &points::read_points_csv(t)?,
+            (&c.display().to_string(), &t.display().to_string()),
+        )?;
+        for u in &unpaired {
+            eprintln!("warning: check point {u} on one side only");
+        }
+        let e: Vec<f64> = cp.iter().map(|x| x.error_mm).collect();
+        let (m, sd) = crate::register::check::mean_sd(&e);
+        println!(
+            "check points: {}, error {m:.3} ± {sd:.3} mm (mean ± sd), max {:.3} mm",
+            cp.len(),
+            e.iter().cloned().fold(0.0, f64::max)
+        );
+        file.check_points = cp;
+    }
     for t in &file.targets {
         println!(
             "target {}: predicted TRE {:.3} mm RMS, 95 % ellipsoid {:.3} x {:.3} x {:.3} mm",

@@ -100,6 +100,16 @@ pub struct Args {
     /// sessions; the probe poses are shown and confirmed like the plan).
     #[arg(long, conflicts_with = "resume")]
     pub survey: bool,
+    /// Close a kinematic session with seed 003's correction network: trained on the
+    /// training poses on top of the geometric calibration, scored on the held-out poses beside
+    /// the physical diagnosis (report, `navchain/calibration.json`).
+    #[arg(long, conflicts_with = "resume")]
+    pub navchain: bool,
+    /// Camera sessions (seed 004): before planning, the operator guides the arm by hand to N
+    /// poses (4: the seed's) where the camera sees the whole board; their images locate the
+    /// board in the base and the shell of viewpoints is centred on it. Nothing is commanded.
+    #[arg(long, value_name = "N", conflicts_with = "resume")]
+    pub teach_board: Option<usize>,
     /// Print session.json on stdout at the end.
     #[arg(long)]
     pub json: bool,
@@ -118,10 +128,22 @@ pub struct Args {
     /// Tool-tip offset σ for the chain (mm; from the pivot calibration).
     #[arg(long, value_name = "MM", default_value_t = 0.0)]
     pub chain_tool_sigma_mm: f64,
+    /// Joints (deg, comma-separated) where the robot reaches the chain's targets: the robot
+    /// link (the calibration's bootstrap covariance) is propagated there (default: the
+    /// held-out pose nearest the targets).
+    #[arg(
+        long,
+        value_name = "Q1,Q2,...",
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        requires = "chain_targets"
+    )]
+    pub chain_joints_deg: Option<Vec<f64>>,
 }
 
-/// The session's closing chain report (`--chain-targets`): the validation run's held-out error
-/// as the robot link; writes `DIR/chain.json` and returns the text to print.
+/// The session's closing chain report (`--chain-targets`): the robot link is the session's
+/// calibration with its bootstrap covariance ([`session::navchain::chain_robot_link`]); writes
+/// `DIR/chain.json` and returns the text to print.
 fn chain_stage(a: &Args, dir: &std::path::Path) -> anyhow::Result<Option<String>> {
     let (Some(targets), Some(reg), Some(rw)) = (
         &a.chain_targets,
@@ -130,27 +152,29 @@ fn chain_stage(a: &Args, dir: &std::path::Path) -> anyhow::Result<Option<String>
     ) else {
         return Ok(None);
     };
-    // The robot link: the validation run's measured held-out error (the calibrated robot's
-    // positioning error as measured, tracker noise included: conservative) as an isotropic σ.
-    // The identification's per-parameter σ would ignore the strong correlations of kinematic
-    // parameters and overstate the tip error by orders of magnitude.
     let s = session::SessionFile::load(&dir.join("session.json"))?;
-    let Some(rms) = s.measured.heldout_rms_mm_after.filter(|r| r.is_finite()) else {
+    if !s
+        .measured
+        .heldout_rms_mm_after
+        .is_some_and(|r| r.is_finite())
+    {
         bail!(
             "the chain report needs the session's held-out RMS (validation stage): none measured"
         );
-    };
-    let sigma = rms / 3f64.sqrt();
+    }
+    let link =
+        session::navchain::chain_robot_link(dir, reg, rw, targets, a.chain_joints_deg.as_deref())?;
     let files = crate::navchain::ChainFiles {
         registration: reg,
         robot_world: rw,
         targets,
-        robot: crate::navchain::RobotLinkSource::SigmaMm(sigma),
+        robot: crate::navchain::RobotLinkSource::Calibration {
+            path: &link.calibration,
+            joints_deg: &link.joints_deg,
+        },
         tool_sigma_mm: a.chain_tool_sigma_mm,
     };
-    let mut notes = vec![format!(
-        "robot link: the session's held-out RMS {rms:.4} mm (validation run) as σ {sigma:.4} mm per axis"
-    )];
+    let mut notes = link.notes;
     let r = crate::navchain::chain_from_files(&files, 20_000, 1, &mut notes)
         .context("the session's chain report")?;
     let out = dir.join("chain.json");
@@ -228,6 +252,28 @@ impl session::Cell for RunCell {
     fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
         self.run_plan(plan, run_dir, None)
     }
+
+    fn teach_views(
+        &mut self,
+        count: usize,
+        log: session::Log,
+    ) -> anyhow::Result<Vec<session::teach::TaughtView>> {
+        let live = self.mode == Mode::Live;
+        let consent = live
+            .then(|| {
+                crate::cell::confirm_live(true, self.yes, "teach: robocal reads the arm's joints and the camera while you guide the arm by hand (nothing is commanded)")
+            })
+            .transpose()?;
+        let mode = if live { "live" } else { "sim" };
+        session::teach::capture_views(
+            mode,
+            &self.cell_file,
+            count,
+            self.in_process,
+            consent.as_ref(),
+            log,
+        )
+    }
 }
 
 impl RunCell {
@@ -291,6 +337,14 @@ impl RunCell {
 /// error before / after per robot and the mean improvement (also `DIR/fleet.md`).
 pub fn exec(a: Args) -> anyhow::Result<i32> {
     let fleet_dir = match (&a.sim, &a.arm, &a.resume) {
+        #[cfg(not(feature = "sim"))]
+        (Some(sim), None, None) => {
+            return Err(crate::cell::without_simulators(&format!(
+                "--sim {}",
+                sim.display()
+            )))
+        }
+        #[cfg(feature = "sim")]
         (Some(sim), None, None) => {
             let arms = crate::cell::simulated::stated_scenario(sim)?.arms;
             (arms.len() > 1).then(|| {
@@ -455,6 +509,8 @@ fn start_options(a: &Args) -> session::start::StartOptions {
         kind: a.kind.clone(),
         arm_calibration: a.arm_calibration.clone(),
         survey: a.survey,
+        navchain: a.navchain,
+        teach_board: a.teach_board,
     }
 }
 
@@ -593,6 +649,9 @@ fn print_result(
             );
             if let Some(v) = &s.verify {
                 println!("{}", session::verify::line(v));
+            }
+            if let Some(n) = &s.navchain {
+                println!("{}", session::navchain::text(n));
             }
         }
         for w in s.judgement.iter().flat_map(|j| j.worse.iter()) {

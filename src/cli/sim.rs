@@ -1,7 +1,9 @@
 //! `robocal sim`: run the simulated devices of a scenario (thin; the work is in
-//! [`crate::cell::simulated::serve`]).
+//! `crate::cell::simulated::serve`, built with the feature `sim`).
 
+#[cfg(feature = "sim")]
 use anyhow::Context as _;
+#[cfg(feature = "sim")]
 use std::io::Write as _;
 use std::path::PathBuf;
 
@@ -45,6 +47,15 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     }
 }
 
+#[cfg(not(feature = "sim"))]
+fn serve(a: ServeArgs) -> anyhow::Result<()> {
+    Err(crate::cell::without_simulators(&format!(
+        "sim serve --scenario {}",
+        a.scenario.display()
+    )))
+}
+
+#[cfg(feature = "sim")]
 fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

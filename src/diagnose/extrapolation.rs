@@ -59,3 +59,59 @@ pub fn ratio(state: &State, train: &[PoseObs], k: usize) -> Option<(f64, f64, f6
     (on_train > 0.0 && on_train.is_finite() && on_probes.is_finite())
         .then(|| (on_probes / on_train, on_train, on_probes))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::effects::{Block, Effect, Ripple};
+    use crate::diagnose::MAX_EXTRAPOLATION;
+    use crate::model::KinematicModel;
+    use nalgebra::Point3;
+
+    /// A ripple of joint 2 whose training poses all sit at its nodes (`sin 8q₂ = 0`)
+    /// predicts nothing there and up to its amplitude between them: the ratio exceeds the
+    /// default limit (the check is on by default). The same ripple on poses spread over the
+    /// same range stays within a few times its largest training displacement.
+    #[test]
+    fn an_effect_that_vanishes_on_the_training_poses_is_flagged_by_default() {
+        let model = KinematicModel::preset("ur5e").unwrap();
+        let state = State {
+            model: model.clone(),
+            effects: vec![Effect {
+                block: Block::Ripple(Ripple {
+                    joint: 2,
+                    harmonic: 8,
+                }),
+                coefs: vec![0.05f64.to_radians(), 0.0],
+                std: vec![f64::NAN; 2],
+                tau_std: f64::NAN,
+            }],
+        };
+        let pose = |k: usize, q2: f64| {
+            let f = k as f64;
+            let q: Vec<f64> = (0..6)
+                .map(|i| {
+                    if i == 1 {
+                        q2
+                    } else {
+                        0.8 * ((f + 1.0) * (i as f64 + 1.3)).sin()
+                    }
+                })
+                .collect();
+            PoseObs::at(k as u64, f, q, Point3::origin())
+        };
+        let step = std::f64::consts::PI / 8.0;
+        let at_nodes: Vec<PoseObs> = (0..60).map(|k| pose(k, -step * (k % 9) as f64)).collect();
+        let spread: Vec<PoseObs> = (0..60)
+            .map(|k| pose(k, -8.0 * step * k as f64 / 59.0))
+            .collect();
+        let nodes = ratio(&state, &at_nodes, 0).map(|r| r.0);
+        let dense = ratio(&state, &spread, 0).unwrap().0;
+        assert!(MAX_EXTRAPOLATION.is_finite(), "the check is off by default");
+        assert!(
+            nodes.is_none_or(|r| r > MAX_EXTRAPOLATION),
+            "at the nodes: {nodes:?}"
+        );
+        assert!(dense < 3.0, "spread: {dense}");
+    }
+}

@@ -204,17 +204,28 @@ pub fn fit(state: &mut State, obs: &[PoseObs], max_iter: usize) -> FitReport {
 /// Nominal fit: register the base (tracker ← robot base) from flange positions, then fit
 /// base (6) and tool position (3) with all joint parameters at nominal. Leaves the model's
 /// free flags as they were on entry.
-pub fn fit_nominal(model: &mut KinematicModel, obs: &[PoseObs]) -> anyhow::Result<FitReport> {
+pub fn fit_nominal(
+    model: &mut KinematicModel,
+    obs: &[PoseObs],
+) -> Result<FitReport, super::error::FitError> {
     if obs.len() < 4 {
-        anyhow::bail!("need at least 4 measured poses, got {}", obs.len());
+        return Err(super::error::FitError::TooFewPoses {
+            what: "need",
+            need: 4,
+            got: obs.len(),
+        });
     }
     let flange: Vec<Point3<f64>> = obs
         .iter()
         .map(|o| Point3::from(model.flange_pose(&o.ctx.q).translation.vector))
         .collect();
     let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.p).collect();
-    let b = crate::solve::rigid::register_points(&flange, &ys)
-        .map_err(|e| anyhow::anyhow!("cannot register the tracker to the robot base: {e}"))?;
+    let b = crate::solve::rigid::register_points(&flange, &ys).map_err(|e| {
+        super::error::FitError::Register {
+            what: "the tracker",
+            why: e.to_string(),
+        }
+    })?;
     model.set_base(&b);
     model.set_tool(&Isometry3::identity());
     let saved: Vec<bool> = model.params().iter().map(|p| p.free).collect();

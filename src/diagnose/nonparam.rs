@@ -6,6 +6,7 @@ use faer::{linalg::solvers::Solve, Mat, Side};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use super::error::RbfFileError;
 use crate::model::KinematicModel;
 use serde_json::{json, Map, Value};
 
@@ -177,6 +178,17 @@ fn sse_of(r: &[Vector3<f64>], idx: &[usize], pred: &Mat<f64>) -> f64 {
         .sum()
 }
 
+/// Fold boundaries (`n_folds + 1`, from 0 to the number of samples) when every fold is one
+/// contiguous block in fold order (the time-blocked folds of [`super::folds`]); `None`
+/// otherwise.
+fn block_bounds(fold: &[usize], n_folds: usize) -> Option<Vec<usize>> {
+    (fold.windows(2).all(|w| w[0] <= w[1]) && fold.iter().all(|&f| f < n_folds)).then(|| {
+        (0..=n_folds)
+            .map(|f| fold.partition_point(|&g| g < f))
+            .collect()
+    })
+}
+
 /// Squared prediction error per fold and per λ, on the fold's test samples and on its own
 /// training samples: for each fold the training kernel system is built once and factorised
 /// once per λ (folds run in parallel). When every fold's system is exact (no subset of
@@ -195,6 +207,19 @@ fn fold_errors(
     let all: Vec<usize> = (0..n).collect();
     let exact = (0..n_folds).all(|f| fold.iter().filter(|&&g| g != f).count() <= MAX_CENTRES);
     let full = exact.then(|| kernel(q, &all, &all, ell));
+    // Time-blocked folds (contiguous blocks): every fold's weights from one shared blocked
+    // factorisation per λ ([`super::foldchol`]: the same weights in exact arithmetic, 1.42×
+    // fewer flops with 5 folds); a fold it could not complete is factorised on its own below.
+    let shared: Vec<Vec<Option<Mat<f64>>>> = match (&full, block_bounds(fold, n_folds)) {
+        (Some(k), Some(bounds)) => {
+            let y = targets(r, &all);
+            lambdas
+                .par_iter()
+                .map(|&lam| super::foldchol::fold_weights(k.as_ref(), lam, y.as_ref(), &bounds))
+                .collect()
+        }
+        _ => Vec::new(),
+    };
     (0..n_folds)
         .into_par_iter()
         .filter_map(|f| {
@@ -210,8 +235,12 @@ fn fold_errors(
             };
             let sse = lambdas
                 .iter()
-                .map(|&lam| {
-                    let w = sys.solve(lam)?;
+                .enumerate()
+                .map(|(li, &lam)| {
+                    let w = match shared.get(li).and_then(|w| w.get(f)) {
+                        Some(Some(w)) => w.clone(),
+                        _ => sys.solve(lam)?,
+                    };
                     Some(FoldSse {
                         test: sse_of(r, &te, &(&kx * &w)),
                         fit: sse_of(r, &tr, &sys.fitted(&w)),
@@ -320,25 +349,25 @@ impl Rbf {
     }
 
     /// Read the file form.
-    pub fn from_json(p: &Map<String, Value>) -> anyhow::Result<Rbf> {
+    pub fn from_json(p: &Map<String, Value>) -> Result<Rbf, RbfFileError> {
         let ell = p
             .get("length_scale_deg")
             .and_then(|v| v.as_f64())
             .filter(|v| v.is_finite() && *v > 0.0)
-            .ok_or_else(|| anyhow::anyhow!("nonparametric: bad \"length_scale_deg\""))?;
-        let rows = |k: &str| -> anyhow::Result<Vec<Vec<f64>>> {
+            .ok_or(RbfFileError::LengthScale)?;
+        let rows = |k: &str| -> Result<Vec<Vec<f64>>, RbfFileError> {
             p.get(k)
                 .and_then(|v| v.as_array())
-                .ok_or_else(|| anyhow::anyhow!("nonparametric: missing \"{k}\""))?
+                .ok_or_else(|| RbfFileError::Missing(k.into()))?
                 .iter()
                 .map(|r| {
                     r.as_array()
-                        .ok_or_else(|| anyhow::anyhow!("nonparametric: bad row in \"{k}\""))?
+                        .ok_or_else(|| RbfFileError::Row(k.into()))?
                         .iter()
                         .map(|x| {
-                            x.as_f64().filter(|v| v.is_finite()).ok_or_else(|| {
-                                anyhow::anyhow!("nonparametric: bad number in \"{k}\"")
-                            })
+                            x.as_f64()
+                                .filter(|v| v.is_finite())
+                                .ok_or_else(|| RbfFileError::Number(k.into()))
                         })
                         .collect()
                 })
@@ -350,7 +379,7 @@ impl Rbf {
             .collect();
         let w = rows("weights_mm")?;
         if w.len() != centers.len() || w.iter().any(|r| r.len() != 3) {
-            anyhow::bail!("nonparametric: weights must be one [x, y, z] per centre");
+            return Err(RbfFileError::Weights);
         }
         Ok(Rbf {
             arm_frame: p.get("frame").and_then(|v| v.as_str()) == Some("joint1"),

@@ -10,6 +10,7 @@ use plotters::prelude::*;
 use std::path::Path;
 
 use super::effects::{apply_effects, Block, Effect, EffectModel};
+use super::error::PlotError;
 use super::fit::State;
 use crate::solve::obs::PoseObs;
 
@@ -78,6 +79,14 @@ pub fn partial_residual(
     (pts, xl, yl)
 }
 
+/// The plotting library's error `e` on the plot `path`.
+fn err(path: &Path, e: impl std::fmt::Display) -> PlotError {
+    PlotError {
+        path: path.to_path_buf(),
+        why: e.to_string(),
+    }
+}
+
 /// Write one SVG scatter with the y = x line.
 pub fn write_svg(
     path: &Path,
@@ -85,7 +94,7 @@ pub fn write_svg(
     pts: &[(f64, f64)],
     xl: &str,
     yl: &str,
-) -> anyhow::Result<()> {
+) -> Result<(), PlotError> {
     let lo = pts
         .iter()
         .flat_map(|(x, y)| [*x, *y])
@@ -103,32 +112,31 @@ pub fn write_svg(
         (-1.0, 1.0)
     };
     let root = SVGBackend::new(path, (720, 540)).into_drawing_area();
-    root.fill(&WHITE)
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(lo..hi, lo..hi)
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
     chart
         .configure_mesh()
         .x_desc(xl)
         .y_desc(yl)
         .draw()
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
     chart
         .draw_series(
             pts.iter()
                 .filter(|(x, y)| x.is_finite() && y.is_finite())
                 .map(|(x, y)| Circle::new((*x, *y), 2, BLUE.filled())),
         )
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
     chart
         .draw_series(LineSeries::new(vec![(lo, lo), (hi, hi)], RED))
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
-    root.present().map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
+    root.present().map_err(|e| err(path, e))?;
     Ok(())
 }
 
@@ -172,7 +180,7 @@ pub fn write_driver_svg(
     pts: &[(f64, f64, f64)],
     xl: &str,
     yl: &str,
-) -> anyhow::Result<()> {
+) -> Result<(), PlotError> {
     let fin = |v: &f64| v.is_finite();
     let range = |it: &mut dyn Iterator<Item = f64>| {
         let (lo, hi) = it
@@ -190,35 +198,34 @@ pub fn write_driver_svg(
     let (x0, x1) = range(&mut pts.iter().map(|p| p.0));
     let (y0, y1) = range(&mut pts.iter().flat_map(|p| [p.1, p.2]));
     let root = SVGBackend::new(path, (720, 540)).into_drawing_area();
-    root.fill(&WHITE)
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+    root.fill(&WHITE).map_err(|e| err(path, e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
     chart
         .configure_mesh()
         .x_desc(xl)
         .y_desc(yl)
         .draw()
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
     chart
         .draw_series(
             pts.iter()
                 .filter(|p| p.0.is_finite() && p.1.is_finite())
                 .map(|p| Circle::new((p.0, p.1), 2, BLUE.mix(0.5).filled())),
         )
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
     chart
         .draw_series(
             pts.iter()
                 .filter(|p| p.0.is_finite() && p.2.is_finite())
                 .map(|p| Circle::new((p.0, p.2), 1, RED.filled())),
         )
-        .map_err(|e| anyhow::anyhow!("plot: {e}"))?;
-    root.present().map_err(|e| anyhow::anyhow!("plot: {e}"))?;
+        .map_err(|e| err(path, e))?;
+    root.present().map_err(|e| err(path, e))?;
     Ok(())
 }

@@ -7,6 +7,7 @@
 use nalgebra::{DMatrix, DVector, Point3};
 
 use super::effects::apply_effects;
+use super::error::FitError;
 use super::fit::{residuals, rms3, stack, State};
 use crate::model::ParamGroup;
 use crate::solve::lm::{minimize, LmOptions, LsqProblem};
@@ -55,12 +56,14 @@ impl LsqProblem for SetupProblem<'_> {
 /// `state` with the tracker ← base and marker position re-fitted on `obs` (at least 6
 /// poses); everything else as identified. The free flags of the returned model are those of
 /// `state`.
-pub fn refit_setup(state: &State, obs: &[PoseObs]) -> anyhow::Result<State> {
-    anyhow::ensure!(
-        obs.len() >= 6,
-        "re-registering a setup needs at least 6 measured poses, got {}",
-        obs.len()
-    );
+pub fn refit_setup(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
+    if obs.len() < 6 {
+        return Err(FitError::TooFewPoses {
+            what: "re-registering a setup needs",
+            need: 6,
+            got: obs.len(),
+        });
+    }
     let mut st = state.clone();
     // Start: rigid registration of the model's predictions (robot base frame, effects
     // applied) onto the measurements.
@@ -71,8 +74,10 @@ pub fn refit_setup(state: &State, obs: &[PoseObs]) -> anyhow::Result<State> {
         .map(|o| inv * apply_effects(&st.model, &st.effects, &o.ctx))
         .collect();
     let ys: Vec<Point3<f64>> = obs.iter().map(|o| o.p).collect();
-    let b = crate::solve::rigid::register_points(&pred, &ys)
-        .map_err(|e| anyhow::anyhow!("cannot register the new setup to the robot base: {e}"))?;
+    let b = crate::solve::rigid::register_points(&pred, &ys).map_err(|e| FitError::Register {
+        what: "the new setup",
+        why: e.to_string(),
+    })?;
     st.model.set_base(&b);
     let saved: Vec<(String, bool)> = st
         .model
@@ -101,10 +106,11 @@ pub fn refit_setup(state: &State, obs: &[PoseObs]) -> anyhow::Result<State> {
             lambda0: 1e-3,
         },
     );
-    anyhow::ensure!(
-        rep.cost.is_finite(),
-        "re-registering the new setup diverged (cost not finite)"
-    );
+    if !rep.cost.is_finite() {
+        return Err(FitError::NotFinite(
+            "re-registering the new setup diverged (cost not finite)",
+        ));
+    }
     if rep.cost <= rep.initial_cost {
         st.model.set_free_values(&rep.x);
     }
@@ -112,7 +118,11 @@ pub fn refit_setup(state: &State, obs: &[PoseObs]) -> anyhow::Result<State> {
         st.model.set_free(n, *f)?;
     }
     let r = rms3(&residuals(&st, obs));
-    anyhow::ensure!(r.is_finite(), "re-registered setup: residual not finite");
+    if !r.is_finite() {
+        return Err(FitError::NotFinite(
+            "re-registered setup: residual not finite",
+        ));
+    }
     Ok(st)
 }
 

@@ -18,6 +18,8 @@
 //! Carlo through the exact transforms (they must agree), gives the 95 % ellipsoid and each
 //! link's share of the variance. It is the library entry `robocal chain` and a session's
 //! closing chain report call.
+pub mod compare;
+pub mod correct_targets;
 pub mod correction;
 pub mod nn;
 

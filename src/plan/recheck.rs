@@ -32,10 +32,13 @@ pub struct CellSafety {
     pub table_clearance_mm: f64,
     /// Envelope every arm check point stays in.
     pub envelope: Option<robocal_drivers::safety::Envelope>,
+    /// Per joint `[lower, upper]` (deg) when the cell states them (a device file's
+    /// `[safety]`): every pose of a plan stays inside.
+    pub joint_limits_deg: Option<Vec<[f64; 2]>>,
 }
 
 /// Whether envelope `a` lies inside envelope `b` (both convex: their extreme points decide).
-fn envelope_within(
+pub(crate) fn envelope_within(
     a: &robocal_drivers::safety::Envelope,
     b: &robocal_drivers::safety::Envelope,
 ) -> bool {
@@ -125,6 +128,33 @@ pub fn within_cell(c: &ConstraintSpec, cell: &CellSafety, source: &str) -> Resul
     Ok(())
 }
 
+/// Checks every pose of `plan` against the cell's joint limits (a device file's `[safety]`
+/// `joint_limits_deg`), naming the pose, the joint and the limit.
+pub fn poses_within_cell_joints(
+    plan: &PlanFile,
+    cell: &CellSafety,
+    source: &str,
+) -> Result<(), PlanError> {
+    let Some(lims) = &cell.joint_limits_deg else {
+        return Ok(());
+    };
+    for p in &plan.poses {
+        for (k, (q, [lo, hi])) in p.q_deg.iter().zip(lims).enumerate() {
+            if *q < lo - 1e-9 || *q > hi + 1e-9 {
+                return Err(bad(format!(
+                    "pose {} ({}): joint {} at {q:.2}° is outside the cell's joint limit [{lo}, \
+                     {hi}]° (`joint_limits_deg` of {source}): a plan may be stricter than the \
+                     cell, never wider (re-plan on this cell)",
+                    p.id,
+                    p.label,
+                    k + 1
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
 fn bad(message: String) -> PlanError {
     PlanError::PlanFile { message }
 }
@@ -201,6 +231,7 @@ pub fn recheck(plan: &PlanFile, cell: Option<&CellRobot>) -> Result<usize, PlanE
         });
     if let Some((safety, source)) = cell.and_then(|c| c.safety.as_ref().map(|s| (s, &c.source))) {
         within_cell(&constraints, safety, source)?;
+        poses_within_cell_joints(plan, safety, source)?;
     }
     for p in &plan.poses {
         let q: Vec<f64> = p.q_deg.iter().map(|x| x.to_radians()).collect();
@@ -234,6 +265,7 @@ mod tests {
             table_z_mm: Some(0.0),
             table_clearance_mm: 50.0,
             envelope: Some(cyl(900.0, 0.0)),
+            joint_limits_deg: None,
         };
         let plan = |z: Option<f64>, clear: f64, env: Option<Envelope>| ConstraintSpec {
             table_z_mm: z,

@@ -83,6 +83,11 @@ pub struct IcpSummary {
     pub runner_up_rms_mm: Option<f64>,
     /// Angle (deg) between the best and runner-up solutions.
     pub runner_up_angle_deg: Option<f64>,
+    /// Point-to-surface distance of the inliers (absolute, mm): mean and sd.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distance_mean_mm: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distance_sd_mm: Option<f64>,
 }
 
 /// `robocal-registration/1`.
@@ -110,6 +115,10 @@ pub struct RegistrationFile {
     pub icp: Option<IcpSummary>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub notes: Option<String>,
+    /// Check points (`register --check-ct … --check-tracker …`): points not used by the fit,
+    /// known in CT and measured in the tracker, with their error through the registration.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub check_points: Vec<crate::register::check::CheckPoint>,
 }
 
 /// The order string written into files.
@@ -233,6 +242,7 @@ impl RegistrationFile {
             unpaired: r.unpaired.clone(),
             icp: None,
             notes: None,
+            check_points: Vec::new(),
         }
     }
 

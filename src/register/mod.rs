@@ -8,7 +8,9 @@
 //!
 //! The end-to-end error transfer to a CT target lives in [`crate::navchain`].
 
+pub mod check;
 pub mod file;
+pub mod from_files;
 pub mod icp;
 pub mod mesh;
 pub mod paired;

@@ -29,6 +29,13 @@ pub fn surface_file(
 ) -> RegistrationFile {
     let arr = |p: &nalgebra::Point3<f64>| [p.x, p.y, p.z];
     let n = pts.len();
+    let inlier_d: Vec<f64> = r
+        .residuals
+        .iter()
+        .filter(|x| x.inlier)
+        .map(|x| x.distance_mm.abs())
+        .collect();
+    let dist = crate::register::check::mean_sd(&inlier_d);
     RegistrationFile {
         format: reg::REGISTRATION_FORMAT.into(),
         kind: "surface".into(),
@@ -78,8 +85,11 @@ pub fn surface_file(
             rms_mm: r.rms_mm,
             runner_up_rms_mm: r.runner_up_rms_mm,
             runner_up_angle_deg: r.runner_up_angle_deg,
+            distance_mean_mm: Some(dist.0).filter(|x| x.is_finite()),
+            distance_sd_mm: Some(dist.1).filter(|x| x.is_finite()),
         }),
         notes: None,
+        check_points: Vec::new(),
     }
 }
 

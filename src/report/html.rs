@@ -292,6 +292,10 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     }
     if let Some(c) = &s.camera {
         camera_section(&mut h, c);
+        // The calibration's 95 % intervals (intrinsics, hand-eye, board).
+        for svg in crate::session::camera_intervals::svgs(c) {
+            let _ = write!(h, "<figure class=\"plot-camera-intervals\">{svg}</figure>");
+        }
         // The held-out views: reprojection per view, residual map.
         for p in &c.plots {
             if let Some(svg) = inline_svg(&dir.join(p)) {
@@ -304,6 +308,9 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
     }
     if let Some(r) = &s.rcm {
         h.push_str(&crate::session::rcm::html(r, &s.measured));
+    }
+    if let Some(n) = &s.navchain {
+        h.push_str(&crate::session::navchain::html(n));
     }
     // Effects.
     h.push_str("<h2>What the diagnosis found</h2>");

@@ -16,6 +16,9 @@
 //!
 //! Reading is strict: [`read`] checks the format tag first (naming the file, the tag found
 //! and the one expected), then deserialises, so an older or foreign file is a clear error.
+// Every public item of a schema says what it is and its unit: the schema is the contract of
+// the files other tools read.
+#![warn(missing_docs)]
 use std::path::Path;
 
 use serde::de::DeserializeOwned;
@@ -67,28 +70,42 @@ pub const PIVOT_FORMAT: &str = "robocal-pivot/1";
 /// Errors reading or writing a schema file.
 #[derive(Debug, thiserror::Error)]
 pub enum SchemaError {
+    /// The file could not be read or written.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: String,
+        /// The I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// The file is not JSON.
     #[error("{path}: not JSON: {source}")]
     Json {
+        /// The file.
         path: String,
+        /// The parser's error (line and column).
         #[source]
         source: serde_json::Error,
     },
+    /// The file's `format` tag is not the expected one.
     #[error("{path}: field \"format\": expected \"{expected}\", got {found} (an older robocal or a different file; re-run the command that wrote it)")]
     Format {
+        /// The file.
         path: String,
+        /// The tag expected.
         expected: &'static str,
+        /// The tag found (or `none`).
         found: String,
     },
+    /// The tag is right but a field is missing or of the wrong type.
     #[error("{path}: {source} (a `{expected}` file)")]
     Shape {
+        /// The file.
         path: String,
+        /// The format expected.
         expected: &'static str,
+        /// The deserialiser's error, naming the field.
         #[source]
         source: serde_json::Error,
     },
@@ -240,6 +257,7 @@ pub struct EffectParameter {
     pub name: String,
     /// Unit of `value`, `std` and `ci95` (`deg`, `mm`, `s`, `ppm`, `deg/K`, ...).
     pub unit: String,
+    /// Value (file units, see `unit`).
     pub value: f64,
     /// Standard deviation (from the final joint fit), when computable.
     pub std: Option<f64>,
@@ -268,11 +286,13 @@ pub struct Evidence {
     pub candidate: String,
     /// Effect kind.
     pub kind: String,
+    /// Joint (1-based) of the candidate, where it has one.
     pub joint: Option<usize>,
     /// Degrees of freedom of the candidate block.
     pub df: Option<usize>,
     /// Nested-model F statistic.
     pub f: Option<f64>,
+    /// p-value of the F test (before the Bonferroni correction).
     pub p_value: Option<f64>,
     /// Number of tests the p-value was corrected for (Bonferroni).
     pub tests: Option<usize>,
@@ -297,24 +317,32 @@ pub struct DiagnosedEffect {
     pub label: String,
     /// Parameters in file units with intervals.
     pub parameters: Vec<EffectParameter>,
+    /// The evidence it was accepted on.
     pub evidence: Evidence,
     /// Train / held-out RMS before and after adding the effect, kinematic / laser (mm).
     pub train_rms_mm_before: Option<f64>,
+    /// Training RMS after adding the effect (mm).
     pub train_rms_mm_after: Option<f64>,
+    /// Held-out RMS before adding the effect (mm).
     pub heldout_rms_mm_before: Option<f64>,
+    /// Held-out RMS after adding the effect (mm).
     pub heldout_rms_mm_after: Option<f64>,
     /// The same for a camera diagnosis (corner reprojection, px); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub train_rms_px_before: Option<f64>,
+    /// Camera: training reprojection RMS after adding the effect (px).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub train_rms_px_after: Option<f64>,
+    /// Camera: held-out reprojection RMS before adding the effect (px).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heldout_rms_px_before: Option<f64>,
+    /// Camera: held-out reprojection RMS after adding the effect (px).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heldout_rms_px_after: Option<f64>,
     /// Camera: how far adding the effect moved the hand-eye (mm, deg); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hand_eye_change_mm: Option<f64>,
+    /// Camera: how far adding the effect turned the hand-eye (deg).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hand_eye_change_deg: Option<f64>,
     /// The effect as written into `calibration.json` (what `robocal predict` applies).
@@ -360,14 +388,18 @@ impl DiagnosedEffect {
 /// A pose in file units: `xyz_mm`, `quat` `[w, x, y, z]` (camera diagnoses: the hand-eye).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseMmQuat {
+    /// Position (mm).
     pub xyz_mm: [f64; 3],
+    /// Orientation, unit quaternion `[w, x, y, z]`.
     pub quat: [f64; 4],
 }
 
 /// An effect the data could not test, and why.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Untestable {
+    /// The effect (kind or candidate label).
     pub effect: String,
+    /// Why the data cannot test it.
     pub reason: String,
 }
 
@@ -392,9 +424,11 @@ pub struct AmbiguousPose {
 pub struct DiagnosisFile {
     /// Always [`DIAGNOSIS_FORMAT`].
     pub format: String,
+    /// The sensor whose residual was diagnosed.
     pub sensor: DiagnosisSensor,
     /// What the RMS figures measure (e.g. `3-D marker point error`).
     pub residual: String,
+    /// Number of training poses.
     pub n_train: usize,
     /// Number of held-out poses scored in `heldout_rms` and the effects' held-out RMS.
     pub n_heldout: usize,
@@ -402,7 +436,9 @@ pub struct DiagnosisFile {
     /// `ambiguous_heldout`).
     #[serde(default)]
     pub n_heldout_excluded: usize,
+    /// Training RMS at each stage of the diagnosis.
     pub train_rms: StageRms,
+    /// Held-out RMS at each stage of the diagnosis.
     pub heldout_rms: StageRms,
     /// Accepted effects in the order they were added.
     pub effects: Vec<DiagnosedEffect>,
@@ -412,6 +448,7 @@ pub struct DiagnosisFile {
     pub rounds: Vec<Vec<Evidence>>,
     /// Significant but absorbed by the model (not identifiable with this data).
     pub not_identifiable: Vec<Evidence>,
+    /// Effects the data could not test, with the reason.
     pub untestable: Vec<Untestable>,
     /// Held-out poses inside a change point's uncertainty window (predictions not trusted).
     #[serde(default)]
@@ -423,6 +460,7 @@ pub struct DiagnosisFile {
     /// after the accepted effects: what the compensation changes. Absent for other sensors.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hand_eye_before: Option<PoseMmQuat>,
+    /// Camera: the hand-eye after the accepted effects.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hand_eye_after: Option<PoseMmQuat>,
 }
@@ -448,6 +486,7 @@ impl DiagnosisFile {
 pub struct RunSummaryFile {
     /// Always [`RUN_SUMMARY_FORMAT`].
     pub format: String,
+    /// The run's summary (flattened into the file).
     #[serde(flatten)]
     pub summary: RunSummary,
 }
@@ -470,32 +509,45 @@ impl From<RunSummary> for RunSummaryFile {
 /// One estimator's row of the laser hand-eye comparison.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LaserMethodRow {
+    /// Estimator name.
     pub method: String,
     /// Beam origin in the flange frame (mm).
     pub r_mm: [f64; 3],
     /// Beam direction in the flange frame (unit vector).
     pub v: [f64; 3],
+    /// Mean 5-direction spread over the validation targets (mm).
     pub spread_mean_mm: Option<f64>,
+    /// Standard deviation of that spread over the targets (mm).
     pub spread_std_mm: Option<f64>,
+    /// Fiducial registration error (mm), where the method has one.
     pub fre_mm: Option<f64>,
+    /// Target registration error (mm), where the method has one.
     pub tre_mm: Option<f64>,
+    /// Simulated cells only: spot RMS against the true spots (mm).
     pub spot_rms_vs_truth_mm: Option<f64>,
+    /// Records the estimator used.
     pub n_used: usize,
+    /// What the estimator assumes or why it failed.
     pub note: String,
 }
 
 /// One step of a plane's data selection.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SelectionStep {
+    /// Iteration of the selection.
     pub iteration: usize,
+    /// Points kept at that iteration.
     pub points: usize,
+    /// The selection's score at that iteration (lower is better).
     pub score: Option<f64>,
 }
 
 /// The 5-direction spread of one validation target (mm).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TargetSpread {
+    /// Target label.
     pub target: String,
+    /// Its 5-direction spread (mm).
     pub spread_mm: Option<f64>,
 }
 
@@ -504,15 +556,19 @@ pub struct TargetSpread {
 pub struct LaserReportFile {
     /// Always [`LASER_REPORT_FORMAT`].
     pub format: String,
+    /// One row per estimator.
     pub rows: Vec<LaserMethodRow>,
     /// Data-selection trace per plane label.
     pub selection: std::collections::BTreeMap<String, Vec<SelectionStep>>,
     /// The iteration kept per plane label.
     pub selection_best: std::collections::BTreeMap<String, usize>,
+    /// The final beam's spread per validation target.
     pub final_spreads: Vec<TargetSpread>,
     /// Ids of the records the robust final fit flagged as outliers.
     pub outliers: Vec<u64>,
+    /// The final fit's RMS distance of the spots to their planes (mm).
     pub final_plane_rms_mm: Option<f64>,
+    /// How the final fit ended (converged, iteration limit, ...).
     pub final_termination: String,
     /// Std of the final beam: r (mm, 3) then v (unitless, 3).
     pub final_std: Option<[f64; 6]>,
@@ -527,17 +583,24 @@ impl SchemaFile for LaserReportFile {
 /// Flatness of one scanned face.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FaceFlatness {
+    /// Face label.
     pub face: String,
+    /// Points on the face.
     pub points: usize,
+    /// RMS distance of the points to their fitted plane (mm).
     pub rms_mm: f64,
+    /// Largest distance to the plane (mm).
     pub max_mm: f64,
 }
 
 /// Angle between two scanned faces.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FaceAngle {
+    /// First face.
     pub a: String,
+    /// Second face.
     pub b: String,
+    /// Angle between their fitted planes (deg).
     pub angle_deg: f64,
 }
 
@@ -548,8 +611,11 @@ pub struct ScanReportFile {
     pub format: String,
     /// The scan dataset.
     pub scan: String,
+    /// Points reconstructed.
     pub points: usize,
+    /// Flatness of each face.
     pub faces: Vec<FaceFlatness>,
+    /// Angles between the faces.
     pub angles: Vec<FaceAngle>,
 }
 
@@ -562,11 +628,17 @@ impl SchemaFile for ScanReportFile {
 /// One pivot-calibration method's result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PivotResult {
+    /// Method (`algebraic`, `sphere`, `robust-algebraic`, `robust-sphere`).
     pub method: String,
+    /// Probe tip in the marker frame (mm).
     pub tip_in_marker_mm: [f64; 3],
+    /// Pivot point in the tracker frame (mm).
     pub pivot_point_mm: [f64; 3],
+    /// RMS 3-D tip residual over the frames (mm).
     pub rms_mm: f64,
+    /// Largest 3-D tip residual (mm).
     pub max_mm: f64,
+    /// Frames used.
     pub frames: usize,
     /// Per-axis RMS `√(Σ|e|²/3n)` (scikit-surgerycalibration's `residual_error`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -574,6 +646,7 @@ pub struct PivotResult {
     /// 95 % bootstrap intervals `[[lo, hi]; 3]` of the tip (marker frame) and pivot point.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tip_ci95_mm: Option<[[f64; 2]; 3]>,
+    /// 95 % bootstrap interval of the pivot point (tracker frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pivot_ci95_mm: Option<[[f64; 2]; 3]>,
 }
@@ -583,18 +656,23 @@ pub struct PivotResult {
 pub struct PivotRobust {
     /// Frames read / dropped as outliers.
     pub frames_in: usize,
+    /// Frames dropped as outliers.
     pub dropped: usize,
     /// Inlier cut on the 3-D tip residual and the robust per-axis σ (mm).
     pub threshold_mm: f64,
+    /// Robust per-axis σ of the residual (mm).
     pub sigma_mm: f64,
     /// Largest tilt of the probe axis from its mean (deg).
     pub spread_deg: f64,
     /// Bootstrap replicates and block length (frames).
     pub bootstrap: usize,
+    /// Block length of the moving-block bootstrap (frames).
     pub block: usize,
     /// Whether the methods' tips differ beyond their intervals; which to trust and why.
     pub disagree: bool,
+    /// The estimate to trust (`algebraic` or `sphere`).
     pub trust: String,
+    /// Why that one.
     pub reason: String,
 }
 
@@ -603,8 +681,11 @@ pub struct PivotRobust {
 pub struct PivotFile {
     /// Always [`PIVOT_FORMAT`].
     pub format: String,
+    /// The tool calibrated, when the records name one.
     pub tool: Option<String>,
+    /// Every method's result (every frame, then robust).
     pub results: Vec<PivotResult>,
+    /// Outlier handling and the verdict.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub robust: Option<PivotRobust>,
 }

@@ -23,14 +23,19 @@ pub struct NavNetBlock {
     pub inputs: String,
     /// Hidden neurons `n`, training epochs, poses trained on.
     pub hidden: usize,
+    /// Training epochs.
     pub epochs: usize,
+    /// Poses trained on.
     pub train_poses: usize,
     /// Training RMS of the residual before / after the network (mm).
     pub train_rms_mm_before: f64,
+    /// Training RMS after the network (mm).
     pub train_rms_mm_after: f64,
     /// Held-out RMS before / after (mm), when a held-out file was given.
     pub heldout_poses: Option<usize>,
+    /// Held-out RMS before the network (mm).
     pub heldout_rms_mm_before: Option<f64>,
+    /// Held-out RMS after the network (mm).
     pub heldout_rms_mm_after: Option<f64>,
     /// The weights and the standardisation (inputs in the units of `inputs`).
     pub net: SeedNet,

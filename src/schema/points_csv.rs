@@ -14,24 +14,35 @@ pub const HEADER: [&str; 4] = ["id", "x_mm", "y_mm", "z_mm"];
 /// One row: a pose id and a point (mm).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct IdPoint {
+    /// Pose (record) id.
     pub id: u64,
+    /// x (mm).
     pub x_mm: f64,
+    /// y (mm).
     pub y_mm: f64,
+    /// z (mm).
     pub z_mm: f64,
 }
 
 /// Why a point table was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum PointsCsvError {
+    /// The file could not be read or written.
     #[error("{file}: {source}")]
     Io {
+        /// The file.
         file: String,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// A line is not a valid row.
     #[error("{file}:{line}: {msg}")]
     Bad {
+        /// The file.
         file: String,
+        /// Line number (1-based).
         line: u64,
+        /// What is wrong, naming the field.
         msg: String,
     },
 }
@@ -40,9 +51,13 @@ pub enum PointsCsvError {
 /// points): a name and a point (mm).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NamedRow {
+    /// Point name.
     pub name: String,
+    /// x (mm).
     pub x_mm: f64,
+    /// y (mm).
     pub y_mm: f64,
+    /// z (mm).
     pub z_mm: f64,
 }
 

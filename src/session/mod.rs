@@ -18,15 +18,18 @@ pub mod accept;
 pub mod approach;
 pub mod briefing;
 pub mod camera;
+pub mod camera_intervals;
 pub mod camera_plots;
 pub mod deploy;
 pub mod deploy_score;
 pub mod history;
 pub mod laser;
+pub mod navchain;
 pub mod rcm;
 pub mod start;
 pub mod survey;
 pub mod svg;
+pub mod teach;
 pub mod verify;
 
 use std::path::{Path, PathBuf};
@@ -116,6 +119,9 @@ pub struct CellDescription {
     /// The endoscope (intrinsics) and the instrument's shaft, for an RCM session.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub endoscope: Option<rcm::EndoscopeCell>,
+    /// The cell's safety limits (a device file's `[safety]`): the plan stays inside them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub safety: Option<crate::acquire::device_safety::SafetyEntry>,
 }
 
 /// How the session was started (everything `--resume` needs).
@@ -151,6 +157,18 @@ pub struct SessionSetup {
     /// (`--survey`, [`survey`]).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub survey: bool,
+    /// Close the kinematic session with seed 003's correction network (`--navchain`,
+    /// [`navchain`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub navchain: bool,
+    /// Camera sessions: hand-guided poses that locate the board before planning
+    /// (`--teach-board N`, [`teach`]); 0: none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub teach_board: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// What a session calibrates.
@@ -300,6 +318,12 @@ pub struct SessionFile {
     pub rcm: Option<rcm::RcmSummary>,
     /// `--survey`: where the probe poses found the tracker and the marker (the plan uses it).
     pub survey: Option<survey::SurveySummary>,
+    /// `--navchain`: seed 003's correction network beside the physical diagnosis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub navchain: Option<navchain::NavchainSummary>,
+    /// `--teach-board`: where the hand-guided views found the board (the plan uses it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub teach: Option<teach::TeachSummary>,
 }
 
 impl SessionFile {
@@ -348,6 +372,12 @@ pub trait Cell {
     /// expected (finding where the tracker sees is the point) and never stop the run early.
     fn acquire_probes(&mut self, plan: &Path, run_dir: &Path) -> anyhow::Result<RunSummary> {
         self.acquire(plan, run_dir)
+    }
+    /// The teach step ([`teach`]): `count` hand-guided poses and an image at each, read
+    /// without commanding the arm.
+    fn teach_views(&mut self, count: usize, log: Log) -> anyhow::Result<Vec<teach::TaughtView>> {
+        let _ = (count, log);
+        bail!("this cell cannot read hand-guided poses")
     }
 }
 
@@ -406,6 +436,12 @@ pub fn fit_spec_to_cell(
         + settle_opts.poll_s * settle_opts.window as f64
         + settle_opts.window as f64 / rate;
     spec.timing.sample_s = setup.frames as f64 / rate;
+    if let Some(sf) = &cell.safety {
+        notes.extend(crate::acquire::device_safety::fit_constraints(
+            &mut spec.constraints,
+            sf,
+        ));
+    }
     if setup.kind == SessionKind::Camera {
         notes.extend(camera::fit_shell(spec, cell, setup));
     }
@@ -496,6 +532,8 @@ pub fn create(
         laser: None,
         rcm: None,
         survey: None,
+        navchain: None,
+        teach: None,
     };
     f.save(&dir.join("session.json"))?;
     Ok(f)
@@ -583,6 +621,9 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
     if s.setup.survey && !s.done(Stage::Plan) {
         survey::run(dir, &mut s, cell, &mut *log)?;
     }
+    if s.setup.teach_board > 0 && !s.done(Stage::Plan) {
+        teach::run(dir, &mut s, cell, &mut *log)?;
+    }
     if !s.done(Stage::Plan) {
         log("plan: training and validation poses fitted to the cell");
         plan_stage(dir, &mut s, &mut *log)?;
@@ -627,6 +668,13 @@ pub fn run(dir: &Path, cell: &mut dyn Cell, log: Log) -> anyhow::Result<SessionF
             validate_stage(dir, &mut s, &mut work)?;
         }
         step(&mut s, Stage::Validate)?;
+    }
+    if s.setup.navchain && !cam && s.navchain.is_none() {
+        log(
+            "navchain: seed 003's correction network on the training poses, scored on the held-out",
+        );
+        navchain::stage(dir, &mut s, &mut work)?;
+        s.save(&path)?;
     }
     if !s.done(Stage::Verify) {
         if !cam {
@@ -769,7 +817,8 @@ fn plan_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<()> {
         flange: None,
         extra: Default::default(),
     };
-    let model = KinematicModel::from_robot_block(&robot).context("the cell's robot")?;
+    let mut model = KinematicModel::from_robot_block(&robot).context("the cell's robot")?;
+    crate::acquire::device_safety::narrow_model(&mut model, s.cell.safety.as_ref())?;
     let vspec = validation_spec(&spec, s.setup.heldout_points);
     let train = plan::build_plan(
         &spec,

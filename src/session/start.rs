@@ -6,7 +6,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context as _};
 
-use crate::cell::describe::{describe_devices, describe_scenario};
+use crate::cell::describe::describe_devices;
+#[cfg(feature = "sim")]
+use crate::cell::describe::describe_scenario;
 use crate::session::{self, AcceptSpec, Mode, SessionKind, SessionSetup};
 
 /// The default plan spec (seed 001 annulus).
@@ -60,6 +62,10 @@ pub struct StartOptions {
     pub arm_calibration: Option<PathBuf>,
     /// Locate the tracker with a few probe poses before planning (kinematic sessions).
     pub survey: bool,
+    /// Close a kinematic session with seed 003's correction network.
+    pub navchain: bool,
+    /// Camera sessions: this many hand-guided poses locate the board before planning.
+    pub teach_board: Option<usize>,
 }
 
 fn session_kind_name(k: SessionKind) -> &'static str {
@@ -78,6 +84,14 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
         bail!("--out DIR is required (or --resume DIR)");
     };
     let (mode, cell, cell_file, scenario_text, kind) = match (&a.sim, &a.devices) {
+        #[cfg(not(feature = "sim"))]
+        (Some(s), None) => {
+            return Err(crate::cell::without_simulators(&format!(
+                "--sim {}",
+                s.display()
+            )))
+        }
+        #[cfg(feature = "sim")]
         (Some(s), None) => {
             let arms = crate::cell::simulated::stated_scenario(s)?.arms;
             if arms.len() > 1 && a.arm.is_none() {
@@ -259,6 +273,28 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             bail!("--survey moves the arm to its probe poses: add --live");
         }
     }
+    if a.navchain && kind != SessionKind::Kinematic {
+        bail!(
+            "--navchain corrects a kinematic calibration: it is for kinematic sessions (this one \
+             is {})",
+            session_kind_name(kind)
+        );
+    }
+    if let Some(n) = a.teach_board {
+        if kind != SessionKind::Camera {
+            bail!("--teach-board locates a camera's board: it is for camera sessions (a cell with a camera and a [board])");
+        }
+        if !(session::teach::MIN_POSES..=session::teach::MAX_POSES).contains(&n) {
+            bail!(
+                "--teach-board {n}: give {} to {} hand-guided poses (seed 004: 4)",
+                session::teach::MIN_POSES,
+                session::teach::MAX_POSES
+            );
+        }
+        if mode == Mode::Live && !a.live {
+            bail!("--teach-board reads the arm and the camera of the cell: add --live");
+        }
+    }
     let poses = a.poses.unwrap_or(if camera || rcm { 24 } else { 120 });
     let heldout_points = a
         .heldout_points
@@ -291,6 +327,8 @@ pub fn start(a: &StartOptions) -> anyhow::Result<(PathBuf, Mode, bool)> {
             .as_ref()
             .map(|_| session::laser::ARM_CALIBRATION.to_string()),
         survey: a.survey,
+        navchain: a.navchain,
+        teach_board: a.teach_board.unwrap_or(0),
     };
     let src = cell_src;
     session::create(dir, setup, src, cell, &spec_text, accept)?;

@@ -125,7 +125,8 @@ fn plan_probes(dir: &Path, s: &SessionFile) -> anyhow::Result<()> {
         flange: None,
         extra: Default::default(),
     };
-    let model = KinematicModel::from_robot_block(&robot).context("the cell's robot")?;
+    let mut model = KinematicModel::from_robot_block(&robot).context("the cell's robot")?;
+    crate::acquire::device_safety::narrow_model(&mut model, s.cell.safety.as_ref())?;
     let out = plan::build_plan(
         &spec,
         robot,

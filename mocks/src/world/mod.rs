@@ -154,7 +154,7 @@ pub(crate) struct World {
 /// The simulated operator's script and when it started.
 pub(crate) struct OperatorRuntime {
     cfg: operator::OperatorConfig,
-    tracker: usize,
+    tracker: Option<usize>,
     t0: Option<f64>,
     /// Joint angles of each arm when the script started (where a first drag starts from).
     arm_start: Vec<Vec<f64>>,
@@ -407,16 +407,19 @@ impl WorldHandle {
                 operator: match &s.operator {
                     None => None,
                     Some(op) => Some(OperatorRuntime {
-                        tracker: s
-                            .trackers
-                            .iter()
-                            .position(|t| t.name == op.tracker)
-                            .ok_or_else(|| {
-                                ScenarioError::Invalid(format!(
-                                    "operator.tracker: no tracker named {:?}",
-                                    op.tracker
-                                ))
-                            })?,
+                        // No tracker: a script that only drags the arm.
+                        tracker: match op.tracker.as_str() {
+                            "" => None,
+                            name => {
+                                Some(s.trackers.iter().position(|t| t.name == name).ok_or_else(
+                                    || {
+                                        ScenarioError::Invalid(format!(
+                                            "operator.tracker: no tracker named {name:?}"
+                                        ))
+                                    },
+                                )?)
+                            }
+                        },
                         cfg: op.clone(),
                         t0: None,
                         arm_start: Vec::new(),
@@ -760,7 +763,11 @@ impl WorldHandle {
         if rate > 0.0 {
             self.advance(1.0 / rate);
         }
-        if self.with(|w| w.operator.as_ref().is_some_and(|o| o.tracker == tracker)) {
+        if self.with(|w| {
+            w.operator
+                .as_ref()
+                .is_some_and(|o| o.tracker == Some(tracker))
+        }) {
             self.operator_start();
         }
         let t = self.now();
@@ -774,7 +781,7 @@ impl WorldHandle {
                         .map_or(0.0, |tr| tr.cfg.effects.latency_s),
                 ),
             ) {
-                (Some(o), Some(operator::Act::Probe(m))) if o.tracker == tracker => {
+                (Some(o), Some(operator::Act::Probe(m))) if o.tracker == Some(tracker) => {
                     Some((o.cfg.probe_tool.clone(), m))
                 }
                 _ => None,
@@ -1073,9 +1080,15 @@ impl World {
     fn operator_act(&self, now: f64) -> Option<operator::Act> {
         let o = self.operator.as_ref()?;
         let t0 = o.t0?;
-        let tr = self.trackers.get(o.tracker)?;
-        let tib = tracker_in_base_at(tr.tracker_in_base, &tr.cfg.effects, now);
-        let origin = Point3::from(tib.translation.vector);
+        // The probe faces the tracker; a script without a tracker only drags the arm.
+        let origin = match o.tracker.and_then(|i| self.trackers.get(i)) {
+            Some(tr) => Point3::from(
+                tracker_in_base_at(tr.tracker_in_base, &tr.cfg.effects, now)
+                    .translation
+                    .vector,
+            ),
+            None => Point3::origin(),
+        };
         Some(operator::act(
             &o.cfg,
             now - t0,

@@ -19,7 +19,9 @@ use std::f64::consts::TAU;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OperatorConfig {
-    /// The tracker that sees the hand-held probe.
+    /// The tracker that sees the hand-held probe (empty: none, for a script that only drags
+    /// the arm, e.g. a camera cell's hand-guided poses).
+    #[serde(default)]
     pub tracker: String,
     /// Tool name the probe is reported under (its port handle order: after the tracker's
     /// arm marker).

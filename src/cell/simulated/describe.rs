@@ -90,6 +90,7 @@ pub fn describe_scenario(
         settle_s: Some(a.settle_s),
         camera,
         endoscope: endoscope(&one),
+        safety: None,
     };
     Ok((description, one))
 }

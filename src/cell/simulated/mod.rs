@@ -4,7 +4,9 @@
 //! camera, board) and its devices as driver traits, in process or behind the real wire
 //! protocols ([`wire`]). No true pose, hidden error or noise level can reach an estimator from
 //! here; `the_simulators_are_reached_only_here_and_only_through_their_stated_face` (below)
-//! keeps it so.
+//! keeps it so. The module exists only with the feature `sim` (default on; the simulators are
+//! an optional dependency): a build without it has no simulators at all, and every `--sim`
+//! path says so ([`super::without_simulators`]).
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _};
@@ -118,6 +120,7 @@ fn stated_arm(path: &Path, a: &robocal_mocks::stated::StatedArm) -> StatedArm {
                 table_z_mm: s.table_z_mm,
                 table_clearance_mm: s.table_clearance_mm.unwrap_or(0.0),
                 envelope: s.envelope.clone(),
+                joint_limits_deg: None,
             }),
         },
         vel: Some(CellLimit {
@@ -339,5 +342,53 @@ mod tests {
             }
         }
         assert!(face.contains("    world: WorldHandle,") && !face.contains("pub world"));
+    }
+
+    /// The simulators are not even in the estimators' build: `robocal-mocks` is an optional
+    /// dependency behind the feature `sim` (a dev-dependency for the tests), this module is
+    /// compiled only with it, and CI builds the library and the binary without it.
+    #[test]
+    fn the_simulators_are_an_optional_dependency_behind_the_feature_sim() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let manifest: toml::Table =
+            toml::from_str(&std::fs::read_to_string(root.join("Cargo.toml")).unwrap()).unwrap();
+        let mocks = &manifest["dependencies"]["robocal-mocks"];
+        assert_eq!(
+            mocks.get("optional").and_then(|v| v.as_bool()),
+            Some(true),
+            "robocal-mocks must be an optional dependency: {mocks}"
+        );
+        let features = &manifest["features"];
+        assert_eq!(
+            features["sim"].as_array().unwrap(),
+            &vec![toml::Value::from("dep:robocal-mocks")]
+        );
+        assert!(
+            features["default"]
+                .as_array()
+                .unwrap()
+                .contains(&toml::Value::from("sim")),
+            "`sim` is a default feature"
+        );
+        // Every other feature reaches the mocks only when `sim` is on (`robocal-mocks?/...`).
+        for (name, list) in features.as_table().unwrap() {
+            for f in list.as_array().unwrap().iter().filter_map(|v| v.as_str()) {
+                assert!(
+                    name == "sim" || !f.starts_with("robocal-mocks/"),
+                    "feature {name} turns the simulators on: {f}"
+                );
+            }
+        }
+        let cell = std::fs::read_to_string(root.join("src/cell/mod.rs")).unwrap();
+        assert!(
+            cell.contains("#[cfg(feature = \"sim\")]\npub mod simulated;"),
+            "src/cell/mod.rs compiles `simulated` only with the feature `sim`"
+        );
+        let ci = std::fs::read_to_string(root.join(".ci/run")).unwrap();
+        assert!(
+            ci.lines().any(|l| !l.trim_start().starts_with('#')
+                && l.contains("-p robocal --no-default-features --lib --bins")),
+            ".ci/run builds the library and the binary without the simulators"
+        );
     }
 }

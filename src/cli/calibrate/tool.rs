@@ -4,16 +4,15 @@
 //! squares), with bootstrap standard deviations. Writes `DIR/calibration.json`: the arm of
 //! CAL.json with the new base and tool (each with its std). With `--guide FWD.json,REV.json
 //! --hole-mm L1`: the guide tool's frame from the pin tip measured forward and reversed (two
-//! `pivot.json` files of `calibrate pivot`), with its Monte Carlo spread.
+//! `pivot.json` files of `calibrate pivot`), with its Monte Carlo spread. The work is in
+//! [`crate::calibrate::tool`]; this file parses and prints.
 use std::path::PathBuf;
 
 use anyhow::Context as _;
 use nalgebra::{Point3, Vector3};
 
-use crate::dataset::{CalibrationFile, CalibrationKind};
-use crate::model::{KinematicModel, Unit};
-use crate::solve::obs::{observations, Split};
-use crate::solve::tool_boot::{guide_with_spread, tool_with_arm_boot};
+use crate::calibrate::tool::tool_with_arm;
+use crate::solve::tool_boot::guide_with_spread;
 
 /// Arguments of `robocal calibrate tool`.
 #[derive(Debug, clap::Args)]
@@ -92,80 +91,28 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
     let (Some(arm_path), Some(data)) = (&args.arm, &args.data) else {
         anyhow::bail!("give --arm CAL.json and --data D.jsonl");
     };
-    let cal = CalibrationFile::load(arm_path)
-        .with_context(|| format!("reading {}", arm_path.display()))?;
-    anyhow::ensure!(
-        cal.kind() == CalibrationKind::Kinematic,
-        "{}: not a kinematic calibration (the identified arm is needed)",
-        arm_path.display()
-    );
-    let mut arm = KinematicModel::from_robot_block(&cal.robot)
-        .with_context(|| format!("{}: robot block", arm_path.display()))?;
-    arm.apply_cal_params(&cal.params)
-        .with_context(|| format!("{}: params", arm_path.display()))?;
-    let ds = crate::plausible::load_checked(data)
-        .with_context(|| format!("reading {}", data.display()))?;
-    anyhow::ensure!(
-        ds.header.robot.model == cal.robot.model,
-        "{}: robot `{}` but the arm calibration {} is for `{}`",
-        data.display(),
-        ds.header.robot.model,
-        arm_path.display(),
-        cal.robot.model
-    );
-    let (obs, skipped) = observations(&ds, arm.dof(), Split::All);
-    let with_quat = obs.iter().filter(|o| o.quat.is_some()).count();
-    anyhow::ensure!(
-        with_quat >= 3,
-        "{}: {with_quat} pose records with a marker orientation (`quat`); tool identification \
-         needs at least 3 (a 6-DoF marker body, not a single reflector){}",
-        data.display(),
-        if skipped.is_empty() {
-            String::new()
-        } else {
-            format!("; {} records skipped", skipped.len())
-        }
-    );
-    let b = tool_with_arm_boot(&arm, &obs, args.bootstrap, 30).context("tool identification")?;
+    let t = tool_with_arm(arm_path, data, args.bootstrap, args.out.as_deref())?;
+    let b = &t.boot;
     println!(
-        "tool with the identified arm on {with_quat} poses: RMS {:.4} mm, {:.4}° ({} bootstrap replicates)",
-        b.fit.rms_mm, b.fit.rms_rot_deg, b.replicates
+        "tool with the identified arm on {} poses: RMS {:.4} mm, {:.4}° ({} bootstrap replicates)",
+        t.with_quat, b.fit.rms_mm, b.fit.rms_rot_deg, b.replicates
     );
-    let mut file = crate::solve::calfile::kinematic_file(&cal.robot, &b.model);
-    for p in file.params.iter_mut() {
-        if let Some((_, s)) = b.std.iter().find(|(n, _)| *n == p.name) {
-            let u = b
-                .model
-                .params()
-                .iter()
-                .find(|q| q.name == p.name)
-                .map(|q| q.unit);
-            p.std = Some(if u == Some(Unit::Rad) {
-                s.to_degrees()
-            } else {
-                *s
-            });
-            println!(
-                "  {:8} {:>12.4} ± {:.4} {} (95 %: ± {:.4})",
-                p.name,
-                p.value,
-                p.std.unwrap_or(f64::NAN),
-                p.unit,
-                1.96 * p.std.unwrap_or(f64::NAN)
-            );
-        }
+    for p in t
+        .file
+        .params
+        .iter()
+        .filter(|p| b.std.iter().any(|(n, _)| *n == p.name))
+    {
+        println!(
+            "  {:8} {:>12.4} ± {:.4} {} (95 %: ± {:.4})",
+            p.name,
+            p.value,
+            p.std.unwrap_or(f64::NAN),
+            p.unit,
+            1.96 * p.std.unwrap_or(f64::NAN)
+        );
     }
-    file.effects = cal.effects.clone();
-    file.metrics
-        .insert("tool_rms_mm".into(), serde_json::json!(b.fit.rms_mm));
-    file.metrics
-        .insert("tool_rms_deg".into(), serde_json::json!(b.fit.rms_rot_deg));
-    if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let path = dir.join("calibration.json");
-        file.save(&path)
-            .with_context(|| format!("writing {}", path.display()))?;
-        CalibrationFile::load(&path).context("reading the written calibration back")?;
+    if let Some(path) = &t.written {
         println!("wrote {}", path.display());
     }
     Ok(())

@@ -15,8 +15,9 @@ pub struct Backlash {
     pub joint: usize,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     half_lost_motion_deg: f64,
     #[serde(default = "file::nan", deserialize_with = "lenient")]
     half_lost_motion_std: f64,
@@ -91,8 +92,8 @@ impl EffectModel for Backlash {
 
 impl Family for Backlash {
     const KIND: &'static str = "backlash";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((
             Backlash {
                 joint: file::joint(e)?,

@@ -21,8 +21,9 @@ pub struct BaseShift {
 
 const SUFFIXES: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     t_change_s: f64,
     dx_mm: f64,
     dy_mm: f64,
@@ -154,8 +155,8 @@ impl EffectModel for BaseShift {
 
 impl Family for BaseShift {
     const KIND: &'static str = "base_shift";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(_e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((
             BaseShift {
                 t_change: f.t_change_s,

@@ -18,8 +18,9 @@ pub struct Compliance {
 }
 
 /// The calibration-file parameters (`gravity_point_masses`).
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     #[serde(default)]
     model: String,
     #[serde(default)]
@@ -168,8 +169,8 @@ impl EffectModel for Compliance {
 
 impl Family for Compliance {
     const KIND: &'static str = "joint_compliance";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         let (points, c) = read_points(e, &f.points, &f.c_times_mass_deg_kg_per_nm, 1)?;
         let joint = file::joint(e)?;
         Ok((Compliance { joint, points }, c, rad(&f.c_times_mass_std)))

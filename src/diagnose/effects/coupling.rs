@@ -19,8 +19,9 @@ pub struct Coupling {
     pub driver: usize,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     #[serde(deserialize_with = "file::count")]
     driver_joint: u64,
     #[serde(flatten)]
@@ -94,8 +95,8 @@ impl EffectModel for Coupling {
 
 impl Family for Coupling {
     const KIND: &'static str = "joint_coupling";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         if !(1..=64).contains(&f.driver_joint) {
             return Err(EffectFileError::invalid(
                 e,

@@ -35,8 +35,9 @@ pub struct LinkDeflection {
 
 /// The calibration-file parameters (`gravity_bending_point_masses`; anisotropic:
 /// coefficients in point order, x then y of each point).
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     #[serde(default)]
     model: String,
     #[serde(default)]
@@ -247,8 +248,8 @@ impl EffectModel for LinkDeflection {
 
 impl Family for LinkDeflection {
     const KIND: &'static str = "link_deflection";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         let anisotropic = match f.axes.as_deref() {
             None | Some("isotropic") => false,
             Some("link_x_y") => true,

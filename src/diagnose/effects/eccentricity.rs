@@ -16,8 +16,9 @@ pub struct Eccentricity {
     pub joint: usize,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     sin1_deg: f64,
     cos1_deg: f64,
     sin2_deg: f64,
@@ -92,8 +93,8 @@ impl EffectModel for Eccentricity {
 
 impl Family for Eccentricity {
     const KIND: &'static str = "joint_eccentricity";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((
             Eccentricity {
                 joint: file::joint(e)?,

@@ -14,8 +14,9 @@ use crate::solve::obs::{PoseCtx, PoseObs};
 #[derive(Debug, Clone, PartialEq)]
 pub struct Latency;
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     latency_s: f64,
     #[serde(default = "file::nan", deserialize_with = "lenient")]
     std: f64,
@@ -70,8 +71,8 @@ impl EffectModel for Latency {
 
 impl Family for Latency {
     const KIND: &'static str = "latency";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(_e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((Latency, vec![f.latency_s], vec![f.std]))
     }
     fn global_candidates(

@@ -9,7 +9,9 @@
 //! the end of this file: the [`Block`] enum, the calibration-file reader ([`Effect::from_cal`]),
 //! the diagnosis' candidate library ([`registry_candidates`]) and the test fixtures
 //! ([`registry_examples`]) are generated from it. Adding an effect is one new file and one
-//! line of that list.
+//! line of that list. The reader is one generic parse of the family's `Family::File` struct
+//! (a missing or mistyped field named by `file::from_params`) followed by the family's
+//! validation hook [`Family::from_file`] (a field out of range named).
 //!
 //! Internal units: mm, rad, s, kg, N·m. Calibration files use degrees (see [`Effect::to_cal`]).
 //!
@@ -301,9 +303,20 @@ pub trait Family: EffectModel + Sized {
     fn claims(e: &CalEffect) -> bool {
         e.kind == Self::KIND
     }
-    /// Read the entry: the block, its coefficients and their standard deviations (NaN where
-    /// the file has none), internal units.
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError>;
+    /// The family's parameters as `calibration.json` holds them: a typed serde struct, parsed
+    /// by the one generic reader ([`file::from_params`]: a missing or mistyped field is named).
+    type File: serde::de::DeserializeOwned + serde::Serialize + Default;
+    /// The family's validation hook: the block, its coefficients and their standard deviations
+    /// (NaN where the file has none), internal units, from the parsed parameters of `e`; `Err`
+    /// names a field out of range.
+    fn from_file(
+        e: &CalEffect,
+        f: Self::File,
+    ) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError>;
+    /// Read the entry: the generic parse, then [`Family::from_file`].
+    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
+        Self::from_file(e, file::from_params(e)?)
+    }
     /// Candidate groups of this family on joint `j` (a group's variants count as separate
     /// tests; see [`super::candidates`]).
     fn joint_candidates(

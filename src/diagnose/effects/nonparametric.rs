@@ -37,12 +37,14 @@ impl EffectModel for Box<Rbf> {
 
 impl Family for Box<Rbf> {
     const KIND: &'static str = "nonparametric";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let r = Rbf::from_json(&e.params).map_err(|err| EffectFileError::Invalid {
+    type File = Map<String, Value>;
+    fn from_file(
+        e: &CalEffect,
+        f: Map<String, Value>,
+    ) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
+        let r = Rbf::from_json(&f).map_err(|err| EffectFileError::Invalid {
             kind: e.kind.clone(),
-            why: format!("{err:#}")
-                .trim_start_matches("nonparametric: ")
-                .to_string(),
+            why: err.to_string(),
         })?;
         Ok((Box::new(r), vec![], vec![]))
     }

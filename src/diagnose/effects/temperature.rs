@@ -22,8 +22,9 @@ pub struct TempDrift {
     pub t0_c: f64,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     t0_c: f64,
     growth_ppm_per_k: f64,
     offset_deg_per_k: Vec<f64>,
@@ -151,8 +152,8 @@ impl EffectModel for TempDrift {
 
 impl Family for TempDrift {
     const KIND: &'static str = "temperature_drift";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         if f.offset_deg_per_k.len() != TEMP_DRIFT_JOINTS {
             return Err(EffectFileError::invalid(
                 e,

@@ -83,9 +83,10 @@ impl DriverFile {
     }
 }
 
-/// One rate per driver unit; the file names the unit in the key.
+/// The parameters of a drift as `calibration.json` holds them: one rate per driver unit; the
+/// file names the unit in the key.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct RateFile {
+pub struct RateFile {
     #[serde(flatten)]
     driver: DriverFile,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -118,8 +119,11 @@ impl RateFile {
             (false, _) => &mut self.ppm_per_full_warm_up,
         }
     }
-    fn read(e: &CalEffect, deg: bool) -> Result<(Driver, f64, f64), EffectFileError> {
-        let mut f: RateFile = file::from_params(e)?;
+    fn rate(
+        mut f: RateFile,
+        e: &CalEffect,
+        deg: bool,
+    ) -> Result<(Driver, f64, f64), EffectFileError> {
         let d = f.driver.driver(e)?;
         let unit = d.unit();
         let key = format!("{}_per_{unit}", if deg { "deg" } else { "ppm" });
@@ -245,8 +249,12 @@ impl Family for JointDrift {
     fn claims(e: &CalEffect) -> bool {
         e.kind == KIND && e.joint.is_some()
     }
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let (driver, rate, std) = RateFile::read(e, true)?;
+    type File = RateFile;
+    fn from_file(
+        e: &CalEffect,
+        f: RateFile,
+    ) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
+        let (driver, rate, std) = RateFile::rate(f, e, true)?;
         Ok((
             JointDrift {
                 joint: file::joint(e)?,
@@ -381,8 +389,12 @@ impl Family for LengthDrift {
     fn claims(e: &CalEffect) -> bool {
         e.kind == KIND && e.joint.is_none()
     }
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let (driver, rate, std) = RateFile::read(e, false)?;
+    type File = RateFile;
+    fn from_file(
+        e: &CalEffect,
+        f: RateFile,
+    ) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
+        let (driver, rate, std) = RateFile::rate(f, e, false)?;
         Ok((LengthDrift { driver }, vec![rate * 1e-6], vec![std * 1e-6]))
     }
     fn example(_model: &KinematicModel) -> (Self, Vec<f64>) {

@@ -23,8 +23,9 @@ const MIN_DEPTH_SPREAD_MM: f64 = 50.0;
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerDepthScale;
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     depth_scale_ppm: f64,
     #[serde(default = "file::nan", deserialize_with = "lenient")]
     std: f64,
@@ -104,8 +105,8 @@ impl EffectModel for TrackerDepthScale {
 
 impl Family for TrackerDepthScale {
     const KIND: &'static str = "tracker_depth_scale";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(_e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((
             TrackerDepthScale,
             vec![f.depth_scale_ppm * 1e-6],

@@ -15,8 +15,9 @@ use crate::solve::obs::{PoseCtx, PoseObs};
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerScale;
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     scale_ppm: f64,
     #[serde(default = "file::nan", deserialize_with = "lenient")]
     std: f64,
@@ -72,8 +73,8 @@ impl EffectModel for TrackerScale {
 
 impl Family for TrackerScale {
     const KIND: &'static str = "tracker_scale";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(_e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((TrackerScale, vec![f.scale_ppm * 1e-6], vec![f.std * 1e-6]))
     }
     fn global_candidates(

@@ -20,8 +20,9 @@ pub struct Transmission {
     pub joint: usize,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct RatioFile {
+pub struct RatioFile {
     ratio_error_ppm: f64,
     #[serde(default = "file::nan", deserialize_with = "lenient")]
     std: f64,
@@ -77,8 +78,11 @@ impl EffectModel for Transmission {
 
 impl Family for Transmission {
     const KIND: &'static str = "transmission_ratio";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: RatioFile = file::from_params(e)?;
+    type File = RatioFile;
+    fn from_file(
+        e: &CalEffect,
+        f: RatioFile,
+    ) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         Ok((
             Transmission {
                 joint: file::joint(e)?,
@@ -107,8 +111,9 @@ pub struct Ripple {
     pub harmonic: u32,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct RippleFile {
+pub struct RippleFile {
     #[serde(deserialize_with = "file::count")]
     harmonic: u64,
     #[serde(flatten)]
@@ -196,8 +201,11 @@ impl EffectModel for Ripple {
 
 impl Family for Ripple {
     const KIND: &'static str = "transmission_ripple";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: RippleFile = file::from_params(e)?;
+    type File = RippleFile;
+    fn from_file(
+        e: &CalEffect,
+        f: RippleFile,
+    ) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         if !(1..=100_000).contains(&f.harmonic) {
             return Err(EffectFileError::invalid(
                 e,

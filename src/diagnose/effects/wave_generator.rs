@@ -23,8 +23,9 @@ pub struct WaveGenerator {
     pub harmonic: u32,
 }
 
+/// The parameters as `calibration.json` holds them.
 #[derive(Debug, Default, Serialize, Deserialize)]
-struct File {
+pub struct File {
     gear_ratio: f64,
     #[serde(deserialize_with = "file::count")]
     harmonic: u64,
@@ -119,8 +120,8 @@ impl EffectModel for WaveGenerator {
 
 impl Family for WaveGenerator {
     const KIND: &'static str = "wave_generator";
-    fn read(e: &CalEffect) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
-        let f: File = file::from_params(e)?;
+    type File = File;
+    fn from_file(e: &CalEffect, f: File) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
         if !(1..=1000).contains(&f.harmonic) {
             return Err(EffectFileError::invalid(
                 e,

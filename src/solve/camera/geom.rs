@@ -82,8 +82,43 @@ pub fn inv_transform_jac(v: &[f64], p: &Vector3<f64>) -> (Vector3<f64>, SMatrix<
 }
 
 /// Project a camera-frame point (mm) to pixels; `None` behind the camera.
+/// The same arithmetic as [`project_jac`] without the derivatives (the numeric-derivative
+/// fits call it millions of times).
 pub fn project(k: &Intrinsics, p: &Vector3<f64>) -> Option<[f64; 2]> {
-    project_jac(k, p).map(|(uv, _, _)| uv)
+    if p.z <= 1e-9 || !p.iter().all(|c| c.is_finite()) {
+        return None;
+    }
+    let d = distort(k, p.x / p.z, p.y / p.z);
+    Some([k.fx * d.xd + k.cx, k.fy * d.yd + k.cy])
+}
+
+/// Brown–Conrady distortion of the normalised point `(x, y)` and the powers of its radius.
+struct Distorted {
+    r2: f64,
+    r4: f64,
+    r6: f64,
+    rad: f64,
+    xd: f64,
+    yd: f64,
+}
+
+#[inline(always)]
+fn distort(k: &Intrinsics, x: f64, y: f64) -> Distorted {
+    let [k1, k2, p1, p2, k3] = k.dist;
+    let r2 = x * x + y * y;
+    let r4 = r2 * r2;
+    let r6 = r4 * r2;
+    let rad = 1.0 + k1 * r2 + k2 * r4 + k3 * r6;
+    let xd = x * rad + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+    let yd = y * rad + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+    Distorted {
+        r2,
+        r4,
+        r6,
+        rad,
+        xd,
+        yd,
+    }
 }
 
 /// Pixel of camera-frame point `p`, its derivative with respect to `p` (2×3) and to the
@@ -97,12 +132,14 @@ pub fn project_jac(
     }
     let [k1, k2, p1, p2, k3] = k.dist;
     let (x, y) = (p.x / p.z, p.y / p.z);
-    let r2 = x * x + y * y;
-    let r4 = r2 * r2;
-    let r6 = r4 * r2;
-    let rad = 1.0 + k1 * r2 + k2 * r4 + k3 * r6;
-    let xd = x * rad + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
-    let yd = y * rad + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+    let Distorted {
+        r2,
+        r4,
+        r6,
+        rad,
+        xd,
+        yd,
+    } = distort(k, x, y);
     let uv = [k.fx * xd + k.cx, k.fy * yd + k.cy];
     let dr = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4;
     let dxd_dx = rad + 2.0 * x * x * dr + 2.0 * p1 * y + 6.0 * p2 * x;
@@ -215,6 +252,30 @@ mod tests {
         let n = numeric_jacobian(fi, &DVector::from_row_slice(&k.to_vec()), 1e-6);
         let e = (n - ji).abs().max();
         assert!(e < 1e-4, "intrinsics {e}");
+    }
+
+    /// `project` (no derivatives) gives `project_jac`'s pixel to the bit, and refuses what it
+    /// refuses.
+    #[test]
+    fn project_is_project_jac_without_the_derivatives() {
+        let k = k0();
+        for i in 0..200 {
+            let t = i as f64;
+            let p = Vector3::new(
+                300.0 * (0.37 * t).sin(),
+                250.0 * (0.53 * t).cos(),
+                50.0 + 7.0 * t,
+            );
+            let a = project(&k, &p).expect("in front");
+            let (b, _, _) = project_jac(&k, &p).expect("in front");
+            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{p:?}");
+        }
+        for p in [
+            Vector3::new(1.0, 2.0, 0.0),
+            Vector3::new(f64::NAN, 0.0, 10.0),
+        ] {
+            assert!(project(&k, &p).is_none() && project_jac(&k, &p).is_none());
+        }
     }
 
     #[test]

@@ -35,6 +35,7 @@ pub mod zhang;
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
 
 use crate::solve::lm::{minimize, LmOptions};
 use geom::{board_point, Intrinsics, N_INTR};
@@ -665,40 +666,43 @@ pub fn calibrate(
         Some(m) => vec![m],
         None => DistModel::ALL.to_vec(),
     };
-    let mut fits: Vec<(DistModel, Intrinsics, f64, f64)> = vec![];
-    for m in models {
-        let p = Reproj {
-            obs: &sub_obs,
-            flange: &[],
-            layout: Layout::Views(nsub),
-            intr_free: m.mask(),
-            intr_fixed: k0,
-            board: BoardModel::default(),
-            arm: None,
-        };
-        let rep = minimize(
-            &p,
-            p.pack(&k0, &init_poses, 1.0, [0.0; 2]),
-            &LmOptions::default(),
-        );
-        let k = p.intrinsics(&rep.x);
-        let train_rms = rms(&rep.residuals);
-        // Validation: other views' poses fitted with k held.
-        let mut se = 0.0;
-        let mut nc = 0usize;
-        for &v in &val {
-            let init = view_h(&per_view[v])
-                .and_then(|h| zhang::pose_from_h(&k_matrix(&k), &h))
-                .unwrap_or_else(Isometry3::identity);
-            let (_, r, res) = pnp(&k, &per_view[v], init);
-            if r.is_finite() {
-                se += res.norm_squared();
-                nc += res.len() / 2;
+    // One distortion model per core (collected in the models' order).
+    let fits: Vec<(DistModel, Intrinsics, f64, f64)> = models
+        .into_par_iter()
+        .map(|m| {
+            let p = Reproj {
+                obs: &sub_obs,
+                flange: &[],
+                layout: Layout::Views(nsub),
+                intr_free: m.mask(),
+                intr_fixed: k0,
+                board: BoardModel::default(),
+                arm: None,
+            };
+            let rep = minimize(
+                &p,
+                p.pack(&k0, &init_poses, 1.0, [0.0; 2]),
+                &LmOptions::default(),
+            );
+            let k = p.intrinsics(&rep.x);
+            let train_rms = rms(&rep.residuals);
+            // Validation: other views' poses fitted with k held.
+            let mut se = 0.0;
+            let mut nc = 0usize;
+            for &v in &val {
+                let init = view_h(&per_view[v])
+                    .and_then(|h| zhang::pose_from_h(&k_matrix(&k), &h))
+                    .unwrap_or_else(Isometry3::identity);
+                let (_, r, res) = pnp(&k, &per_view[v], init);
+                if r.is_finite() {
+                    se += res.norm_squared();
+                    nc += res.len() / 2;
+                }
             }
-        }
-        let vr = (se / nc.max(1) as f64).sqrt();
-        fits.push((m, k, train_rms, vr));
-    }
+            let vr = (se / nc.max(1) as f64).sqrt();
+            (m, k, train_rms, vr)
+        })
+        .collect();
     let best_val = fits.iter().map(|f| f.3).fold(f64::INFINITY, f64::min);
     // Simplest model within 2 % of the best validation error.
     let chosen = fits
@@ -875,9 +879,12 @@ pub fn calibrate(
     let mut candidates = vec![];
     let mut pose_noise = None;
     let mut chosen = select::Candidate::Ml;
+    let mut all_fits: Vec<(select::Candidate, Option<select::Fit>)> = vec![];
     if !bc.scale && !bc.bend && views.len() >= 8 {
+        // The candidates' cross-validations and fits are independent: one per core (the
+        // order of the results, hence the choice, is the same as one after the other).
         let per: Vec<_> = select::Candidate::all()
-            .into_iter()
+            .into_par_iter()
             .map(|c| (c, ctx.cv_views(c, 5)))
             .collect();
         cv_scores = per
@@ -886,7 +893,7 @@ pub fn calibrate(
             .collect();
         chosen = select::choose(&per).unwrap_or(chosen);
         candidates.push(ml_free.clone());
-        for c in [
+        all_fits = [
             select::Candidate::MlBoardIntrinsics,
             select::Candidate::PoseNoise,
             select::Candidate::PoseNoiseFull,
@@ -894,8 +901,12 @@ pub fn calibrate(
             select::Candidate::ViewCorrectionsScaled(-4),
             select::Candidate::ViewCorrectionsScaled(-3),
             select::Candidate::ViewCorrectionsScaled(-2),
-        ] {
-            if let Some(f) = ctx.fit(c, &all) {
+        ]
+        .into_par_iter()
+        .map(|c| (c, ctx.fit(c, &all)))
+        .collect();
+        for (c, f) in &all_fits {
+            if let Some(f) = f {
                 pose_noise = pose_noise.or(f.pose_noise);
                 candidates.push(Estimate {
                     method: c.name(),
@@ -904,9 +915,13 @@ pub fn calibrate(
             }
         }
     }
+    // The chosen candidate's fit on every view, taken from the fits above when it is one.
     let chosen_fit = match chosen {
         select::Candidate::Ml => None,
-        c => ctx.fit(c, &all),
+        c => match all_fits.iter().find(|(a, _)| *a == c) {
+            Some((_, f)) => f.clone(),
+            None => ctx.fit(c, &all),
+        },
     };
     let (ml, residuals) = match &chosen_fit {
         None => {
@@ -938,22 +953,27 @@ pub fn calibrate(
     }
     if opts.bootstrap > 0 {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
-        let mut xs = vec![];
-        for _ in 0..opts.bootstrap {
-            let pick: Vec<usize> = (0..views.len())
-                .map(|_| rng.random_range(0..views.len()))
-                .collect();
-            let bx = match chosen {
+        // The resamples are drawn in order (the same ones as one fit after the other), the
+        // refits run one per core.
+        let picks: Vec<Vec<usize>> = (0..opts.bootstrap)
+            .map(|_| {
+                (0..views.len())
+                    .map(|_| rng.random_range(0..views.len()))
+                    .collect()
+            })
+            .collect();
+        let xs: Vec<Isometry3<f64>> = picks
+            .par_iter()
+            .filter_map(|pick| match chosen {
                 select::Candidate::Ml => {
                     let bv: Vec<View> = pick.iter().map(|&i| views[i].clone()).collect();
                     let bo = obs_of(&bv, &board);
                     let bg = motion_poses(&bv, train.mount);
                     Some(ml_fit(&bo, &bg, &kf, model.mask(), &xf, &tf, bc, sf, cf).1)
                 }
-                c => ctx.fit(c, &pick).map(|f| f.x),
-            };
-            xs.extend(bx);
-        }
+                c => ctx.fit(c, pick).map(|f| f.x),
+            })
+            .collect();
         let (st, sr) = select::spread(&xs, &ml.x);
         let nb = xs.len().max(2) as f64;
         let c = (nb / (nb - 1.0)).sqrt();

@@ -59,8 +59,14 @@ fn pose(r: Matrix3<f64>, t: Vector3<f64>) -> Isometry3<f64> {
     )
 }
 
-/// RWHE-Calib `kuka_1`: 28×17 inner corners, 20 mm squares.
-pub fn load_kuka1(dir: &Path) -> Result<RealSet, String> {
+/// RWHE-Calib layout: `RobotPosesVec.txt` (one row-major 4×4 of the flange in the base per
+/// line, metres) and image `k` (from 1) named `image(k)`.
+pub fn load_rwhe(
+    dir: &Path,
+    name: &str,
+    board: BoardSpec,
+    image: impl Fn(usize) -> String,
+) -> Result<RealSet, String> {
     let pf = dir.join("RobotPosesVec.txt");
     let text = read_text(&pf)?;
     let mut images = vec![];
@@ -69,19 +75,37 @@ pub fn load_kuka1(dir: &Path) -> Result<RealSet, String> {
         let v = numbers(&pf, i + 1, line, 16)?;
         let r = Matrix3::from_fn(|a, b| v[4 * a + b]);
         let t = Vector3::new(v[3], v[7], v[11]) * 1000.0;
-        images.push(dir.join(format!("{:02}.png", i + 1)));
+        images.push(dir.join(image(i + 1)));
         flange.push(pose(r, t));
     }
     Ok(RealSet {
-        name: "kuka_1".into(),
-        board: BoardSpec {
-            cols: 28,
-            rows: 17,
-            square_mm: 20.0,
-        },
+        name: name.into(),
+        board,
         images,
         flange,
     })
+}
+
+/// RWHE-Calib `kuka_1`: 28×17 inner corners, 20 mm squares, `NN.png`.
+pub fn load_kuka1(dir: &Path) -> Result<RealSet, String> {
+    let board = BoardSpec {
+        cols: 28,
+        rows: 17,
+        square_mm: 20.0,
+    };
+    load_rwhe(dir, "kuka_1", board, |k| format!("{k:02}.png"))
+}
+
+/// RWHE-Calib `kuka_2` (kept for evaluation, never tuned on; not in `../shared/data`): 28 BMP
+/// images `im_NN.bmp` 1920×1200, 24×17 inner corners, 15 mm squares (the dataset's
+/// `squaresize.txt`; the robot's motion implies about 14.07 mm, issue 31 §3).
+pub fn load_kuka2(dir: &Path) -> Result<RealSet, String> {
+    let board = BoardSpec {
+        cols: 24,
+        rows: 17,
+        square_mm: 15.0,
+    };
+    load_rwhe(dir, "kuka_2", board, |k| format!("im_{k:02}.bmp"))
 }
 
 /// probabilisticAXYB `handEye` (UR3e): 6×5 inner corners, square declared `square_mm`

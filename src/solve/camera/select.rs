@@ -12,6 +12,7 @@
 //! corners are correlated (a wrong flange pose moves them all) and the model covariance, which
 //! treats every corner as independent, is far too small.
 use nalgebra::Isometry3;
+use rayon::prelude::*;
 
 use super::geom::{Intrinsics, N_INTR};
 use super::handeye::{self, Method};
@@ -287,7 +288,9 @@ impl Ctx<'_> {
     /// View jackknife 1σ of X (translation mm, rotation deg about `centre`).
     pub fn jackknife(&self, c: Candidate) -> Option<([f64; 3], [f64; 3])> {
         let n = self.data.views.len();
+        // One refit per core; collected in view order.
         let xs: Vec<Isometry3<f64>> = (0..n)
+            .into_par_iter()
             .filter_map(|i| {
                 let idx: Vec<usize> = (0..n).filter(|&j| j != i).collect();
                 self.fit(c, &idx).map(|f| f.x)
