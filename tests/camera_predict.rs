@@ -9,7 +9,7 @@ use std::path::Path;
 use robocal::solve::camera::data::{load, Overrides};
 
 use crate::camera_calib::{plan_from, run};
-use crate::common::{cli, root, s};
+use crate::common::{diagnose_cli, predict_cli, root};
 
 /// One camera effect kind and the world that carries it.
 struct Case {
@@ -120,15 +120,7 @@ fn check(case: &Case) {
         }
     }
     let out = dir.join("diag");
-    let code = cli(&[
-        "diagnose",
-        "--data",
-        s(&train),
-        "--heldout",
-        s(&held),
-        "--out",
-        s(&out),
-    ]);
+    let code = diagnose_cli(&train, &held, &out);
     assert_eq!(code, 0, "{}: diagnose", case.kind);
     let d: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
@@ -144,20 +136,7 @@ fn check(case: &Case) {
     let base = d["heldout_rms"]["base_model_px"].as_f64().unwrap();
     let pred = dir.join("pred.csv");
     let cal = out.join("calibration.json");
-    assert_eq!(
-        cli(&[
-            "predict",
-            "--calibration",
-            s(&cal),
-            "--data",
-            s(&held),
-            "--out",
-            s(&pred)
-        ]),
-        0,
-        "{}: predict",
-        case.kind
-    );
+    assert_eq!(predict_cli(&cal, &held, &pred), 0, "{}: predict", case.kind);
     let (got, n) = rms_against_detections(&pred, &held);
     eprintln!(
         "{}: found {kinds:?}; diagnosis held-out {base:.4} -> {reported:.4} px; predict with \

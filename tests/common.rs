@@ -13,6 +13,32 @@ pub fn cli(args: &[&str]) -> i32 {
     robocal::main_with_args(v)
 }
 
+/// `robocal diagnose --data DATA --heldout HELD --out OUT` in process; its exit code.
+pub fn diagnose_cli(data: &Path, held: &Path, out: &Path) -> i32 {
+    cli(&[
+        "diagnose",
+        "--data",
+        s(data),
+        "--heldout",
+        s(held),
+        "--out",
+        s(out),
+    ])
+}
+
+/// `robocal predict --calibration CAL --data DATA --out OUT` in process; its exit code.
+pub fn predict_cli(cal: &Path, data: &Path, out: &Path) -> i32 {
+    cli(&[
+        "predict",
+        "--calibration",
+        s(cal),
+        "--data",
+        s(data),
+        "--out",
+        s(out),
+    ])
+}
+
 /// Runs the robocal binary (stdin closed, `ROBOCAL_LOG=warn`); returns its exit code, stdout
 /// and stderr.
 pub fn bin(args: &[&str]) -> (Option<i32>, String, String) {

@@ -16,7 +16,7 @@ use robocal_mocks::synth::{synthesize, SynthConfig};
 use robocal_mocks::world::gear::{Coupling, NonlinearCompliance, Ripple, WaveGenerator};
 use robocal_mocks::WorldHandle;
 
-use crate::common::{cli, s};
+use crate::common::{cli, predict_cli, s};
 use crate::diagnose::table;
 
 /// `id → point` of a CSV `id,x_mm,y_mm,z_mm`.
@@ -433,18 +433,7 @@ fn check_absorbed_tracker_effect(
     std::fs::write(&with, serde_json::to_string_pretty(&v).unwrap()).unwrap();
     let out = dir.join("pred-with-effect.csv");
     let held = dir.join("heldout.jsonl");
-    assert_eq!(
-        cli(&[
-            "predict",
-            "--calibration",
-            s(&with),
-            "--data",
-            s(&held),
-            "--out",
-            s(&out)
-        ]),
-        0
-    );
+    assert_eq!(predict_cli(&with, &held, &out), 0);
     let before: HashMap<u64, [f64; 3]> = points(&dir.join("pred.csv")).into_iter().collect();
     let after = points(&out);
     assert_eq!(after.len(), before.len());

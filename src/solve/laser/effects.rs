@@ -354,6 +354,16 @@ fn spread_with(
     Some(total / targets.len() as f64)
 }
 
+/// The sensor's own figure of a range coefficient `e` and its unit (the reading errs by
+/// `−e · regressor`).
+fn sensor_of(kind: LaserEffectKind, e: f64) -> (f64, &'static str) {
+    match kind {
+        LaserEffectKind::Scale => (-e * 1e6, "ppm"),
+        LaserEffectKind::Incidence => (-e, "mm at 90 deg"),
+        LaserEffectKind::Nonlinearity => (-e, "mm"),
+    }
+}
+
 /// Significance level of the whole candidate family (Bonferroni-corrected per candidate).
 const ALPHA: f64 = 0.001;
 
@@ -459,11 +469,7 @@ pub fn diagnose(
             &rr,
             validation,
         );
-        let (sensor_value, sensor_unit) = match kind {
-            LaserEffectKind::Scale => (-e * 1e6, "ppm"),
-            LaserEffectKind::Incidence => (-e, "mm at 90 deg"),
-            LaserEffectKind::Nonlinearity => (-e, "mm"),
-        };
+        let (sensor_value, sensor_unit) = sensor_of(kind, e);
         findings.push(LaserFinding {
             kind: kind.name(),
             coef: e,
@@ -479,6 +485,18 @@ pub fn diagnose(
             spread_after_mm: spread_after,
         });
         current = fit;
+    }
+    // What is written is the final joint fit: every coefficient refitted with the effects
+    // added after it (a finding's own step had only the earlier ones), so that the
+    // calibration file reproduces the final spread.
+    for ((f, k), (c, sd)) in findings
+        .iter_mut()
+        .zip(&kinds)
+        .zip(current.range_coefs.iter().zip(&current.range_coef_std))
+    {
+        f.coef = *c;
+        f.coef_std = *sd;
+        f.sensor_value = sensor_of(*k, *c).0;
     }
     let spread_after = spread_with(&current.beam, &kinds, &current.range_coefs, &rr, validation);
     // Keep the planes' labels for the caller through the beam only; planes are in `current`.
