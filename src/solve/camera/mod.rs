@@ -24,7 +24,6 @@ pub mod detect;
 pub mod geom;
 pub mod handeye;
 pub mod intrinsics;
-pub mod intrmodel;
 pub mod posenoise;
 pub mod problem;
 pub mod realeval;
@@ -640,14 +639,79 @@ pub fn calibrate(
         .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
         .collect();
     let (k0m, k0) = zhang_start(train, &per_view)?;
-    // 2. The distortion model by cross-validation by view, its intrinsics on every view.
+    // 2. Intrinsics on up to 20 spread views, model by validation on the others.
+    let n = views.len();
+    let nsub = n.min(20);
+    let sub: Vec<usize> = (0..nsub).map(|i| i * n / nsub).collect();
+    let val: Vec<usize> = (0..n).filter(|i| !sub.contains(i)).collect();
+    let val = if val.len() >= 3 {
+        val
+    } else {
+        (0..n).collect()
+    };
+    let sub_obs: Vec<Obs> = sub
+        .iter()
+        .enumerate()
+        .flat_map(|(s, &v)| per_view[v].iter().map(move |o| Obs { view: s, ..*o }))
+        .collect();
+    let init_poses: Vec<Isometry3<f64>> = sub
+        .iter()
+        .map(|&v| {
+            view_h(&per_view[v])
+                .and_then(|h| zhang::pose_from_h(&k0m, &h))
+                .unwrap_or_else(Isometry3::identity)
+        })
+        .collect();
     let models: Vec<DistModel> = match opts.distortion {
         Some(m) => vec![m],
         None => DistModel::ALL.to_vec(),
     };
-    let mc = intrmodel::choose(&per_view, &k0m, &k0, &models)?;
-    let (model, k1, k1_rms) = (mc.model, mc.k, mc.rms_px);
-    let model_scores = mc.scores;
+    // One distortion model per core (collected in the models' order).
+    let fits: Vec<(DistModel, Intrinsics, f64, f64)> = models
+        .into_par_iter()
+        .map(|m| {
+            let p = Reproj {
+                obs: &sub_obs,
+                flange: &[],
+                layout: Layout::Views(nsub),
+                intr_free: m.mask(),
+                intr_fixed: k0,
+                board: BoardModel::default(),
+                arm: None,
+            };
+            let rep = minimize(
+                &p,
+                p.pack(&k0, &init_poses, 1.0, [0.0; 2]),
+                &LmOptions::default(),
+            );
+            let k = p.intrinsics(&rep.x);
+            let train_rms = rms(&rep.residuals);
+            // Validation: other views' poses fitted with k held.
+            let mut se = 0.0;
+            let mut nc = 0usize;
+            for &v in &val {
+                let init = view_h(&per_view[v])
+                    .and_then(|h| zhang::pose_from_h(&k_matrix(&k), &h))
+                    .unwrap_or_else(Isometry3::identity);
+                let (_, r, res) = pnp(&k, &per_view[v], init);
+                if r.is_finite() {
+                    se += res.norm_squared();
+                    nc += res.len() / 2;
+                }
+            }
+            let vr = (se / nc.max(1) as f64).sqrt();
+            (m, k, train_rms, vr)
+        })
+        .collect();
+    let best_val = fits.iter().map(|f| f.3).fold(f64::INFINITY, f64::min);
+    // Simplest model within 2 % of the best validation error.
+    let chosen = fits
+        .iter()
+        .find(|f| f.3 <= best_val * 1.02)
+        .cloned()
+        .ok_or_else(|| CameraError::Intrinsics("no distortion model converged".into()))?;
+    let (model, k1, k1_rms, _) = chosen;
+    let model_scores = fits.iter().map(|f| (f.0, f.3)).collect();
     // 3. Every view's board pose with k1; reject views / corners by residual.
     let mut t_views = vec![];
     let mut view_rms = vec![];
@@ -817,28 +881,17 @@ pub fn calibrate(
     let mut chosen = select::Candidate::Ml;
     let mut all_fits: Vec<(select::Candidate, Option<select::Fit>)> = vec![];
     if !bc.scale && !bc.bend && views.len() >= 8 {
-        // The candidates' cross-validations are independent: one per core (the order of the
-        // results, hence the choice, is the same as one after the other).
-        let runs: Vec<_> = select::Candidate::all()
+        // The candidates' cross-validations and fits are independent: one per core (the
+        // order of the results, hence the choice, is the same as one after the other).
+        let per: Vec<_> = select::Candidate::all()
             .into_par_iter()
-            .map(|c| (c, ctx.cv_views_spread(c, 5)))
-            .collect();
-        let per: Vec<(select::Candidate, Option<select::PerView>)> = runs
-            .iter()
-            .map(|(c, r)| (*c, r.as_ref().map(|r| r.0.clone())))
+            .map(|c| (c, ctx.cv_views(c, 5)))
             .collect();
         cv_scores = per
             .iter()
             .map(|(c, v)| (c.name(), select::cv_of(v.as_deref())))
             .collect();
-        // Ties: the candidate whose X moves least between the folds.
-        let spread_of = |c: &select::Candidate| {
-            runs.iter()
-                .find(|r| r.0 == *c)
-                .and_then(|r| r.1.as_ref())
-                .map_or(f64::INFINITY, |r| r.1)
-        };
-        chosen = select::choose_by(&per, spread_of).unwrap_or(chosen);
+        chosen = select::choose(&per).unwrap_or(chosen);
         candidates.push(ml_free.clone());
         all_fits = [
             select::Candidate::MlBoardIntrinsics,

@@ -3,8 +3,7 @@
 //! the robot's pose noise modelled ([`super::posenoise`], [`super::viewcorr`]) — is scored by
 //! internal cross-validation on the training views (5 folds by view: fit on four, predict the
 //! fifth's corners from its flange pose), and the lowest predicted-pixel error is written —
-//! unless other candidates tie with it within the CV's standard error; then the one whose X
-//! moves least between the folds' fits ([`choose_by`], [`fold_spread`]). On simulated
+//! unless simpler candidates tie with it within the CV's standard error ([`choose`]). On simulated
 //! cells, where the flange poses are exact, the joint ML wins; on real arms, whose poses are
 //! wrong by about a millimetre, the robot-noise fit or a closed form may.
 //!
@@ -268,12 +267,11 @@ impl Ctx<'_> {
     }
 
     /// Internal cross-validation of `c` (`folds` folds by view): every view's squared pixel
-    /// error sum and corner count when predicted by the fit on the other folds, and the spread
-    /// of the folds' X ([`fold_spread`], mm at the board); `None` when a fold's fit fails.
-    pub fn cv_views_spread(&self, c: Candidate, folds: usize) -> Option<(PerView, f64)> {
+    /// error sum and corner count when predicted by the fit on the other folds; `None` when a
+    /// fold's fit fails.
+    pub fn cv_views(&self, c: Candidate, folds: usize) -> Option<Vec<(f64, usize)>> {
         let n = self.data.views.len();
         let mut out = vec![(0.0, 0usize); n];
-        let mut xs = vec![];
         for f in 0..folds {
             let train: Vec<usize> = (0..n).filter(|i| i % folds != f).collect();
             let fit = self.fit(c, &train)?;
@@ -283,15 +281,8 @@ impl Ctx<'_> {
                     return None;
                 }
             }
-            xs.push(fit.x);
         }
-        let lever = self
-            .t_list
-            .iter()
-            .map(|t| t.translation.vector.norm())
-            .sum::<f64>()
-            / self.t_list.len().max(1) as f64;
-        Some((out, fold_spread(&xs, lever)))
+        Some(out)
     }
 
     /// View jackknife 1σ of X (translation mm, rotation deg about `centre`).
@@ -316,7 +307,7 @@ impl Ctx<'_> {
     }
 }
 
-/// RMS (px) of per-view CV errors ([`Ctx::cv_views_spread`]); infinite when the CV failed.
+/// RMS (px) of per-view CV errors ([`Ctx::cv_views`]); infinite when the CV failed.
 pub fn cv_of(v: Option<&[(f64, usize)]>) -> f64 {
     let Some(v) = v else {
         return f64::INFINITY;
@@ -336,71 +327,34 @@ pub type PerView = Vec<(f64, usize)>;
 /// subset of views to another (the split-half instability on a real KUKA: Horaud on one half,
 /// the pose-noise fit on the other).
 pub fn choose(scores: &[(Candidate, Option<PerView>)]) -> Option<Candidate> {
-    choose_by(scores, |c| c.preference() as f64)
-}
-
-/// As [`choose`], the tied candidates ordered by `key` (lowest first) instead of
-/// [`Candidate::preference`]: `calibrate` orders them by how far their X moves between the
-/// CV's fold fits ([`Ctx::cv_views_spread`]) — among predictors the CV cannot tell apart, the
-/// estimate that depends least on which views it was given. On real arms the fits that take
-/// the flange poses as exact can tie in predicted pixels with those that model the arm's pose
-/// error while their X wanders between subsets of views (measured with
-/// `examples/realcam_split.rs` on RWHE-Calib `kuka_1`: the joint ML's X moves 14.7 mm between
-/// alternate halves, the pose-noise fit's 1.1 mm).
-pub fn choose_by(
-    scores: &[(Candidate, Option<PerView>)],
-    key: impl Fn(&Candidate) -> f64,
-) -> Option<Candidate> {
     let (best, bv) = scores
         .iter()
         .filter_map(|(c, v)| v.as_ref().map(|v| (*c, v)))
         .min_by(|a, b| cv_of(Some(a.1)).total_cmp(&cv_of(Some(b.1))))?;
+    let n_corners: usize = bv.iter().map(|v| v.1).sum();
+    let within = |v: &[(f64, usize)]| {
+        if v.len() != bv.len() || v.len() < 3 {
+            return false;
+        }
+        let nv = v.len() as f64;
+        let total = n_corners.max(1) as f64;
+        let d: Vec<f64> = v.iter().zip(bv).map(|(a, b)| a.0 - b.0).collect();
+        let delta = d.iter().sum::<f64>() / total;
+        let var = d
+            .iter()
+            .zip(bv)
+            .map(|(di, b)| (di - b.1 as f64 * delta).powi(2))
+            .sum::<f64>()
+            * nv
+            / (nv - 1.0);
+        delta <= var.sqrt() / total
+    };
     let mut tied: Vec<Candidate> = scores
         .iter()
-        .filter_map(|(c, v)| v.as_ref().filter(|v| ties(v, bv)).map(|_| *c))
+        .filter_map(|(c, v)| v.as_ref().filter(|v| within(v)).map(|_| *c))
         .collect();
-    tied.sort_by(|a, b| {
-        key(a)
-            .total_cmp(&key(b))
-            .then(a.preference().cmp(&b.preference()))
-    });
+    tied.sort_by_key(|c| c.preference());
     Some(tied.first().copied().unwrap_or(best))
-}
-
-/// Spread of the folds' X: the root mean square, about their mean, of the translation
-/// difference plus the rotation difference times `lever` (mm; the camera–board distance, so
-/// that a rotation counts by what it moves at the board).
-pub fn fold_spread(xs: &[Isometry3<f64>], lever: f64) -> f64 {
-    if xs.len() < 2 {
-        return f64::INFINITY;
-    }
-    let mean = super::geom::mean_pose(xs);
-    let (st, sr) = spread(xs, &mean);
-    let t2: f64 = st.iter().map(|v| v * v).sum();
-    let r2: f64 = sr.iter().map(|v| (v.to_radians() * lever).powi(2)).sum();
-    (t2 + r2).sqrt()
-}
-
-/// Whether the per-view errors `v` tie with the lowest, `best` (same views, same order): the
-/// mean square error of `v` exceeds `best`'s by at most one standard error of the difference,
-/// paired by view (the views' own scatter; at least 3 views).
-pub(super) fn ties(v: &[(f64, usize)], best: &[(f64, usize)]) -> bool {
-    if v.len() != best.len() || v.len() < 3 {
-        return false;
-    }
-    let n_corners: usize = best.iter().map(|v| v.1).sum();
-    let nv = v.len() as f64;
-    let total = n_corners.max(1) as f64;
-    let d: Vec<f64> = v.iter().zip(best).map(|(a, b)| a.0 - b.0).collect();
-    let delta = d.iter().sum::<f64>() / total;
-    let var = d
-        .iter()
-        .zip(best)
-        .map(|(di, b)| (di - b.1 as f64 * delta).powi(2))
-        .sum::<f64>()
-        * nv
-        / (nv - 1.0);
-    delta <= var.sqrt() / total
 }
 
 /// Root mean square deviation (not unbiased) of X about `centre`: translation mm, rotation deg
@@ -453,51 +407,5 @@ mod tests {
         assert_eq!(choose(&scores), Some(Candidate::Ml));
         // Nothing scored: nothing chosen.
         assert_eq!(choose(&[(park, None)]), None);
-    }
-
-    /// Among tied candidates `choose_by` writes the one with the lowest key (the folds' X
-    /// spread), not the simplest; a candidate outside the tie is never written for its key.
-    #[test]
-    fn ties_go_to_the_most_stable_candidate() {
-        let park = Candidate::Closed(Method::ParkMartin);
-        let base = [4.0, 6.0, 5.0, 7.0, 3.0, 6.5, 5.5, 4.5];
-        let noisy: Vec<f64> = base
-            .iter()
-            .enumerate()
-            .map(|(i, b)| b * if i % 2 == 0 { 0.80 } else { 1.12 })
-            .collect();
-        let worse: Vec<f64> = base.iter().map(|b| b * 1.5).collect();
-        let scores = vec![
-            (park, views(&base)),
-            (Candidate::PoseNoise, views(&noisy)),
-            (Candidate::Ml, views(&worse)),
-        ];
-        let key = |c: &Candidate| match c {
-            Candidate::PoseNoise => 0.5,
-            Candidate::Ml => 0.1,
-            _ => 2.0,
-        };
-        assert_eq!(choose_by(&scores, key), Some(Candidate::PoseNoise));
-        assert_eq!(choose(&scores), Some(park));
-    }
-
-    /// The folds' spread counts a rotation by what it moves at the board (`lever`).
-    #[test]
-    fn fold_spread_is_translation_plus_rotation_at_the_lever() {
-        use nalgebra::{Translation3, UnitQuaternion, Vector3};
-        let x = |t: f64, r: f64| {
-            Isometry3::from_parts(
-                Translation3::new(t, 0.0, 0.0),
-                UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, r)),
-            )
-        };
-        assert_eq!(fold_spread(&[x(1.0, 0.0)], 500.0), f64::INFINITY);
-        assert!(fold_spread(&[x(1.0, 0.0), x(1.0, 0.0)], 500.0) < 1e-9);
-        // ±0.5 mm about the mean: 0.5 mm RMS.
-        let t = fold_spread(&[x(0.5, 0.0), x(-0.5, 0.0)], 500.0);
-        assert!((t - 0.5).abs() < 1e-9, "{t}");
-        // ±1 mrad at 500 mm: 0.5 mm.
-        let r = fold_spread(&[x(0.0, 1e-3), x(0.0, -1e-3)], 500.0);
-        assert!((r - 0.5).abs() < 1e-6, "{r}");
     }
 }
