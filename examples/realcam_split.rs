@@ -57,7 +57,11 @@ fn main() {
         let set = load(&dir).unwrap();
         let (cam, _) = realeval::detect_set(&set);
         let (a, b) = realeval::halves(&cam);
-        println!("\n=== {key}: {} + {} views ===", a.views.len(), b.views.len());
+        println!(
+            "\n=== {key}: {} + {} views ===",
+            a.views.len(),
+            b.views.len()
+        );
         let mut rows: Vec<(String, [Option<Isometry3<f64>>; 2])> = vec![];
         let mut push = |name: String, h: usize, x: Option<Isometry3<f64>>| {
             if let Some(r) = rows.iter_mut().find(|r| r.0 == name) {
@@ -85,7 +89,13 @@ fn main() {
             for e in r.closed_form.iter().chain(&r.candidates) {
                 push(format!("robocal {}", e.method), h, Some(e.x));
             }
-            println!("  cv {:?}", r.cv_scores.iter().map(|(n, s)| format!("{n}: {s:.3}")).collect::<Vec<_>>());
+            println!(
+                "  cv {:?}",
+                r.cv_scores
+                    .iter()
+                    .map(|(n, s)| format!("{n}: {s:.3}"))
+                    .collect::<Vec<_>>()
+            );
             for m in DistModel::ALL {
                 if let Ok(f) = calibrate_intrinsics(half, m) {
                     println!(
