@@ -422,6 +422,11 @@ impl SimCell {
         self.world.clock()
     }
 
+    /// Whether the cell runs on a virtual clock (time jumps at every wait).
+    pub fn is_virtual(&self) -> bool {
+        self.world.is_virtual()
+    }
+
     /// The serial number the first arm's controller reports.
     pub fn arm_serial(&self) -> Option<String> {
         self.world.arm_identity(0).map(|(_, s)| s)

@@ -11,6 +11,7 @@ pub mod cell;
 pub mod pivot;
 pub mod points;
 pub mod poses;
+pub mod settle;
 pub mod teach;
 
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -117,10 +117,19 @@ pub fn capture_views(
             let p = capture_poses(&*arm, &*clock, &opt, &keys, &mut quiet)
                 .await
                 .with_context(|| format!("teaching pose P{i} of {count}"))?;
-            let image = camera
-                .grab()
+            // Frames already in flight may show the arm still moving: the image is taken
+            // once consecutive frames agree.
+            let shot = crate::capture::settle::settled_grab(&*camera)
                 .await
                 .with_context(|| format!("the camera image at taught pose P{i}"))?;
+            if !shot.settled {
+                log(&format!(
+                    "  P{i}: the camera image kept changing over {} frames (by up to {:.1} grey \
+                     levels): the arm or the board moved; the last frame is used",
+                    shot.grabs, shot.change_grey
+                ));
+            }
+            let image = shot.image;
             let q = &p[0].q_deg;
             log(&format!(
                 "  P{i}: [{}] deg (range {:.4}°), image {}×{}",

@@ -176,16 +176,22 @@ fn connect_laser(
     })
 }
 
-/// The scenario's first camera (named `name`): with feature `opencv`, OpenCV's
-/// `VideoCapture` reading the simulator's MJPEG stream (frames stamped by the world's clock);
-/// otherwise, or when no stream is served, the in-process simulated camera.
+/// The scenario's first camera (named `name`): with feature `opencv` and the wall clock,
+/// OpenCV's `VideoCapture` reading the simulator's MJPEG stream (frames stamped by the world's
+/// clock); otherwise, or when no stream is served, the in-process simulated camera. On a
+/// virtual clock the stream cannot keep up with the world: it is paced on wall time while a
+/// move of seconds passes in milliseconds, so a frame grabbed at a pose may have been rendered
+/// during the move to it. There the in-process camera renders the world at the pose.
 async fn connect_camera(
     world: &SimCell,
     served: &Served,
     name: &str,
 ) -> anyhow::Result<Arc<dyn ImageSource>> {
     #[cfg(feature = "opencv")]
-    if let Some(addr) = endpoint(served, name, "mjpeg").and_then(|e| e.addr) {
+    if let Some(addr) = endpoint(served, name, "mjpeg")
+        .and_then(|e| e.addr)
+        .filter(|_| !world.is_virtual())
+    {
         use robocal_drivers::camera::opencv::{CaptureConfig, VideoCaptureSource};
         let config = CaptureConfig::new(format!("http://{addr}/video.mjpg"));
         let clock = world.clock();
