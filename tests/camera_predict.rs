@@ -169,3 +169,73 @@ fn predict_reproduces_the_camera_diagnosis_target_flatness() {
 fn predict_reproduces_the_camera_diagnosis_arm_kinematics() {
     check(&case("arm_kinematics"));
 }
+
+/// The `distortion` kind: the lens has a strong k2 (0.2) and the base calibration was made
+/// with a simpler model (k1 only, as `calibrate camera --distortion k1` forces it); the
+/// diagnosis, started from that calibration as a session hands it over, names
+/// `distortion`, and `robocal predict` with the `calibration.json` it wrote reproduces its
+/// held-out figure.
+#[test]
+fn predict_reproduces_the_camera_diagnosis_distortion() {
+    use robocal::solve::camera::{calibrate, DistModel, Options};
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let text = std::fs::read_to_string(root().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
+    let world = perfect_arm(text.clone()).replace("k1 = -0.05\nk2 = 0.0", "k1 = -0.05\nk2 = 0.2");
+    assert!(
+        world.contains("k2 = 0.2"),
+        "the world carries the distortion"
+    );
+    let sc = dir.join("scenario.toml");
+    std::fs::write(&sc, world).unwrap();
+    let spec = "plans/seed004-ur5e-camera.toml";
+    let train = run(
+        dir,
+        &plan_from(spec, dir, "train", "[2, 2, 5]", 4, false),
+        &sc,
+        "train",
+    );
+    let held = run(
+        dir,
+        &plan_from(spec, dir, "held", "[1, 1, 6]", 5, true),
+        &sc,
+        "held",
+    );
+    let ov = Overrides::default();
+    let (tl, hl) = (
+        load(&train, &ov, false).unwrap(),
+        load(&held, &ov, false).unwrap(),
+    );
+    let opts = Options {
+        distortion: Some(DistModel::K1),
+        ..Options::default()
+    };
+    let base = calibrate(&tl.data, Some(&hl.data), &opts).unwrap();
+    let out = dir.join("diag");
+    let summary =
+        robocal::diagnose::camera_stage::run_loaded(&tl, Some(&hl), Some(base), &out).unwrap();
+    let d: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
+            .unwrap();
+    let kinds: Vec<&str> = d["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|e| e["kind"].as_str())
+        .collect();
+    assert!(kinds.contains(&"distortion"), "found {kinds:?}\n{summary}");
+    let reported = d["heldout_rms"]["final_px"].as_f64().unwrap();
+    let before = d["heldout_rms"]["base_model_px"].as_f64().unwrap();
+    let pred = dir.join("pred.csv");
+    assert_eq!(predict_cli(&out.join("calibration.json"), &held, &pred), 0);
+    let (got, n) = rms_against_detections(&pred, &held);
+    eprintln!(
+        "distortion: found {kinds:?}; diagnosis held-out {before:.4} -> {reported:.4} px; \
+         predict with its calibration.json {got:.4} px over {n} corners"
+    );
+    assert!(reported < 0.5 * before, "{before} -> {reported} px");
+    assert!(
+        (got - reported).abs() < 1e-3,
+        "distortion: predict {got} px vs the diagnosis' {reported} px"
+    );
+}
