@@ -91,12 +91,9 @@ fn rms_against_detections(rows_csv: &Path, held: &Path) -> (f64, usize) {
     ((ss / n.max(1) as f64).sqrt(), n)
 }
 
-fn check(case: &Case) {
-    let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path();
-    let text = std::fs::read_to_string(root().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
-    let world = (case.world)(text.clone());
-    assert_ne!(world, text, "{}: the world carries the effect", case.kind);
+/// The training (strata 2×2×5) and held-out (1×1×6, jittered) runs of the seed 004 UR5e plan
+/// on the scenario text `world`, recorded in `dir`: their dataset files.
+fn record(dir: &Path, world: String) -> (std::path::PathBuf, std::path::PathBuf) {
     let sc = dir.join("scenario.toml");
     std::fs::write(&sc, world).unwrap();
     let spec = "plans/seed004-ur5e-camera.toml";
@@ -112,6 +109,26 @@ fn check(case: &Case) {
         &sc,
         "held",
     );
+    (train, held)
+}
+
+/// The effect kinds a `diagnosis.json` names.
+fn effect_kinds(d: &serde_json::Value) -> Vec<&str> {
+    d["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|e| e["kind"].as_str())
+        .collect()
+}
+
+fn check(case: &Case) {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let text = std::fs::read_to_string(root().join("mocks/scenarios/ur5e-camera.toml")).unwrap();
+    let world = (case.world)(text.clone());
+    assert_ne!(world, text, "{}: the world carries the effect", case.kind);
+    let (train, held) = record(dir, world);
     if let Some((from, to)) = case.declared {
         for f in [&train, &held] {
             let t = std::fs::read_to_string(f).unwrap();
@@ -125,12 +142,7 @@ fn check(case: &Case) {
     let d: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
             .unwrap();
-    let kinds: Vec<&str> = d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|e| e["kind"].as_str())
-        .collect();
+    let kinds = effect_kinds(&d);
     assert!(kinds.contains(&case.kind), "{}: found {kinds:?}", case.kind);
     let reported = d["heldout_rms"]["final_px"].as_f64().unwrap();
     let base = d["heldout_rms"]["base_model_px"].as_f64().unwrap();
@@ -187,21 +199,7 @@ fn predict_reproduces_the_camera_diagnosis_distortion() {
         world.contains("k2 = 0.2"),
         "the world carries the distortion"
     );
-    let sc = dir.join("scenario.toml");
-    std::fs::write(&sc, world).unwrap();
-    let spec = "plans/seed004-ur5e-camera.toml";
-    let train = run(
-        dir,
-        &plan_from(spec, dir, "train", "[2, 2, 5]", 4, false),
-        &sc,
-        "train",
-    );
-    let held = run(
-        dir,
-        &plan_from(spec, dir, "held", "[1, 1, 6]", 5, true),
-        &sc,
-        "held",
-    );
+    let (train, held) = record(dir, world);
     let ov = Overrides::default();
     let (tl, hl) = (
         load(&train, &ov, false).unwrap(),
@@ -218,12 +216,7 @@ fn predict_reproduces_the_camera_diagnosis_distortion() {
     let d: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("diagnosis.json")).unwrap())
             .unwrap();
-    let kinds: Vec<&str> = d["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|e| e["kind"].as_str())
-        .collect();
+    let kinds = effect_kinds(&d);
     assert!(kinds.contains(&"distortion"), "found {kinds:?}\n{summary}");
     let reported = d["heldout_rms"]["final_px"].as_f64().unwrap();
     let before = d["heldout_rms"]["base_model_px"].as_f64().unwrap();

@@ -94,20 +94,7 @@ fn sim_session_plans_inside_the_scenarios_arm_safety() {
     let tmp = tempfile::tempdir().unwrap();
     let plan_only = |scen: &Path, name: &str| {
         let out = tmp.path().join(name);
-        let (code, stdout, stderr) = run(&[
-            "session",
-            "--sim",
-            p(scen),
-            "--plan-only",
-            "--poses",
-            "20",
-            "--heldout-points",
-            "10",
-            "--out",
-            p(&out),
-            "--no-history",
-        ]);
-        assert_eq!(code, Some(0), "{name}: {stdout}\n{stderr}");
+        let stderr = crate::cell_safety::plan_only_session(&["--sim", p(scen)], &out);
         (out, stderr)
     };
     // The table raised to z = 200 mm (+50 mm clearance), a cylinder of radius 450 mm: the

@@ -56,11 +56,7 @@ pub fn format_tag(text: &str) -> Option<String> {
             .ok()
             .and_then(|v| v.get("format")?.as_str().map(str::to_string))
     };
-    tag_of(text).or_else(|| {
-        text.lines()
-            .find(|l| !l.trim().is_empty())
-            .and_then(|first| tag_of(first))
-    })
+    tag_of(text).or_else(|| text.lines().find(|l| !l.trim().is_empty()).and_then(tag_of))
 }
 
 /// When `text` is a robocal file of another kind than `expected` (a format tag, or a short
