@@ -571,7 +571,7 @@ def issue26_round5(P, j, good, cal, lgood):
             ("--wait inf", ["--format", "urscript", "--wait=inf"], ["wait"])]:
         b(f"correct: {name}", c + [tgood] + extra, exp)
     b("correct: laser calibration", ["correct", "--calibration", j("o-las", "calibration.json"), "--targets", tgood], ["kinematic"])
-    b("correct: calibration is a dataset", ["correct", "--calibration", good, "--targets", tgood], ["calibration"])
+    b("correct: calibration is a dataset", ["correct", "--calibration", good, "--targets", tgood], ["this is a dataset"])
     b("correct: targets file is a directory", c + [k()], ["directory"])
 
     # ---- register --ct-mesh with tracker points on one plane: unconstrained directions (§3)
@@ -626,6 +626,31 @@ def issue26_round5(P, j, good, cal, lgood):
     camds = write_jsonl(k("cam.jsonl"), rows)
     b("calibrate camera: no image readable (missing, directory, garbage, truncated, wrong size, empty, /etc/passwd)",
       ["calibrate", "camera", "--data", camds, "--out", k("cam-out")], ["missing", "not an image", "truncated", "directory"], timeout=60)
+
+
+def issue26_round6(P, d, j, good, cal):
+    """Issue 26, sixth round: a robocal file of another kind given where a reader expects its
+    own (a dataset as `--calibration`, a calibration as `--data`, ...): the reader names the
+    kind it got, not only "invalid JSON"."""
+    b = P.run
+    reg, rw = j("i26", "reg-ok.json"), j("i26", "rw-ok.json")
+    pts = j("i26", "pts.csv")
+    tg = j("r6-targets.csv")
+    open(tg, "w").write("name,x_mm,y_mm,z_mm,qw,qx,qy,qz\nA,400,0,300,0,1,0,0\n")
+    ds = "this is a dataset"
+    cl = "this is a calibration file"
+    b("wrong kind: correct --calibration DATASET", ["correct", "--calibration", good, "--targets", tg], [ds])
+    b("wrong kind: predict --calibration DATASET", ["predict", "--calibration", good, "--data", good], [ds])
+    b("wrong kind: diagnose --calibration DATASET", ["diagnose", "--data", good, "--calibration", good, "--out", j("r6-o")], [ds])
+    b("wrong kind: predict --data CALIBRATION", ["predict", "--calibration", cal, "--data", cal], [cl])
+    b("wrong kind: inspect CALIBRATION", ["inspect", cal], [cl])
+    b("wrong kind: calibrate kinematics --data CALIBRATION", ["calibrate", "kinematics", "--data", cal, "--out", j("r6-k")], [cl])
+    b("wrong kind: plan --check DATASET", ["plan", "--check", good], [ds])
+    b("wrong kind: plan --check CALIBRATION", ["plan", "--check", cal], ["robocal-calibration/1"])
+    if os.path.exists(reg) and os.path.exists(rw):
+        b("wrong kind: chain --robot-world DATASET", ["chain", "--registration", reg, "--robot-world", good, "--targets", pts, "--robot-sigma-mm", "0.1"], [ds])
+        b("wrong kind: chain --registration CALIBRATION", ["chain", "--registration", cal, "--robot-world", rw, "--targets", pts, "--robot-sigma-mm", "0.1"], [cl])
+        b("wrong kind: chain --registration DATASET", ["chain", "--registration", good, "--robot-world", rw, "--targets", pts, "--robot-sigma-mm", "0.1"], [ds])
 
 
 def main():
@@ -874,6 +899,7 @@ def main():
     issue26(P, d, j, small, hdr, good, goodheld, cal, pgood, lgood)
     issue26_round3(P, j, small, good, cal, lgood, lheldp)
     issue26_round5(P, j, good, cal, lgood)
+    issue26_round6(P, d, j, good, cal)
 
     # ---- summary
     cats = {}

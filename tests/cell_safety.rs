@@ -198,27 +198,33 @@ fn plan_inside(plan: &Path, j1: f64, floor: f64) -> (bool, usize) {
     (ok, f.poses.len())
 }
 
+/// `robocal session CELL_ARGS --plan-only` of 20 training and 10 validation poses into `out`;
+/// asserts exit 0 and returns stderr (the plan's notes).
+pub(crate) fn plan_only_session(cell_args: &[&str], out: &Path) -> String {
+    let mut args = vec!["session"];
+    args.extend(cell_args);
+    args.extend([
+        "--plan-only",
+        "--poses",
+        "20",
+        "--heldout-points",
+        "10",
+        "--out",
+        p(out),
+        "--no-history",
+    ]);
+    let (code, stdout, stderr) = run(&args);
+    assert_eq!(code, Some(0), "{cell_args:?}: {stdout}\n{stderr}");
+    stderr
+}
+
 #[test]
 fn live_session_plans_inside_the_cells_block() {
     let tmp = tempfile::tempdir().unwrap();
     let plan_only = |name: &str, block: &str| {
         let file = cell(tmp.path(), name, block);
         let out = tmp.path().join(format!("{name}-session"));
-        let (code, stdout, stderr) = run(&[
-            "session",
-            "--devices",
-            p(&file),
-            "--live",
-            "--plan-only",
-            "--poses",
-            "20",
-            "--heldout-points",
-            "10",
-            "--out",
-            p(&out),
-            "--no-history",
-        ]);
-        assert_eq!(code, Some(0), "{name}: {stdout}\n{stderr}");
+        let stderr = plan_only_session(&["--devices", p(&file), "--live"], &out);
         (out, stderr)
     };
     // Without a block the seed 001 plan swings joint 1 beyond ±45° and goes below z = 250 mm.

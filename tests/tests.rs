@@ -17,6 +17,7 @@ mod dataset;
 mod diagnose;
 mod diagnose_predict;
 mod e2e;
+mod field_trust;
 mod import;
 mod laser;
 mod laser_predict;

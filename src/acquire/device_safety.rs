@@ -230,6 +230,62 @@ impl SafetyEntry {
     }
 }
 
+/// Checks where the arm is now (`q`, rad, as `devices --probe` reads it) against the block:
+/// each joint inside `joint_limits_deg`, and, for a preset `arm_model`, the flange above the
+/// table + clearance and inside the envelope (the flange only: the plan re-check tests every
+/// link point of a planned pose). `Err` names each joint or point outside and what to do.
+pub fn check_current_joints(
+    block: &SafetyEntry,
+    arm_model: Option<&str>,
+    q: &[f64],
+) -> Result<(), String> {
+    let mut out = Vec::new();
+    if let Some(lims) = &block.joint_limits_deg {
+        if lims.len() != q.len() {
+            out.push(format!(
+                "the arm reports {} joints, joint_limits_deg has {} pairs",
+                q.len(),
+                lims.len()
+            ));
+        }
+        for (k, (x, [lo, hi])) in q.iter().zip(lims).enumerate() {
+            let d = x.to_degrees();
+            if !(d >= lo - 1e-6 && d <= hi + 1e-6) {
+                out.push(format!(
+                    "joint {} at {d:.2}° is outside joint_limits_deg [{lo}, {hi}]",
+                    k + 1
+                ));
+            }
+        }
+    }
+    let model = arm_model.and_then(|m| crate::model::KinematicModel::preset(m).ok());
+    if let Some(m) = model.filter(|m| m.dof() == q.len()) {
+        let p = m.flange_pose(q).translation.vector;
+        let at = format!("({:.1}, {:.1}, {:.1}) mm", p.x, p.y, p.z);
+        if let Some(floor) = block.floor_mm() {
+            if p.z < floor {
+                out.push(format!(
+                    "the flange at {at} is below the table + clearance (z = {floor} mm)"
+                ));
+            }
+        }
+        if let Some(e) = &block.envelope {
+            if !e.contains(&nalgebra::Point3::from(p)) {
+                out.push(format!("the flange at {at} is outside the envelope"));
+            }
+        }
+    }
+    if out.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "the arm is outside the cell's [safety] now: {}; bring it inside (teach pendant or \
+             hand guiding) before a session moves it",
+            out.join("; ")
+        ))
+    }
+}
+
 /// Narrows the safety wrapper's joint limits to the cell's (`joint_limits_deg`), when stated.
 pub fn narrow_joint_limits(
     limits: &mut robocal_drivers::safety::SafetyLimits,

@@ -7,6 +7,7 @@ use robocal_drivers::ndi::{NdiClient, NdiConfig};
 use robocal_drivers::ErrorKind;
 
 use crate::acquire::device_check::CheckedDevices;
+use crate::acquire::device_safety::{check_current_joints, SafetyEntry};
 use crate::acquire::devices::{DeviceEntry, Protocol};
 
 /// The outcome of probing one device.
@@ -27,8 +28,13 @@ fn deg(q: &[f64]) -> String {
     format!("[{}]", v.join(", "))
 }
 
-/// Probes one device, read-only.
-pub async fn probe(d: &DeviceEntry) -> Probe {
+/// Probes one device, read-only; an arm's current joints are checked against the device
+/// file's `[safety]` block when there is one.
+pub async fn probe(d: &DeviceEntry, safety: Option<&SafetyEntry>) -> Probe {
+    let within = |q: &[f64]| match safety {
+        Some(b) => check_current_joints(b, d.model.as_deref(), q),
+        None => Ok(()),
+    };
     let target = d.target();
     match d.protocol {
         Protocol::Bcap => {
@@ -36,7 +42,7 @@ pub async fn probe(d: &DeviceEntry) -> Probe {
             cfg.name = d.name.clone();
             match robocal_drivers::bcap::DensoArm::connect(cfg).await {
                 Err(e) => fail(e),
-                Ok(arm) => arm_probe(&arm).await,
+                Ok(arm) => arm_probe(&arm, within).await,
             }
         }
         Protocol::Rtde => {
@@ -49,7 +55,7 @@ pub async fn probe(d: &DeviceEntry) -> Probe {
             }
             match robocal_drivers::ur::UrArm::connect(cfg).await {
                 Err(e) => fail(e),
-                Ok(arm) => arm_probe(&arm).await,
+                Ok(arm) => arm_probe(&arm, within).await,
             }
         }
         Protocol::NdiTcp => {
@@ -120,19 +126,28 @@ where
     }
 }
 
-async fn arm_probe<A: robocal_drivers::Arm>(arm: &A) -> Probe {
+async fn arm_probe<A: robocal_drivers::Arm>(
+    arm: &A,
+    within: impl Fn(&[f64]) -> Result<(), String>,
+) -> Probe {
     let state = match arm.state().await {
         Ok(s) => s,
         Err(e) => return Probe::Failed(e.kind(), e.to_string()),
     };
     match arm.joints().await {
-        Ok(j) => Probe::Ok(format!(
-            "mode {:?}, safety {:?}, {} joints at {} deg",
-            state.mode,
-            state.safety,
-            j.q.len(),
-            deg(&j.q)
-        )),
+        Ok(j) => match within(&j.q) {
+            Err(why) => Probe::Failed(
+                ErrorKind::SafetyViolation,
+                format!("{} joints at {} deg: {why}", j.q.len(), deg(&j.q)),
+            ),
+            Ok(()) => Probe::Ok(format!(
+                "mode {:?}, safety {:?}, {} joints at {} deg",
+                state.mode,
+                state.safety,
+                j.q.len(),
+                deg(&j.q)
+            )),
+        },
         Err(e) => Probe::Failed(e.kind(), e.to_string()),
     }
 }
@@ -217,7 +232,9 @@ pub fn probe_devices(
         // device file `run --live` / `session --live` refuse before consent).
         let outcome = match &rt {
             Some(rt) if problems.is_empty() => Some(rt.block_on(async {
-                match tokio::time::timeout(timeout, self::probe(d)).await {
+                match tokio::time::timeout(timeout, self::probe(d, checked.file.safety.as_ref()))
+                    .await
+                {
                     Ok(r) => r,
                     Err(_) => Probe::Failed(
                         ErrorKind::Timeout,

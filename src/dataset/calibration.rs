@@ -64,7 +64,11 @@ impl CalibrationFile {
                 file: file.to_path_buf(),
                 line: Some(e.line()),
             },
-            msg: format!("invalid JSON: {e}"),
+            msg: crate::schema::kind::with_other_kind(
+                format_args!("invalid JSON: {e}"),
+                text,
+                crate::schema::CALIBRATION_FORMAT,
+            ),
         })?;
         check_calibration(value).map_err(|p| p.at(file, None))
     }

@@ -408,6 +408,14 @@ pub fn parse_dataset(bytes: &[u8], file: &Path) -> Result<Loaded, DatasetError> 
             Err(e) => {
                 let msg = if line.iter().all(u8::is_ascii_whitespace) {
                     "empty line".to_string()
+                } else if lineno == 1 {
+                    // A pretty-printed robocal file (calibration, plan, ...) given as a dataset.
+                    let text = String::from_utf8_lossy(bytes);
+                    crate::schema::kind::with_other_kind(
+                        format_args!("invalid JSON: {e}"),
+                        &text,
+                        crate::schema::DATASET_FORMAT,
+                    )
                 } else {
                     format!("invalid JSON: {e}")
                 };

@@ -91,8 +91,12 @@ pub fn resolve(spec: &str) -> Result<RobotBlock, ImportError> {
                     spec,
                     Some(e.line()),
                     None,
-                    format!(
-                        "not a robot block (`{{\"model\": ..., \"chain\": [{{\"name\", \"origin_xyz\" mm, \"origin_rpy\" deg, \"axis\"}}, ...], \"flange\": ...}}`): {e}"
+                    crate::schema::kind::with_other_kind(
+                        format_args!(
+                            "not a robot block (`{{\"model\": ..., \"chain\": [{{\"name\", \"origin_xyz\" mm, \"origin_rpy\" deg, \"axis\"}}, ...], \"flange\": ...}}`): {e}"
+                        ),
+                        &text,
+                        "a robot block",
                     ),
                 )
             })?

@@ -507,7 +507,7 @@ impl ChainReport {
         let r: ChainReport = serde_json::from_str(&text).map_err(|e| RegisterError::Input {
             file: path.display().to_string(),
             line: e.line(),
-            msg: e.to_string(),
+            msg: crate::schema::kind::with_other_kind(&e, &text, CHAIN_FORMAT),
         })?;
         if r.format != CHAIN_FORMAT {
             return Err(RegisterError::Input {

@@ -165,7 +165,7 @@ impl PlanFile {
     /// Parse and validate a plan (see [`PlanFile::validate`]).
     pub fn from_json_str(s: &str) -> Result<Self, PlanError> {
         let f: PlanFile = serde_json::from_str(s).map_err(|e| PlanError::PlanFile {
-            message: e.to_string(),
+            message: crate::schema::kind::with_other_kind(&e, s, crate::schema::PLAN_FORMAT),
         })?;
         f.validate()?;
         Ok(f)

@@ -278,7 +278,11 @@ impl RegistrationFile {
         let f: RegistrationFile = serde_json::from_str(text).map_err(|e| RegisterError::Input {
             file: file.into(),
             line: e.line(),
-            msg: format!("{e} (expected a `{REGISTRATION_FORMAT}` file)"),
+            msg: crate::schema::kind::with_other_kind(
+                format_args!("{e} (expected a `{REGISTRATION_FORMAT}` file)"),
+                text,
+                REGISTRATION_FORMAT,
+            ),
         })?;
         if f.format != REGISTRATION_FORMAT {
             return Err(RegisterError::Input {
@@ -311,7 +315,7 @@ pub fn load_init(path: &Path) -> Result<Isometry3<f64>, RegisterError> {
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| RegisterError::Input {
         file: path.display().to_string(),
         line: e.line(),
-        msg: e.to_string(),
+        msg: crate::schema::kind::with_other_kind(&e, &text, REGISTRATION_FORMAT),
     })?;
     let m = v
         .get("T_tracker_ct")

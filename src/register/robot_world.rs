@@ -588,7 +588,11 @@ impl RobotWorldFile {
         let f: RobotWorldFile = serde_json::from_str(&text).map_err(|e| RegisterError::Input {
             file: path.display().to_string(),
             line: e.line(),
-            msg: format!("{e} (expected a `{ROBOT_WORLD_FORMAT}` file)"),
+            msg: crate::schema::kind::with_other_kind(
+                format_args!("{e} (expected a `{ROBOT_WORLD_FORMAT}` file)"),
+                &text,
+                ROBOT_WORLD_FORMAT,
+            ),
         })?;
         if f.format != ROBOT_WORLD_FORMAT {
             return Err(RegisterError::Input {

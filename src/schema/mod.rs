@@ -24,6 +24,7 @@ use std::path::Path;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub mod kind;
 pub mod navnet;
 pub mod points_csv;
 
@@ -88,6 +89,17 @@ pub enum SchemaError {
         #[source]
         source: serde_json::Error,
     },
+    /// The file is not JSON as a whole, but is another robocal file (a JSON Lines dataset).
+    #[error("{path}: {what} (not one JSON document: {source})")]
+    OtherKind {
+        /// The file.
+        path: String,
+        /// What the file is instead ([`kind::other_kind`]).
+        what: String,
+        /// The parser's error (line and column).
+        #[source]
+        source: serde_json::Error,
+    },
     /// The file's `format` tag is not the expected one.
     #[error("{path}: field \"format\": expected \"{expected}\", got {found} (an older robocal or a different file; re-run the command that wrote it)")]
     Format {
@@ -119,10 +131,18 @@ pub trait SchemaFile: Serialize + DeserializeOwned {
 
 /// Parse `text` as a `T` (tag checked first); `path` names the file in errors.
 pub fn parse<T: SchemaFile>(text: &str, path: &str) -> Result<T, SchemaError> {
-    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| SchemaError::Json {
-        path: path.into(),
-        source: e,
-    })?;
+    let v: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| match kind::other_kind(text, T::FORMAT) {
+            Some(what) => SchemaError::OtherKind {
+                path: path.into(),
+                what,
+                source: e,
+            },
+            None => SchemaError::Json {
+                path: path.into(),
+                source: e,
+            },
+        })?;
     match v.get("format").and_then(|f| f.as_str()) {
         Some(f) if f == T::FORMAT => {}
         other => {

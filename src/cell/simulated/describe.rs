@@ -90,7 +90,17 @@ pub fn describe_scenario(
         settle_s: Some(a.settle_s),
         camera,
         endoscope: endoscope(&one),
-        safety: None,
+        // The scenario's `[arm.safety]`, as a device file's `[safety]` states it: the session
+        // plans inside it (not only the run's re-check refusing a plan wider than it).
+        safety: a
+            .safety
+            .as_ref()
+            .map(|s| crate::acquire::device_safety::SafetyEntry {
+                table_z_mm: s.table_z_mm,
+                table_clearance_mm: s.table_clearance_mm,
+                envelope: s.envelope.clone(),
+                ..Default::default()
+            }),
     };
     Ok((description, one))
 }
