@@ -563,21 +563,22 @@ pub fn cv_fixed(
 mod tests {
     use super::*;
 
+    /// `n` smooth 3-D inputs `[1.5 sin(w₀ i), cos(w₁ i), sin(w₂ i)]`.
+    pub(super) fn wave_inputs(n: usize, w: [f64; 3]) -> Vec<Vec<f64>> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64;
+                vec![(t * w[0]).sin() * 1.5, (t * w[1]).cos(), (t * w[2]).sin()]
+            })
+            .collect()
+    }
+
     /// Above [`MAX_CENTRES`] samples the subset-of-regressors system predicts what the
     /// exact one does on a smooth field (and keeps only `MAX_CENTRES` centres).
     #[test]
     fn subset_of_regressors_matches_the_exact_system() {
         let n = MAX_CENTRES + 400;
-        let q: Vec<Vec<f64>> = (0..n)
-            .map(|i| {
-                let t = i as f64;
-                vec![
-                    (t * 0.011).sin() * 1.5,
-                    (t * 0.0037).cos(),
-                    (t * 0.023).sin(),
-                ]
-            })
-            .collect();
+        let q = wave_inputs(n, [0.011, 0.0037, 0.023]);
         let r: Vec<Vector3<f64>> = q
             .iter()
             .map(|x| Vector3::new(0.1 * x[0].sin(), 0.05 * x[1] * x[2], 0.02 * x[2]))

@@ -114,16 +114,7 @@ mod tests {
     use super::*;
 
     fn field(n: usize) -> (Vec<Vec<f64>>, Vec<Vector3<f64>>) {
-        let q: Vec<Vec<f64>> = (0..n)
-            .map(|i| {
-                let t = i as f64;
-                vec![
-                    (t * 0.031).sin() * 1.5,
-                    (t * 0.0137).cos(),
-                    (t * 0.053).sin(),
-                ]
-            })
-            .collect();
+        let q = super::super::tests::wave_inputs(n, [0.031, 0.0137, 0.053]);
         let r = q
             .iter()
             .enumerate()
