@@ -10,6 +10,9 @@ use super::error::RbfFileError;
 use crate::model::KinematicModel;
 use serde_json::{json, Map, Value};
 
+mod shared;
+pub use shared::MAX_CV_CENTRES;
+
 /// A fitted kernel correction: `Σ_k w_k exp(−|q − c_k|² / (2ℓ²))` (mm), `q` in rad.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rbf {
@@ -194,7 +197,8 @@ fn block_bounds(fold: &[usize], n_folds: usize) -> Option<Vec<usize>> {
 /// once per λ (folds run in parallel). When every fold's system is exact (no subset of
 /// regressors), the kernel of all samples is evaluated once and every fold takes its blocks
 /// from it: each pair's `exp` once instead of once per fold that uses it (5× fewer with 5
-/// folds; the same values, so the same errors).
+/// folds; the same values, so the same errors). When a fold's training set exceeds
+/// [`MAX_CENTRES`], every fold uses the same [`MAX_CV_CENTRES`] centres ([`shared`]).
 fn fold_errors(
     q: &[Vec<f64>],
     r: &[Vector3<f64>],
@@ -206,6 +210,10 @@ fn fold_errors(
     let n = q.len();
     let all: Vec<usize> = (0..n).collect();
     let exact = (0..n_folds).all(|f| fold.iter().filter(|&&g| g != f).count() <= MAX_CENTRES);
+    if !exact {
+        // Subset of regressors: centres shared by every fold ([`shared`]).
+        return shared::fold_errors_shared(q, r, fold, n_folds, ell, lambdas, MAX_CV_CENTRES);
+    }
     let full = exact.then(|| kernel(q, &all, &all, ell));
     // Time-blocked folds (contiguous blocks): every fold's weights from one shared blocked
     // factorisation per λ ([`super::foldchol`]: the same weights in exact arithmetic, 1.42×
@@ -555,21 +563,22 @@ pub fn cv_fixed(
 mod tests {
     use super::*;
 
+    /// `n` smooth 3-D inputs `[1.5 sin(w₀ i), cos(w₁ i), sin(w₂ i)]`.
+    pub(super) fn wave_inputs(n: usize, w: [f64; 3]) -> Vec<Vec<f64>> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64;
+                vec![(t * w[0]).sin() * 1.5, (t * w[1]).cos(), (t * w[2]).sin()]
+            })
+            .collect()
+    }
+
     /// Above [`MAX_CENTRES`] samples the subset-of-regressors system predicts what the
     /// exact one does on a smooth field (and keeps only `MAX_CENTRES` centres).
     #[test]
     fn subset_of_regressors_matches_the_exact_system() {
         let n = MAX_CENTRES + 400;
-        let q: Vec<Vec<f64>> = (0..n)
-            .map(|i| {
-                let t = i as f64;
-                vec![
-                    (t * 0.011).sin() * 1.5,
-                    (t * 0.0037).cos(),
-                    (t * 0.023).sin(),
-                ]
-            })
-            .collect();
+        let q = wave_inputs(n, [0.011, 0.0037, 0.023]);
         let r: Vec<Vector3<f64>> = q
             .iter()
             .map(|x| Vector3::new(0.1 * x[0].sin(), 0.05 * x[1] * x[2], 0.02 * x[2]))
