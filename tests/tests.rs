@@ -20,6 +20,7 @@ mod e2e;
 mod import;
 mod laser;
 mod laser_predict;
+mod laser_seed;
 mod laser_session;
 mod laser_world;
 mod live_session;
