@@ -21,6 +21,7 @@ mod field_trust;
 mod import;
 mod laser;
 mod laser_predict;
+mod laser_seed;
 mod laser_session;
 mod laser_world;
 mod live_session;

@@ -38,6 +38,8 @@ pub const SPEC: &str = include_str!("../../plans/seed000-session.toml");
 pub const ACCEPT: &str = include_str!("../../accept/laser.toml");
 /// The copy of the arm's kinematic calibration in the session directory.
 pub const ARM_CALIBRATION: &str = "arm-calibration.json";
+/// The arm's kinematic calibration refined jointly with the beam (calibrate stage).
+pub const ARM_REFINED: &str = "calibrate/arm-refined.json";
 
 /// Seed 000's figures (mean ± sd of the five-direction spread, mm): one plane, orthogonal planes.
 pub const SEED_SINGLE_PLANE_MM: (f64, f64) = (1.37, 0.24);
@@ -267,7 +269,17 @@ fn arm(
     ds_path: &Path,
 ) -> anyhow::Result<Option<laser::IdentifiedArm>> {
     match &s.setup.arm_calibration {
-        Some(f) => Ok(Some(laser::identified_arm(&dir.join(f), ds, ds_path)?)),
+        Some(f) => {
+            // Once the calibrate stage has refined the arm with the laser's data, every
+            // later stage reads the spots through the refined arm.
+            let refined = dir.join(ARM_REFINED);
+            let p = if refined.is_file() {
+                refined
+            } else {
+                dir.join(f)
+            };
+            Ok(Some(laser::identified_arm(&p, ds, ds_path)?))
+        }
         None => Ok(None),
     }
 }
@@ -370,8 +382,12 @@ pub fn run(
     Ok(s)
 }
 
-fn flange_note(s: &SessionFile) -> String {
+fn flange_note(dir: &Path, s: &SessionFile) -> String {
     match &s.setup.arm_calibration {
+        Some(f) if dir.join(ARM_REFINED).is_file() => format!(
+            "joints through the identified arm ({f}) with its joint parameters refined jointly \
+             with the beam ({ARM_REFINED}, deployed as deploy/arm-calibration.json)"
+        ),
         Some(f) => format!("joints through the identified arm and its joint effects ({f})"),
         None => "the controller's flange (nominal kinematics: the arm's errors stay in the spots)"
             .into(),
@@ -407,12 +423,23 @@ fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<
             }
         }
     }
-    let cmp = laser::compare_split(&d.train, &d.selection, &d.selection, None, None)
+    // A resumed stage starts again from the arm as calibrated.
+    let refined = dir.join(ARM_REFINED);
+    if refined.is_file() {
+        std::fs::remove_file(&refined)
+            .with_context(|| format!("removing the stale {}", refined.display()))?;
+    }
+    let mut cmp = laser::compare_split(&d.train, &d.selection, &d.selection, None, None)
         .context("laser hand-eye calibration")?;
+    if s.setup.arm_calibration.is_some() && refine_arm(dir, s, &cmp, &mut *log)? {
+        let d = data(dir, s)?;
+        cmp = laser::compare_split(&d.train, &d.selection, &d.selection, None, None)
+            .context("laser hand-eye calibration through the refined arm")?;
+    }
     let (_, train_ds) = load_ds(dir, s, "train")?;
     let mut cal = laser::calibration_file(train_ds.header.robot.clone(), &cmp)?;
     cal.extra
-        .insert("flange_poses".into(), flange_note(s).into());
+        .insert("flange_poses".into(), flange_note(dir, s).into());
     cal.extra.insert("datasets".into(), s.dataset_hashes());
     let out = dir.join("calibrate");
     std::fs::create_dir_all(&out)?;
@@ -424,6 +451,95 @@ fn calibrate_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<
     }
     s.measured.laser_plane_rms_mm = Some(cmp.final_plane_rms_mm);
     Ok(())
+}
+
+/// Refines the arm's joint parameters jointly with the beam, the planes and the selection
+/// targets ([`laser::arm_refine`]; prior: the session's arm calibration) and writes
+/// [`ARM_REFINED`]. `Ok(false)` (with a warning) when the refinement does not converge or does
+/// not lower the selection targets' spread: the stage then keeps the arm as calibrated.
+fn refine_arm(
+    dir: &Path,
+    s: &mut SessionFile,
+    cmp: &laser::Comparison,
+    log: Log,
+) -> anyhow::Result<bool> {
+    let Some(f) = s.setup.arm_calibration.clone() else {
+        return Ok(false);
+    };
+    let Some(beam) = cmp.final_beam else {
+        return Ok(false);
+    };
+    let cal_path = dir.join(&f);
+    let cal = crate::dataset::CalibrationFile::load(&cal_path)
+        .with_context(|| format!("reading {}", cal_path.display()))?;
+    let (tp, tds) = load_ds(dir, s, "train")?;
+    let arm = laser::identified_arm(&cal_path, &tds, &tp)?;
+    let train: Vec<_> = laser::arm_refine::arm_observations(&tds, &arm)?
+        .into_iter()
+        .filter(|o| o.obs.plane.is_some())
+        .collect();
+    let (_, sds) = load_ds(dir, s, "selection")?;
+    let selection: Vec<_> = laser::arm_refine::arm_observations(&sds, &arm)?
+        .into_iter()
+        .filter(|o| o.obs.target.is_some())
+        .collect();
+    let r = match laser::arm_refine::refine(
+        &arm,
+        &cal,
+        &train,
+        &selection,
+        &cmp.outliers,
+        (&beam, &cmp.final_planes),
+        &Default::default(),
+    ) {
+        Ok(r) => r,
+        Err(e) => {
+            s.warnings
+                .push(format!("arm refinement with the laser data failed ({e}): the spots go through the arm as calibrated"));
+            return Ok(false);
+        }
+    };
+    let id = &r.identifiability;
+    log(&format!(
+        "  arm refinement: {} joint parameters; directions pinned better than the kinematic \
+         calibration: planes {} / with selection targets {} (largest σ-scaled singular values \
+         {:.2} / {:.2}); plane RMS {:.4} -> {:.4} mm, selection spread {:.4} -> {:.4} mm",
+        id.arm_params.len(),
+        id.planes_pinned,
+        id.with_targets_pinned,
+        id.planes_sv.first().copied().unwrap_or(0.0),
+        id.with_targets_sv.first().copied().unwrap_or(0.0),
+        r.plane_rms_before_mm,
+        r.plane_rms_after_mm,
+        r.selection_spread_before_mm,
+        r.selection_spread_after_mm
+    ));
+    // The planes are the calibration's own evidence: a refinement that buys the targets'
+    // agreement with the planes' fit is a model the data do not support.
+    if r.plane_rms_after_mm > 1.5 * r.plane_rms_before_mm + 0.01 {
+        s.warnings.push(format!(
+            "arm refinement with the laser data raised the planes' RMS ({:.4} -> {:.4} mm): the \
+             spots go through the arm as calibrated",
+            r.plane_rms_before_mm, r.plane_rms_after_mm
+        ));
+        return Ok(false);
+    }
+    if r.selection_spread_after_mm >= r.selection_spread_before_mm {
+        s.warnings.push(format!(
+            "arm refinement with the laser data did not lower the selection spread ({:.4} -> \
+             {:.4} mm): the spots go through the arm as calibrated",
+            r.selection_spread_before_mm, r.selection_spread_after_mm
+        ));
+        return Ok(false);
+    }
+    let out = laser::arm_refine::refined_calibration(&cal, &r);
+    let p = dir.join(ARM_REFINED);
+    if let Some(parent) = p.parent() {
+        std::fs::create_dir_all(parent)?;
+    }
+    out.save(&p)
+        .with_context(|| format!("writing {}", p.display()))?;
+    Ok(true)
 }
 
 /// The comparison the calibrate stage made (deterministic: recomputed from the same data).
@@ -452,7 +568,7 @@ fn diagnose_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
     cal.metrics
         .insert("plane_rms_mm_after".into(), diag.rms_after_mm.into());
     cal.extra
-        .insert("flange_poses".into(), flange_note(s).into());
+        .insert("flange_poses".into(), flange_note(dir, s).into());
     cal.extra.insert("datasets".into(), s.dataset_hashes());
     let out = dir.join("diagnose");
     std::fs::create_dir_all(&out)?;
@@ -601,6 +717,14 @@ fn validate_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
     let bytes = crate::fsio::read(&src).with_context(|| format!("{}", src.display()))?;
     write_atomic(&ddir.join("calibration.json"), &bytes)?;
     s.deploy = vec!["deploy/calibration.json".into()];
+    // The beam holds with the arm it was fitted through: deploy the refined arm beside it.
+    let refined = dir.join(ARM_REFINED);
+    if refined.is_file() {
+        let bytes =
+            crate::fsio::read(&refined).with_context(|| format!("{}", refined.display()))?;
+        write_atomic(&ddir.join("arm-calibration.json"), &bytes)?;
+        s.deploy.push("deploy/arm-calibration.json".into());
+    }
     let ci = dcal
         .params
         .iter()
@@ -608,7 +732,7 @@ fn validate_stage(dir: &Path, s: &mut SessionFile, log: Log) -> anyhow::Result<(
         .map(|p| p.std.map(|x| 1.96 * x))
         .collect::<Option<Vec<f64>>>();
     s.laser = Some(LaserSummary {
-        flange_poses: flange_note(s),
+        flange_poses: flange_note(dir, s),
         nominal_r_mm: nominal.r.into(),
         nominal_v: nominal.v.into_inner().into(),
         beam_r_mm: beam.r.into(),

@@ -10,6 +10,7 @@
 //! measurements.
 
 pub mod camera_board;
+mod centring;
 pub mod chain;
 pub mod charuco;
 pub mod clock;
@@ -126,6 +127,8 @@ pub(crate) struct LaserRuntime {
     pub(crate) arm: usize,
     pub(crate) force_oor: u32,
     pub(crate) rng: ChaCha8Rng,
+    /// End time of the arm move whose spot the operator last centred ([`centring`]).
+    pub(crate) centred_end: Option<f64>,
 }
 
 /// Runtime state of one camera.
@@ -359,6 +362,7 @@ impl WorldHandle {
                 arm: arm_index(&l.arm, &l.name)?,
                 force_oor: 0,
                 rng: rng_for(s.seed, 4, i),
+                centred_end: None,
             });
         }
         let mut cameras = Vec::new();
@@ -864,6 +868,11 @@ impl WorldHandle {
             if l.force_oor > 0 {
                 l.force_oor -= 1;
                 return RangeReading::OutOfRange;
+            }
+            if let Some(pl) = &scene.plate {
+                if let Some(c) = &pl.centring {
+                    centring::centre(&mut arms[l.arm], l, scene, pl, c, t);
+                }
             }
             let arm = &arms[l.arm];
             let flange = arm.physics.true_flange(&arm.motion.q_at(t), &arm.ctx(t));

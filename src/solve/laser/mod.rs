@@ -21,6 +21,7 @@
 //!
 //! Units: mm and radians inside; the calibration file stores `r` in mm and `v` as a unit vector.
 
+pub mod arm_refine;
 pub mod effects;
 pub mod fit;
 pub mod predict;
