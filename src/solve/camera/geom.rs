@@ -57,28 +57,56 @@ pub fn pose_from_slice(v: &[f64]) -> Isometry3<f64> {
 
 /// `y = R(ω) p + t` and `∂y/∂[ω, t]` (3×6).
 pub fn transform_jac(v: &[f64], p: &Vector3<f64>) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
-    let w = Vector3::new(v[0], v[1], v[2]);
-    let rp = exp_so3(&w) * p;
-    let y = rp + Vector3::new(v[3], v[4], v[5]);
-    let mut j = SMatrix::<f64, 3, 6>::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-skew(&rp) * left_jacobian(&w)));
-    j.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&Matrix3::identity());
-    (y, j)
+    PoseJac::new(v).transform_jac(p)
 }
 
 /// `y = R(ω)ᵀ (p − t)` (the inverse pose applied to `p`) and `∂y/∂[ω, t]` (3×6).
 pub fn inv_transform_jac(v: &[f64], p: &Vector3<f64>) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
-    let w = Vector3::new(v[0], v[1], v[2]);
-    let rt = exp_so3(&w).transpose();
-    let d = p - Vector3::new(v[3], v[4], v[5]);
-    let y = rt * d;
-    let mut j = SMatrix::<f64, 3, 6>::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(rt.matrix() * skew(&d) * left_jacobian(&w)));
-    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-*rt.matrix()));
-    (y, j)
+    PoseJac::new(v).inv_transform_jac(p)
+}
+
+/// A pose 6-vector's rotation, left Jacobian and translation, computed once per pose for the
+/// derivatives of many points ([`transform_jac`] / [`inv_transform_jac`] recompute them per
+/// call; the arithmetic is the same, so the results are bit-identical).
+pub struct PoseJac {
+    rot: nalgebra::Rotation3<f64>,
+    l: Matrix3<f64>,
+    t: Vector3<f64>,
+}
+
+impl PoseJac {
+    pub fn new(v: &[f64]) -> Self {
+        let w = Vector3::new(v[0], v[1], v[2]);
+        PoseJac {
+            rot: exp_so3(&w),
+            l: left_jacobian(&w),
+            t: Vector3::new(v[3], v[4], v[5]),
+        }
+    }
+
+    /// As [`transform_jac`].
+    pub fn transform_jac(&self, p: &Vector3<f64>) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
+        let rp = self.rot * p;
+        let y = rp + self.t;
+        let mut j = SMatrix::<f64, 3, 6>::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(-skew(&rp) * self.l));
+        j.fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&Matrix3::identity());
+        (y, j)
+    }
+
+    /// As [`inv_transform_jac`].
+    pub fn inv_transform_jac(&self, p: &Vector3<f64>) -> (Vector3<f64>, SMatrix<f64, 3, 6>) {
+        let rt = self.rot.transpose();
+        let d = p - self.t;
+        let y = rt * d;
+        let mut j = SMatrix::<f64, 3, 6>::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(rt.matrix() * skew(&d) * self.l));
+        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-*rt.matrix()));
+        (y, j)
+    }
 }
 
 /// Project a camera-frame point (mm) to pixels; `None` behind the camera.

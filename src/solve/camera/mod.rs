@@ -30,6 +30,7 @@ pub mod realeval;
 pub mod select;
 pub mod subpix;
 pub mod viewcorr;
+mod viewcorr_jac;
 pub mod zhang;
 
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Vector3};

@@ -12,9 +12,7 @@
 #![allow(clippy::type_complexity)]
 use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 
-use super::geom::{
-    inv_transform_jac, pose_from_slice, project_jac, transform_jac, Intrinsics, N_INTR,
-};
+use super::geom::{pose_from_slice, project_jac, Intrinsics, PoseJac, N_INTR};
 use crate::solve::lm::LsqProblem;
 
 /// One detected corner.
@@ -221,6 +219,16 @@ impl Reproj<'_> {
                     })
                     .collect()
             });
+        // Every pose block's rotation, left Jacobian and (quaternion-route) rotation matrix,
+        // once per evaluation rather than once per corner (the same arithmetic).
+        let blocks_pre: Vec<(PoseJac, nalgebra::Matrix3<f64>)> = (0..self.n_poses())
+            .map(|b| {
+                let o = self.pose_offset(b);
+                let v = &xs[o..o + 6];
+                let rq = *pose_from_slice(v).rotation.to_rotation_matrix().matrix();
+                (PoseJac::new(v), rq)
+            })
+            .collect();
         for (i, o) in self.obs.iter().enumerate() {
             let mut d_arm: Vec<Vector3<f64>> = vec![];
             // Board point with scale and bend.
@@ -239,29 +247,22 @@ impl Reproj<'_> {
             ) = match self.layout {
                 Layout::Views(_) => {
                     let off = self.pose_offset(o.view);
-                    let (y, jp) = transform_jac(&xs[off..off + 6], &p);
-                    let rot = pose_from_slice(&xs[off..off + 6])
-                        .rotation
-                        .to_rotation_matrix();
-                    (y, vec![(off, jp)], *rot.matrix())
+                    let (pj, rq) = &blocks_pre[o.view];
+                    let (y, jp) = pj.transform_jac(&p);
+                    (y, vec![(off, jp)], *rq)
                 }
                 Layout::HandEye => {
                     let (ox, ob) = (self.pose_offset(0), self.pose_offset(1));
-                    let (y1, jb) = transform_jac(&xs[ob..ob + 6], &p);
+                    let ((pjx, rqx), (pjb, rqb)) = (&blocks_pre[0], &blocks_pre[1]);
+                    let (y1, jb) = pjb.transform_jac(&p);
                     let f = match &arm_frames {
                         Some(af) => &af[o.view].0,
                         None => &self.flange[o.view],
                     };
                     let y2 = f.inverse_transform_vector(&(y1 - f.translation.vector));
-                    let (y3, jx) = inv_transform_jac(&xs[ox..ox + 6], &y2);
+                    let (y3, jx) = pjx.inv_transform_jac(&y2);
                     let rf = f.rotation.to_rotation_matrix();
-                    let rx = pose_from_slice(&xs[ox..ox + 6])
-                        .rotation
-                        .to_rotation_matrix();
-                    let rb = pose_from_slice(&xs[ob..ob + 6])
-                        .rotation
-                        .to_rotation_matrix();
-                    let chain = rx.matrix().transpose() * rf.matrix().transpose();
+                    let chain = rqx.transpose() * rf.matrix().transpose();
                     if let Some(af) = &arm_frames {
                         // δF: position δp, rotation δθ (base frame): F⁻¹y changes by
                         // −F_R⁻¹ (δθ × (y − p) + δp).
@@ -276,7 +277,7 @@ impl Reproj<'_> {
                             })
                             .collect();
                     }
-                    (y3, vec![(ox, jx), (ob, chain * jb)], chain * rb.matrix())
+                    (y3, vec![(ox, jx), (ob, chain * jb)], chain * rqb)
                 }
             };
             let Some((uv, jp, ji)) = project_jac(&k, &pc) else {

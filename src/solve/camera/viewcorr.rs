@@ -19,13 +19,10 @@
 //!
 //! The normal equations have the bundle-adjustment arrow structure; each LM step eliminates the
 //! per-view blocks (6×6) by the Schur complement onto the 12 shared parameters.
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, SMatrix, SVector, Vector3, Vector6};
+use nalgebra::{DMatrix, Isometry3, Matrix6, Vector3, Vector6};
 
 use super::geom::{pose_from_slice, pose_to_vec, project, Intrinsics};
-
-type M12 = SMatrix<f64, 12, 12>;
-type M12x6 = SMatrix<f64, 12, 6>;
-type V12 = SVector<f64, 12>;
+use super::viewcorr_jac::{view_blocks, M12x6, M12, V12};
 
 /// Result of [`fit`].
 #[derive(Debug, Clone)]
@@ -72,13 +69,15 @@ fn residuals(
     Some(())
 }
 
-/// One view's residuals and their derivatives by central differences: `(r, J_θ, J_ξ)`.
-fn view_jac(
+/// One view's residuals and their derivatives by central differences: `(r, J_θ, J_ξ)` (the
+/// reference the analytic [`super::viewcorr_jac`] is tested against).
+#[cfg(test)]
+pub(super) fn view_jac_numeric(
     k: &Intrinsics,
     v: &ViewObs,
     xi: &[f64; 6],
     theta: &[f64; 12],
-) -> Option<(DVector<f64>, DMatrix<f64>, DMatrix<f64>)> {
+) -> Option<(nalgebra::DVector<f64>, DMatrix<f64>, DMatrix<f64>)> {
     let mut r = vec![];
     residuals(k, v, xi, theta, &mut r)?;
     let m = r.len();
@@ -108,7 +107,7 @@ fn view_jac(
             jx[(i, a)] = (rp[i] - rm[i]) / (2.0 * h);
         }
     }
-    Some((DVector::from_vec(r), jt, jx))
+    Some((nalgebra::DVector::from_vec(r), jt, jx))
 }
 
 /// Cost `Σ|r|²/σ² + Σ ξᵀ P ξ` (`P = Σ⁻¹`), infinite when a corner is behind the camera.
@@ -155,16 +154,12 @@ fn normal(
     let mut blocks = vec![];
     let mut ss = vec![];
     for (v, xi) in views.iter().zip(xis) {
-        let (r, jt, jx) = view_jac(k, v, xi, theta)?;
-        let jtt = jt.transpose();
-        h += M12::from_iterator((&jtt * &jt).iter().copied()) / s2;
-        g += V12::from_iterator((&jtt * &r).iter().copied()) / s2;
-        let a = Matrix6::from_iterator((jx.transpose() * &jx).iter().copied()) / s2 + prec;
-        let c = M12x6::from_iterator((&jtt * &jx).iter().copied()) / s2;
+        let vb = view_blocks(k, v, xi, theta)?;
+        h += vb.tt / s2;
+        g += vb.tr / s2;
         let e = Vector6::from_column_slice(xi);
-        let gi = Vector6::from_iterator((jx.transpose() * &r).iter().copied()) / s2 + prec * e;
-        blocks.push((a, c, gi));
-        ss.push((r.norm_squared(), r.len()));
+        blocks.push((vb.xx / s2 + prec, vb.tx / s2, vb.xr / s2 + prec * e));
+        ss.push((vb.ss, vb.m));
     }
     Some(Normal { h, g, blocks, ss })
 }
