@@ -566,6 +566,30 @@ fn cli_register_predict_robot_world_chain() {
             .unwrap();
         assert!(robot.rms_mm > 0.01, "{}", robot.rms_mm);
     }
+    // A pose the robot cannot take (800°: degrees mistyped, or radians × 1000) is refused
+    // naming the joint and its limits, not propagated.
+    for q in ["10,-20,800,5,40,-30", "0.1,-0.2,1.4,0.05,0.7,-0.5e3"] {
+        let (ok, _, err) = robocal(&[
+            "chain",
+            "--registration",
+            &p("registration.json"),
+            "--robot-world",
+            &p("robot_world.json"),
+            "--targets",
+            &p("targets.csv"),
+            "--calibration",
+            &p("calibration.json"),
+            "--joints-deg",
+            q,
+            "--out",
+            &p("chain_bad.json"),
+        ]);
+        assert!(
+            !ok && err.contains("is outside the robot's limits") && err.contains("joint "),
+            "{q}: {err}"
+        );
+        assert!(!d.path().join("chain_bad.json").exists());
+    }
     // Neither a calibration nor a σ: refused.
     let (ok, _, err) = robocal(&[
         "chain",

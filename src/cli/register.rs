@@ -122,23 +122,7 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
         }
     }
     if let (Some(c), Some(t)) = (&a.check_ct, &a.check_tracker) {
-        let (cp, unpaired) = crate::register::check::check_points(
-            &file.transform()?,
-            &points::read_points_csv(c)?,
-            &points::read_points_csv(t)?,
-            (&c.display().to_string(), &t.display().to_string()),
-        )?;
-        for u in &unpaired {
-            eprintln!("warning: check point {u} on one side only");
-        }
-        let e: Vec<f64> = cp.iter().map(|x| x.error_mm).collect();
-        let (m, sd) = crate::register::check::mean_sd(&e);
-        println!(
-            "check points: {}, error {m:.3} ± {sd:.3} mm (mean ± sd), max {:.3} mm",
-            cp.len(),
-            e.iter().cloned().fold(0.0, f64::max)
-        );
-        file.check_points = cp;
+        file.check_points = check_points(&file, c, t)?;
     }
     for t in &file.targets {
         println!(
@@ -149,4 +133,30 @@ pub fn exec(a: Args) -> anyhow::Result<()> {
     file.save(&a.out)?;
     println!("wrote {}", a.out.display());
     Ok(())
+}
+
+/// The independent check points (`--check-ct` / `--check-tracker`) through the registration:
+/// printed as mean ± sd and max, returned for the file.
+fn check_points(
+    file: &RegistrationFile,
+    c: &std::path::Path,
+    t: &std::path::Path,
+) -> anyhow::Result<Vec<crate::register::check::CheckPoint>> {
+    let (cp, unpaired) = crate::register::check::check_points(
+        &file.transform()?,
+        &points::read_points_csv(c)?,
+        &points::read_points_csv(t)?,
+        (&c.display().to_string(), &t.display().to_string()),
+    )?;
+    for u in &unpaired {
+        eprintln!("warning: check point {u} on one side only");
+    }
+    let e: Vec<f64> = cp.iter().map(|x| x.error_mm).collect();
+    let (m, sd) = crate::register::check::mean_sd(&e);
+    println!(
+        "check points: {}, error {m:.3} ± {sd:.3} mm (mean ± sd), max {:.3} mm",
+        cp.len(),
+        e.iter().cloned().fold(0.0, f64::max)
+    );
+    Ok(cp)
 }
