@@ -7,7 +7,7 @@
 //! never a torn one; after [`write_atomic`] returns the new content and its directory entry
 //! are on disk.
 //!
-//! Trust at the boundary (issue 26 §1, §7): the writer only ever replaces a regular file. An
+//! Trust at the boundary: the writer only ever replaces a regular file. An
 //! existing target that is a device, FIFO, socket or directory is refused (renaming over
 //! `/dev/null` would break the host); a symbolic link is resolved and its regular-file target
 //! written (the link stays a link); a dangling link is refused. Temporary files a killed

@@ -1,4 +1,4 @@
-//! The simulated navigation chain of seed 003 (issue 19): a CT head phantom with fiducials
+//! The simulated navigation chain of seed 003: a CT head phantom with fiducials
 //! and a surface, an optical stereo tracker whose depth error grows with z², a robot whose
 //! calibrated positioning still errs, and a tool tip. The world holds the truth (phantom
 //! pose in the tracker, tracker pose in the robot base, marker on the flange) and computes

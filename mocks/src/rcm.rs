@@ -1,4 +1,4 @@
-//! The RCM cell (issue 20): an instrument shaft pivoting through a fixed trocar, seen by an
+//! The RCM cell: an instrument shaft pivoting through a fixed trocar, seen by an
 //! endoscope camera fixed in the robot base. Truth lives here, computed with this module's own
 //! geometry (contour generators of the cylinder, pinhole projection, clipping to the image),
 //! independent of the estimator's tangent-plane algebra in `robocal::solve::rcm`.

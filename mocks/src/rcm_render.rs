@@ -1,4 +1,4 @@
-//! The endoscope's image of the RCM cell (issue 29 §2): what the fixed endoscope camera of
+//! The endoscope's image of the RCM cell: what the fixed endoscope camera of
 //! [`crate::rcm`] sees, rendered by ray casting from the world's true geometry.
 //!
 //! Scene (all in the robot base, mm): the instrument shaft (a cylinder of the scenario's radius

@@ -671,7 +671,7 @@ impl Scenario {
 
     /// Value checks a simulation needs to terminate and to mean something: every number
     /// finite (a `nan` settling time never settles), rates, caps and times positive and
-    /// bounded, image sizes bounded (issue 14 §5). Called by [`Scenario::from_toml`].
+    /// bounded, image sizes bounded (no panic, no hang). Called by [`Scenario::from_toml`].
     pub fn validate(&self) -> Result<(), ScenarioError> {
         let bad = |m: String| Err(ScenarioError::Invalid(m));
         if let Ok(v) = toml::Value::try_from(self) {

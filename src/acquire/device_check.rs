@@ -1,4 +1,4 @@
-//! The one validation of a device file for use (issue 26 §5, issue 28 §1): what `robocal
+//! The one validation of a device file for use (one check for every path): what `robocal
 //! devices` (listing and `--probe`), `robocal run --devices` and `robocal session --devices`
 //! check before any device is opened or any consent is asked.
 //!

@@ -1,4 +1,4 @@
-//! The acquisition engine (issue 7): drives the cell through a plan and writes a
+//! The acquisition engine: drives the cell through a plan and writes a
 //! `robocal-dataset/1` journal.
 //!
 //! Per planned pose: move under the safety wrappers at the capped speed; wait until the

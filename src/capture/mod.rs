@@ -1,4 +1,4 @@
-//! Operator-guided acquisition (`robocal capture`, issue 30 §1): the operator pivots a tracked
+//! Operator-guided acquisition (`robocal capture`): the operator pivots a tracked
 //! probe in a divot ([`pivot`]), touches fiducials with the calibrated probe ([`points`]), or
 //! hand-guides the arm and records poses ([`poses`]). Nothing here commands the arm to move:
 //! the tracker and the joint encoders are only read (a UR is put in freedrive by the caller).

@@ -99,7 +99,7 @@ impl CalibrationFile {
             msg: e.to_string(),
         })?;
         check_calibration(value).map_err(|p| p.at(path, None))?;
-        // What robocal writes, its own readers accept (issue 26 §3): the plausibility checks
+        // What robocal writes, its own readers accept: the plausibility checks
         // `predict` and `diagnose --calibration` apply, before anything is written.
         crate::plausible::calibration::check_values(self, path)?;
         write_atomic(path, self.to_json_pretty().as_bytes())
@@ -196,7 +196,7 @@ fn check_calibration(value: Value) -> Result<CalibrationFile, Problem> {
         check::field(obj, "", "metrics", Ty::Obj, true)?;
     }
     // An RCM hand-eye (`kind: "rcm"`) holds no joint parameters: its instrument holder need
-    // not be a preset (issue 29).
+    // not be a preset.
     let rcm = obj.get("kind").and_then(Value::as_str) == Some("rcm");
     let cal: CalibrationFile =
         serde_json::from_value(value).map_err(|e| Problem::Invalid(e.to_string()))?;

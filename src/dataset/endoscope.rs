@@ -1,4 +1,4 @@
-//! Typed blocks of the RCM / endoscope hand-eye contract (issue 20, `docs/dataset-format.md`):
+//! Typed blocks of the RCM / endoscope hand-eye contract (`docs/dataset-format.md`):
 //! the header's `camera` (`kind: "endoscope"`) and `instrument` blocks, a pose record's
 //! `shaft_lines`, and the calibration file's `camera` block (`hand_eye`, its uncertainty and
 //! the RCM point). They live in the flattened `extra` maps of [`super::Header`],

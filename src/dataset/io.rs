@@ -272,7 +272,7 @@ pub(crate) fn check_header(v: Value) -> Result<Header, Problem> {
     };
     check::robot(robot, "robot")?;
     // An RCM dataset (an `instrument` block) uses only the instrument pose (`flange`): its
-    // instrument holder need not be a preset (issue 29).
+    // instrument holder need not be a preset.
     let instrument_holder = obj.contains_key("instrument") && !robot.contains_key("chain");
     let header: Header = serde_json::from_value(v).map_err(|e| Problem::Invalid(e.to_string()))?;
     if !instrument_holder {

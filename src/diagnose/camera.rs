@@ -978,7 +978,7 @@ mod tests {
 
     #[test]
     fn board_scale_evidence_names_the_implied_square() {
-        // 14.07 mm implied on a declared 15 mm board (issue 31's real set): -6.2 %.
+        // 14.07 mm implied on a declared 15 mm board (the real KUKA set): -6.2 %.
         let n = board_scale_note(14.07 / 15.0, 15.0, None).unwrap();
         assert!(
             n.contains("14.070 mm") && n.contains("15.000 mm") && n.contains("-6.2 %"),

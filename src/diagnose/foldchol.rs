@@ -1,5 +1,5 @@
 //! Time-blocked cross-validation of a kernel ridge system with one shared factorisation
-//! (issue 32: `diagnose` speed).
+//! (`diagnose` speed).
 //!
 //! Fold `f` of a time-blocked CV trains on every block but `f`: the system
 //! `(K + λI)_{−f,−f} W_f = Y_{−f}`. Factorised one fold at a time this costs

@@ -1,6 +1,6 @@
 //! Residual diagnosis: find the residual a geometric calibration leaves, trace it to a
 //! physical effect the model lacks, add that effect, refit, and report the held-out error
-//! before and after (issue 9, `robocal diagnose`).
+//! before and after (`robocal diagnose`).
 //!
 //! Method (`docs/effects.md` §5.2 / §7 of the shared docs): after the geometric fit, every
 //! candidate effect of the library ([`effects::Block`], through the [`effects::EffectModel`]
@@ -130,7 +130,7 @@ impl Options {
         }
     }
 
-    /// The kernel-benchmark chain alone (the default policy before issue 31 §4; `robocal
+    /// The kernel-benchmark chain alone (the former default policy; `robocal
     /// diagnose --kernel-benchmark`): a physical effect must explain half of what a kernel
     /// regression on joint space explains.
     pub fn kernel_benchmark() -> Options {

@@ -1,4 +1,4 @@
-//! The marker point of many poses at one parameter vector (issue 32: the bootstrap's
+//! The marker point of many poses at one parameter vector (speed: the bootstrap's
 //! exactness check evaluates 200 poses for each of 10,000 subsets).
 //!
 //! [`KinematicModel::measured_point`] rebuilds every rotation of the chain from its angles

@@ -1,5 +1,5 @@
 //! Seed 003's correction network beside the physical diagnosis, on the same held-out poses
-//! (issue 29 §3): the geometric fit, the network trained on what the geometric fit leaves,
+//! (four models): the geometric fit, the network trained on what the geometric fit leaves,
 //! the physical diagnosis ([`crate::diagnose::diagnose`]), and the network on top of what the
 //! diagnosis leaves, each scored on the training poses and on the held-out poses, with the
 //! wall time of each stage.

@@ -1,4 +1,4 @@
-//! `robocal correct` with seed 003's correction network (issue 29 §3): the calibrated robot
+//! `robocal correct` with seed 003's correction network: the calibrated robot
 //! puts its tool at `FK(q) + c(q)`, `c` the network's position correction (trained in the
 //! tracker frame, rotated into the robot base here). The corrected joints solve
 //! `FK(q) + c(q) = target` by a fixed point on the identified model's inverse kinematics

@@ -1,4 +1,4 @@
-//! RCM-constrained pose generator (issue 20): instrument poses pivoting about a trocar point
+//! RCM-constrained pose generator: instrument poses pivoting about a trocar point
 //! (two pivot angles and an insertion depth), each checked to be reachable by the robot
 //! holding the instrument (closed-form IK within the joint limits) when a model is given.
 //!

@@ -91,7 +91,7 @@ pub(crate) fn envelope_within(
     }
 }
 
-/// Checks that the plan's constraints are no wider than the cell's (issue 26 §2): a plan
+/// Checks that the plan's constraints are no wider than the cell's: a plan
 /// file is editable, the cell is not. Names the limit and where the cell states it.
 pub fn within_cell(c: &ConstraintSpec, cell: &CellSafety, source: &str) -> Result<(), PlanError> {
     if let Some(tz) = cell.table_z_mm {

@@ -50,7 +50,7 @@ pub fn seconds(flag: &str, value: f64, max_s: f64) -> Result<std::time::Duration
 /// Most bootstrap refits a command runs (each is a whole fit): 100 000.
 pub const MAX_BOOTSTRAP: usize = 100_000;
 
-/// Checks a count given as `flag` against its cap (bounded time and memory, issue 26 §7).
+/// Checks a count given as `flag` against its cap (bounded time and memory on any input).
 pub fn count(flag: &str, value: usize, max: usize, what: &str) -> Result<usize, String> {
     if value > max {
         return Err(format!(

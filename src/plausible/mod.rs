@@ -1,4 +1,4 @@
-//! Plausibility checks at the input boundaries (issue 14 §5: a silent wrong answer is worse
+//! Plausibility checks at the input boundaries (a silent wrong answer is worse
 //! than an error). The strict readers check a file's structure and types; these check that
 //! well-formed values can be right for the robot and cell they describe:
 //! - [`dataset`]: joint angles inside the robot's limits and in degrees, positions in mm

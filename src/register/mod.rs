@@ -1,4 +1,4 @@
-//! Navigation registrations (seed 003, issue 19): CT ↔ tracker from paired fiducials
+//! Navigation registrations (seed 003, see docs/seeds.md): CT ↔ tracker from paired fiducials
 //! (closed form, FRE / FLE / predicted TRE) or from a surface (trimmed point-to-plane ICP,
 //! multi-start), tracker ↔ robot base from `AX = YB` (Shah, Li, the seed's Tsai route, joint
 //! LM refinement), and the tracker's own stereo error model (depth error ∝ z²).

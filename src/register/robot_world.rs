@@ -706,7 +706,7 @@ pub fn observations_from_dataset(
 }
 
 /// Why poses were skipped, most common first (`N × reason`), with the likely cause of the
-/// most common one (issue 26 §6: "0 usable poses" names the cause, not the symptom).
+/// most common one ("0 usable poses" names the cause, not the symptom).
 pub fn skip_summary(skipped: &[(u64, String)]) -> String {
     let mut counts: Vec<(&str, usize)> = vec![];
     for (_, w) in skipped {
@@ -789,7 +789,7 @@ mod tests {
         (obs, x, y)
     }
 
-    /// Issue 26 §6: a degenerate set of poses names its likely cause, not "too little
+    /// A degenerate set of poses names its likely cause, not "too little
     /// rotation": rotations about one axis, quaternions in the wrong order, radians.
     #[test]
     fn degenerate_poses_name_their_likely_cause() {

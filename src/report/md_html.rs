@@ -1,4 +1,4 @@
-//! The Markdown the report writes, as HTML (issue 28 §3: `report --out x.html` is a page, not
+//! The Markdown the report writes, as HTML (`report --out x.html` is a page, not
 //! Markdown in a `<pre>`). Only the subset [`super::Session::markdown`] produces: headings,
 //! pipe tables, bullet lists, fenced code blocks, paragraphs, and inline `**bold**` and
 //! `` `code` `` (shown as code, never as raw backticks).

@@ -1,4 +1,4 @@
-//! `robocal report --dir DIR --out x.html` on a folder that holds sessions (issue 28 §3): one
+//! `robocal report --dir DIR --out x.html` on a folder that holds sessions: one
 //! report per session — the session's own page ([`super::html::render_session`]), never the
 //! artifacts of several sessions mixed into one page. A folder with several sessions (the
 //! dry run's `session/` and `camera/`) gets one page per session beside `x.html`

@@ -1,4 +1,4 @@
-//! The camera report's interval plots (issue 28 §3): the 95 % intervals of the deployed
+//! The camera report's interval plots: the 95 % intervals of the deployed
 //! camera calibration (intrinsics in px, hand-eye and board translation in mm, hand-eye
 //! rotation in degrees), one row per parameter. Each row's dot is the deployed (diagnosed)
 //! value minus the calibration stage's, its bar the deployed value's 95 % interval (1.96 σ of

@@ -1,4 +1,4 @@
-//! Plots of a camera session's held-out views (issue 28 §3): the reprojection RMS of each
+//! Plots of a camera session's held-out views: the reprojection RMS of each
 //! held-out view with the calibration and with the diagnosed model, and the map of the
 //! diagnosed model's residuals over the image (arrows, scaled). Computed by the validation
 //! stage from the detected corners and `robocal predict`'s projection of each calibration

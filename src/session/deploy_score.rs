@@ -1,4 +1,4 @@
-//! What each deployed artifact delivers on its own (issue 28 §2). The verdict is earned by
+//! What each deployed artifact delivers on its own. The verdict is earned by
 //! the diagnosed model (geometry + effects) through `robocal predict` / `correct`; a URDF holds
 //! the geometry only. Each artifact is scored on the same held-out poses and judged against
 //! the same acceptance spec, so the report can say which one to deploy and warn when one alone

@@ -1,4 +1,4 @@
-//! `robocal session --navchain` (issue 29 §3): a kinematic session closed with seed 003's
+//! `robocal session --navchain`: a kinematic session closed with seed 003's
 //! correction network, trained on the session's training poses on top of its geometric
 //! calibration (`calibrate/calibration.json`), scored on its held-out poses with the predictor
 //! `robocal predict` uses, and reported beside the physical diagnosis validated on the same
@@ -139,7 +139,7 @@ pub struct ChainRobotLink {
     pub notes: Vec<String>,
 }
 
-/// The session's chain robot link (issue 29 §3: the calibration's bootstrap covariance, not
+/// The session's chain robot link (the calibration's bootstrap covariance, not
 /// one robot σ): the geometric identification of the training poses is bootstrapped
 /// ([`CHAIN_BOOTSTRAP_K`] fits on 75 % subsets), its parameter covariance written with the
 /// calibration to [`CHAIN_CALIBRATION`] and propagated to the tip at `joints_deg`, or, when

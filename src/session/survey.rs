@@ -1,4 +1,4 @@
-//! `robocal session --survey` (issue 28 §1): before planning, a few safe probe poses locate
+//! `robocal session --survey`: before planning, a few safe probe poses locate
 //! the tracker (and the marker on the flange) when the cell file states the tracker's pose
 //! only roughly, or not at all. The planner then plans from the surveyed pose, so the poses
 //! it keeps are the ones the tracker really sees.

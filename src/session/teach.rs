@@ -1,4 +1,4 @@
-//! Seed 004's hand-guided start of a camera session (`session --teach-board N`, issue 30 §1):
+//! Seed 004's hand-guided start of a camera session (`session --teach-board N`):
 //! before planning, the operator guides the arm by hand (DENSO: its teach pendant holds the
 //! arm and robocal only reads it; nothing is commanded) to N ≥ 4 poses where the camera sees
 //! the whole board. At each pose the joints are averaged over the rest window

@@ -1,4 +1,4 @@
-//! The session stage `verify` (issue 30 §2, seed 001 §3 / §4.4): judge a calibration by what
+//! The session stage `verify` (seed 001 §3 / §4.4, validation): judge a calibration by what
 //! the robot *does* when commanded with it.
 //!
 //! Targets are the validation plan's (inside the cell, every IK branch the planner found safe

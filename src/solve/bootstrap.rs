@@ -5,7 +5,7 @@
 //! Each subset fit keeps the free-parameter set of the full fit (the identifiability
 //! decision is made once, on all data) and starts from the full-data solution.
 //!
-//! **Fast path** ([`BootstrapMethod::Fast`], the default; issue 32). The 10 000 subsets share
+//! **Fast path** ([`BootstrapMethod::Fast`], the default, for speed). The 10 000 subsets share
 //! one geometry, so the per-pose normal-equation blocks `Aᵢ = JᵢᵀJᵢ`, `bᵢ = Jᵢᵀrᵢ` are computed
 //! once at the full-data solution `x̂` and a subset's normal equations are the sum of its
 //! poses' blocks (`A_S = Σ Aᵢ`, one Cholesky). Its fit is the Gauss–Newton step

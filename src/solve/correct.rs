@@ -1,4 +1,4 @@
-//! Corrected joint targets (issue 30, the deploy path for controllers that cannot load a new
+//! Corrected joint targets (the deploy path for controllers that cannot load a new
 //! kinematic model): desired tool poses in the robot base → joints through the **identified**
 //! model's inverse kinematics, next to what the controller's nominal kinematics would command
 //! for the same pose, the error that nominal command would leave on the calibrated robot, and

@@ -159,7 +159,7 @@ pub fn analyse(
     }
     let nk = out.kept.len();
     // Column norms once (computing the norm inside the element closure made this
-    // O(rows² · columns): 90 % of a 10,000-pose identification, issue 32).
+    // O(rows² · columns): 90 % of a 10,000-pose identification).
     let norms: Vec<f64> = out.kept.iter().map(|&(k, _)| j.column(k).norm()).collect();
     let js = faer::Mat::<f64>::from_fn(m, nk, |r, c| j[(r, out.kept[c].0)] / norms[c]);
     if let Ok(svd) = js.thin_svd() {

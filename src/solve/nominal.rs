@@ -1,4 +1,4 @@
-//! The nominal fit (issue 2): the nominal chain with only the tracker → robot-base
+//! The nominal fit: the nominal chain with only the tracker → robot-base
 //! transform (6) and the flange → marker offset (3) fitted — the "before" of every
 //! calibration.
 //!

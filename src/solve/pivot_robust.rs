@@ -1,4 +1,4 @@
-//! Robust pivot calibration with uncertainty (issue 30): least-median-of-squares random
+//! Robust pivot calibration with uncertainty: least-median-of-squares random
 //! sampling (RANSAC without a hand-picked threshold) over minimal 3-frame algebraic fits,
 //! an inlier threshold from the robust scale of the 3-D tip residuals, re-weighted refits
 //! until the inlier set is stable; then both the algebraic and the sphere-fit estimate on

@@ -295,7 +295,7 @@ pub fn predict_files_in_session(
     data: &Path,
     session: Option<&Path>,
 ) -> anyhow::Result<(Vec<PredictedPoint>, Vec<String>)> {
-    // Strict reader + plausibility of every file, and one robot model (issue 14 §5).
+    // Strict reader + plausibility of every file, and one robot model (no silent wrong answer).
     let (ds, other) = crate::plausible::load_with_heldout(data, session)?;
     let cal = crate::plausible::calibration::load_for(cal, &ds.header.robot, data)?;
     let predictor = Predictor::new(&cal)?;

@@ -1,4 +1,4 @@
-//! Uncertainty of the tool identifications (issue 30 §3): [`tool_with_arm`] with a bootstrap
+//! Uncertainty of the tool identifications: [`tool_with_arm`] with a bootstrap
 //! over poses (std of every tool / base parameter), and the guide tool's frame with its
 //! spread from the pin tips' pivot intervals (Monte Carlo). mm / rad inside.
 use nalgebra::{Point3, Vector3};

@@ -1,5 +1,5 @@
 //! Cross-validation of the kernel correction when a fold's training set is larger than
-//! [`super::MAX_CENTRES`] (issue 32: `diagnose` on 10,000 poses).
+//! [`super::MAX_CENTRES`] (`diagnose` on 10,000 poses).
 //!
 //! Subset of regressors with **one set of centres for every fold**, spread evenly through
 //! all samples in time order: chosen from the inputs only (no target enters the choice), so

@@ -223,7 +223,7 @@ pub fn common_size(sizes: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)
     counts.into_iter().find(|(_, n)| *n == best).map(|(k, _)| k)
 }
 
-/// The likely cause when images give no view (issue 26 §6), from the reasons of
+/// The likely cause when images give no view (the cause, not the symptom), from the reasons of
 /// [`Loaded::no_board`]: the images that could not be read, that have another size, or that
 /// were read but show no board of the declared layout (a wrong `--board` / `target` block:
 /// inner corners, not squares, or rows and columns swapped; the board out of view). `None`

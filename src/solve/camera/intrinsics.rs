@@ -4,7 +4,7 @@
 //! view's board pose on every corner ([`super::problem::Layout::Views`]) with a given
 //! distortion model. The RMS is OpenCV's: the root mean square of the 2-D corner error (px).
 //!
-//! This is the public-reference check of issue 31: OpenCV's own test pins the intrinsics of
+//! This is the public-reference check: OpenCV's own test pins the intrinsics of
 //! its `samples/data/left01..14.jpg` (`tests/opencv_left.rs`).
 use nalgebra::Isometry3;
 

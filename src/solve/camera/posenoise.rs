@@ -1,4 +1,4 @@
-//! The hand-eye with the robot's pose error modelled (issue 31 §3): on real arms the flange
+//! The hand-eye with the robot's pose error modelled: on real arms the flange
 //! poses are wrong by far more than the board-only camera poses (a real KUKA: ~1 mm / 0.05°
 //! against 0.1 px of board-only reprojection), so the estimate treats each view's flange pose
 //! as a noisy measurement, `F_i·exp(ξ_i)`, `ξ_i ~ N(0, diag(σ_r² I, σ_t² I))`, with `σ_r`

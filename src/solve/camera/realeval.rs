@@ -1,4 +1,4 @@
-//! Real eye-in-hand sets (issue 31 §3): the two public layouts kept under
+//! Real eye-in-hand sets: the two public layouts kept under
 //! `../shared/data/real-handeye-*`, detection of every image, the every-4th-view split, and
 //! OpenCV's closed forms on the same detections (the python peer), so that
 //! `examples/real_handeye.rs` and the real-data test measure robocal and OpenCV in one run.
@@ -98,7 +98,7 @@ pub fn load_kuka1(dir: &Path) -> Result<RealSet, String> {
 
 /// RWHE-Calib `kuka_2` (kept for evaluation, never tuned on; not in `../shared/data`): 28 BMP
 /// images `im_NN.bmp` 1920×1200, 24×17 inner corners, 15 mm squares (the dataset's
-/// `squaresize.txt`; the robot's motion implies about 14.07 mm, issue 31 §3).
+/// `squaresize.txt`; the robot's motion implies about 14.07 mm).
 pub fn load_kuka2(dir: &Path) -> Result<RealSet, String> {
     let board = BoardSpec {
         cols: 24,

@@ -1,4 +1,4 @@
-//! Which hand-eye estimate is written (issue 31 §3): every candidate — the closed forms, the
+//! Which hand-eye estimate is written: every candidate — the closed forms, the
 //! joint ML with free intrinsics, the ML with the board-only intrinsics held, and the fit with
 //! the robot's pose noise modelled ([`super::posenoise`], [`super::viewcorr`]) — is scored by
 //! internal cross-validation on the training views (5 folds by view: fit on four, predict the

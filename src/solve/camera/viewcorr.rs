@@ -1,4 +1,4 @@
-//! Per-view robot-pose corrections in the pixel domain (issue 31 §3): every view's flange pose
+//! Per-view robot-pose corrections in the pixel domain: every view's flange pose
 //! is a noisy measurement, `F_i · E(ξ_i)`, and the hand-eye `X`, the target in the base `B` and
 //! one small flange correction `ξ_i` per view (rotation vector rad, translation mm, in the
 //! flange frame) are fitted jointly to the detected corners,

@@ -1,5 +1,5 @@
 //! Analytic derivatives of the per-view correction residuals ([`super::viewcorr`]), accumulated
-//! straight into the view's normal-equation blocks (issue 32: the central differences they
+//! straight into the view's normal-equation blocks (speed: the central differences they
 //! replace took 36 residual evaluations per view and step and dominated `calibrate camera`).
 //!
 //! A board point `P` of view `i` is seen at `p = X⁻¹ E(ξ)⁻¹ F⁻¹ B P` (camera frame), with every

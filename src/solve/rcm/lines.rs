@@ -1,4 +1,4 @@
-//! The instrument shaft's two silhouette lines in an endoscope image (issue 29 §2): what
+//! The instrument shaft's two silhouette lines in an endoscope image: what
 //! `shaft_lines` holds, found from the pixels.
 //!
 //! 1. Edge points: Sobel gradient, non-maximum suppression along the gradient, sub-pixel

@@ -1,5 +1,5 @@
 //! Hand-eye calibration of an endoscope camera under a remote-centre-of-motion constraint
-//! (issue 20, seed 002).
+//! (seed 002, see docs/seeds.md).
 //!
 //! A laparoscopic instrument pivots about the trocar (the RCM), so its pose barely changes and
 //! `AX = XB` is ill-conditioned. Instead the camera sees the instrument's cylindrical shaft:
@@ -155,7 +155,7 @@ impl RcmData {
                 inst.shaft_radius_mm
             )));
         }
-        // Plausibility (issue 26 §3): a radius in metres fits just as well at another scale.
+        // Plausibility: a radius in metres fits just as well at another scale.
         if !(MIN_SHAFT_RADIUS_MM..=MAX_SHAFT_RADIUS_MM).contains(&inst.shaft_radius_mm) {
             return Err(RcmError::Data(format!(
                 "{f}:1: header field \"instrument.shaft_radius_mm\": {} mm is not an instrument \
