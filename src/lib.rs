@@ -8,6 +8,10 @@
 //! only `cell::simulated` reaches the simulators, through their truth-free face
 //! (`mocks/src/stated.rs`: what a scenario states, and its devices as driver traits); a test
 //! there fails when any other file names them.
+//!
+//! Comments cite the five source documents as "seed 000" … "seed 004", with their own
+//! section and equation numbers: `docs/seeds.md` says what each document is, which modules
+//! implement it and what every cited section holds.
 
 pub mod acquire;
 pub mod calibrate;

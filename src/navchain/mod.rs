@@ -1,4 +1,4 @@
-//! The error transfer of seed 003 ("误差传递模型"): how far from a point planned in CT the
+//! The error transfer of seed 003 ("误差传递模型", docs/seeds.md): how far from a point planned in CT the
 //! tool tip lands, and which link of the chain is to blame.
 //!
 //! The planned CT target `x` is sent to the robot base as `p = Y · T · x` (`T =

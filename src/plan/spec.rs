@@ -502,7 +502,7 @@ impl PlanSpec {
     }
 }
 
-/// Most targets a spec may request (the seed papers use 200; the plan is kept in memory).
+/// Most targets a spec may request (seed 001 uses 200; the plan is kept in memory).
 pub const MAX_TARGETS: usize = 100_000;
 /// Largest magnitude of any number in a spec (mm, deg, s).
 pub const MAX_MAGNITUDE: f64 = 1.0e6;

@@ -279,7 +279,7 @@ pub fn compare(
     compare_split(train, validation, validation, truth, huber_mm)
 }
 
-/// [`compare`] with the single-plane data selection (§1.4 / §2.2) scored on the
+/// [`compare`] with the single-plane data selection (seed 000 §1.4 / §2.2) scored on the
 /// `selection_obs` targets and every method reported on `validation` targets: with separate target sets the
 /// reported spreads are not the ones the selection was tuned on.
 pub fn compare_split(

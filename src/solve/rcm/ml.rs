@@ -1,4 +1,4 @@
-//! Beyond the seed: maximum-likelihood refinement of the camera pose on the segment end points.
+//! Beyond seed 002: maximum-likelihood refinement of the camera pose on the segment end points.
 //!
 //! For pose `i` the robot gives the shaft axis in the base (the instrument frame's origin and
 //! z axis). With the camera pose `T_bc` (camera in base) the axis in the camera is known, and
