@@ -2,7 +2,7 @@
 //! physical effect the model lacks, add that effect, refit, and report the held-out error
 //! before and after (`robocal diagnose`).
 //!
-//! Method (`docs/effects.md` §5.2 / §7 of the shared docs): after the geometric fit, every
+//! Method (`docs/effects.md` §5.2 / §7): after the geometric fit, every
 //! candidate effect of the library ([`effects::Block`], through the [`effects::EffectModel`]
 //! trait) gives a block `G` of columns: its columns of the Jacobian of the very problem the
 //! refit solves ([`fit::DiagnoseProblem`], candidate appended at zero coefficients). Each

@@ -1,7 +1,7 @@
 //! Tracker depth scale: an optical tracker triangulates depth (along its viewing axis, the
 //! tracker's z axis) several times worse than across it, and a camera-bar baseline or
-//! intrinsics error scales depth alone (`../shared/docs/effects.md` E10, the cheat sheet's
-//! "depth-axis component"). Model: `y = p + s_z (e_z·p) e_z`, `p` the predicted point in the
+//! intrinsics error scales depth alone (`docs/effects.md` E10, its part
+//! along the viewing axis). Model: `y = p + s_z (e_z·p) e_z`, `p` the predicted point in the
 //! tracker frame (kind `tracker_depth_scale`). Unlike a uniform scale it is not collinear
 //! with a growth of the link lengths, so robot poses alone identify it once the points
 //! spread in depth.

@@ -1,4 +1,4 @@
-//! Laser-side effects the plain beam model lacks (`../docs/effects.md` E8, E9): range scale
+//! Laser-side effects the plain beam model lacks (`docs/effects.md` E8, E9): range scale
 //! (`laser_scale`), incidence-angle bias (`laser_incidence`) and a range nonlinearity
 //! (`laser_nonlinearity`, a quadratic Legendre term over the range window).
 //!
