@@ -449,7 +449,7 @@ mod tests {
             .collect()
     }
 
-    // The three byte examples of the protocol brief §2.2, produced there by the packing rules
+    // The three byte examples of `docs/protocols.md` §2.2, produced there by the packing rules
     // of DENSO's Python client (orin_bcap `Python/bCAPClient/bcapclient.py`, `<bIHhiH`).
     #[test]
     fn service_start_request_bytes() {

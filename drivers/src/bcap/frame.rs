@@ -1,4 +1,4 @@
-//! b-CAP packets and VARIANTs as pure data (brief §2.2–2.5; DENSO `orin_bcap`
+//! b-CAP packets and VARIANTs as pure data (`docs/protocols.md` §2.2–2.5; DENSO `orin_bcap`
 //! `C/include/bcap_common.h`, `Python/bCAPClient/bcapclient.py`).
 
 /// Start of a packet.
@@ -12,7 +12,7 @@ pub const MAX_PACKET: usize = 1 << 20;
 /// Deepest nesting of VARIANT arrays accepted.
 pub const MAX_DEPTH: usize = 4;
 
-/// Function ids used here (brief §2.3).
+/// Function ids used here (protocols.md §2.3).
 pub mod func {
     /// Service_Start(BSTR option).
     pub const SERVICE_START: i32 = 1;
@@ -48,7 +48,7 @@ pub mod func {
     pub const VARIABLE_RELEASE: i32 = 111;
 }
 
-/// HRESULTs (brief §2.5; `orin_bcap` `dn_common.h`, `orinexception.py`).
+/// HRESULTs (protocols.md §2.5; `orin_bcap` `dn_common.h`, `orinexception.py`).
 pub mod hresult {
     /// Success.
     pub const S_OK: i32 = 0;
@@ -116,7 +116,7 @@ pub mod hresult {
     }
 }
 
-/// VARIANT type codes (brief §2.2).
+/// VARIANT type codes (protocols.md §2.2).
 pub mod vt {
     /// VT_EMPTY.
     pub const EMPTY: u16 = 0;

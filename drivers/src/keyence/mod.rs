@@ -5,8 +5,8 @@
 //! [`client`] (one command at a time with a deadline, resynchronising after garbage) and
 //! [`Il600`] (the [`crate::RangeSensor`] capability).
 //!
-//! Wire facts (KEYENCE "DL-RS1A User's Manual (IL edition)", as quoted in the project's
-//! protocol brief): 9600 8N1 by default, `\r\n` delimiter, `M0` / `MS` / `SR` / `SW` / `AW`
+//! Wire facts (KEYENCE "DL-RS1A User's Manual (IL edition)", as quoted in
+//! `docs/protocols.md` §3): 9600 8N1 by default, `\r\n` delimiter, `M0` / `MS` / `SR` / `SW` / `AW`
 //! commands, `ER,<cmd>,<nn>` errors, IL-600 values as `±***.**` (mm), special values
 //! `+EEE.EE` (amplifier error), `+999.99` / `-999.99` (display limits).
 //!

@@ -3,7 +3,7 @@
 //! # Contract
 //! On connect the server sends a banner line (`Connected: Universal Robots Dashboard Server`),
 //! read within the request timeout. Each command is `text\n`; the reply is one line.
-//! Expected replies (brief §1.8; ur_rtde `dashboard_client.cpp` checks the same strings):
+//! Expected replies (protocols.md §1.8; ur_rtde `dashboard_client.cpp` checks the same strings):
 //! `power on` → `Powering on`, `brake release` → `Brake releasing`, `play` → `Starting
 //! program`, `stop` → `Stopped`, `unlock protective stop` → `Protective stop releasing`,
 //! `robotmode` → `Robotmode: <MODE>`, `safetystatus` → `Safetystatus: <MODE>`. Any other reply

@@ -1,8 +1,8 @@
 //! Script interface (TCP 30003; 30001/30002 accept the same): URScript text in, nothing read.
 //!
 //! A program is `def name():` in column 1, indented body, `end` in column 1; a new program
-//! replaces the running one (brief §1.9). The controller sends no acknowledgement: completion
-//! is observed on RTDE (`runtime_state`, `actual_q`).
+//! replaces the running one (`docs/protocols.md` §1.9). The controller sends no acknowledgement:
+//! completion is observed on RTDE (`runtime_state`, `actual_q`).
 
 use super::error::{Interface, UrError};
 use super::{tcp_connect, Transport};

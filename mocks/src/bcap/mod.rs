@@ -1,6 +1,6 @@
 //! Simulated DENSO RC8 b-CAP server (TCP 5007) over the world.
 //!
-//! Implements the functions of the brief's checklist (§2.6 / §6): Service_Start/Stop,
+//! Implements the functions of `docs/protocols.md`'s checklist (§2.6 / §6): Service_Start/Stop,
 //! Controller_Connect/Disconnect/GetRobot/GetVariable/GetRobotNames/Execute, Robot_GetVariable,
 //! Robot_Execute (TakeArm, GiveArm, Motor, ExtSpeed, CurJnt, HighCurJntEx, CurPos), Robot_Move
 //! (synchronous; `J(...)` joint targets as BSTR or `[R8 array, "J", "@E"]`; `S_EXECUTING`

@@ -196,7 +196,7 @@ mod tests {
 
     #[test]
     fn crc_matches_literals_from_ndicapi() {
-        // Literals embedded in ndicapi.cxx / quoted in protocols.md §4.2.
+        // Literals embedded in ndicapi.cxx / quoted in docs/protocols.md §4.2.
         assert_eq!(crc16(b"INIT:"), 0xE3A5);
         assert_eq!(crc16(b"OKAY"), 0xA896);
         assert_eq!(crc16(b"RESET"), 0xBE6F);
@@ -251,7 +251,7 @@ mod tests {
 
     #[test]
     fn tx_matches_the_documented_example() {
-        // protocols.md §4.5 example line.
+        // docs/protocols.md §4.5 example line.
         let h = HandleOut {
             handle: 1,
             record: Record::Transform {

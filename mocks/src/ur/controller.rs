@@ -13,7 +13,7 @@ use std::time::Duration;
 
 /// The version every interface reports (RTDE `v`, dashboard `PolyscopeVersion`/`version`):
 /// 5.11.x exercises ur_rtde's common path (register outputs need minor ≥ 4; 5.23+ switches to
-/// the larger register recipe). Bytes as in the brief's `v` example.
+/// the larger register recipe). Bytes as in `docs/protocols.md`'s `v` example.
 pub const VERSION: ControllerVersion = ControllerVersion {
     major: 5,
     minor: 11,
@@ -344,7 +344,7 @@ impl Controller {
         Ok(())
     }
 
-    /// The register handshake of ur_rtde's `rtde_control.script` (brief §1.6).
+    /// The register handshake of ur_rtde's `rtde_control.script` (`docs/protocols.md` §1.6).
     async fn rtde_control_loop(&self, seq: u64) -> Result<(), String> {
         let mut latched = false;
         loop {

@@ -1,4 +1,4 @@
-//! Dashboard server (29999): banner, one reply line per command (brief §1.8).
+//! Dashboard server (29999): banner, one reply line per command (`docs/protocols.md` §1.8).
 //!
 //! Faults (queue `<device>/dashboard`), taken before every reply: `DropLink` closes;
 //! `Delay`/`Silence` hold the reply (wall clock); `Garbage` sends the bytes instead;

@@ -467,7 +467,7 @@ mod tests {
         b.to_vec()
     }
 
-    // Byte examples from the protocol brief §1.2 (official client / ur_rtde packing rules).
+    // Byte examples from `docs/protocols.md` §1.2 (official client / ur_rtde packing rules).
     #[test]
     fn literal_handshake_bytes() {
         // Client `V` with version 2: 00 05 56 00 02; reply 00 04 56 01.

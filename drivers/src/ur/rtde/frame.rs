@@ -4,7 +4,7 @@
 //! The same type letter carries a different payload in each direction, so there is one enum
 //! per direction: [`Request`] (client → controller) and [`Reply`] (controller → client).
 //! Source of every layout: UR's `RTDE_Python_Client_Library` `rtde/serialize.py` and
-//! ur_rtde 1.6.5 `src/rtde.cpp` (see the project's protocol brief §1.2–1.3).
+//! ur_rtde 1.6.5 `src/rtde.cpp` (see `docs/protocols.md` §1.2–1.3).
 
 /// The RTDE protocol version this crate speaks.
 pub const PROTOCOL_VERSION: u16 = 2;
@@ -294,7 +294,7 @@ pub enum Reply {
     },
 }
 
-/// The RTDE type of a controller variable (brief §1.3; URCL `data_package.cpp`, ur_rtde
+/// The RTDE type of a controller variable (protocols.md §1.3; URCL `data_package.cpp`, ur_rtde
 /// `robot_state.cpp`). `None` for names the controller would answer `NOT_FOUND`.
 pub fn variable_type(name: &str) -> Option<DataType> {
     use DataType::*;
@@ -402,7 +402,7 @@ pub fn register_index(name: &str, prefix: &str) -> Option<usize> {
     rest.parse().ok()
 }
 
-/// `robot_mode` values (brief §1.3).
+/// `robot_mode` values (protocols.md §1.3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum RobotMode {
     /// -1.
@@ -458,7 +458,7 @@ impl RobotMode {
     }
 }
 
-/// `safety_mode` values (brief §1.3).
+/// `safety_mode` values (protocols.md §1.3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum SafetyMode {
     /// 1.
