@@ -16,7 +16,7 @@
 //! tool/marker in the flange frame (`tool_*`). Rotations of `B`, `F`, `T` are URDF
 //! roll-pitch-yaw: `R = Rz(rz)·Ry(ry)·Rx(rx)`.
 //!
-//! The derivation of the exact chain → MDH + Hayati conversion is in `notes/conversion.md`.
+//! The derivation of the exact chain → MDH + Hayati conversion is in `src/model/notes/conversion.md`.
 use nalgebra::{
     DVector, Isometry3, Matrix3, Matrix3xX, Matrix6xX, Point3, Rotation3, Translation3,
     UnitQuaternion, Vector3,
