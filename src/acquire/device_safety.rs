@@ -1,5 +1,5 @@
 //! The `[safety]` block of a device file: what the real cell is, whatever a plan file says
-//! (the cell's, not the plan's). The table height, the Cartesian envelope, the joint limits and
+//! (a plan cannot widen it). The table height, the Cartesian envelope, the joint limits and
 //! the speed / acceleration caps of the cell, in the robot base frame (mm, degrees, seconds).
 //!
 //! ```toml

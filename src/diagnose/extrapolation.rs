@@ -1,4 +1,4 @@
-//! How far a fitted effect's prediction grows outside the training poses (judged where it is used).
+//! How far a fitted effect's prediction grows outside the training poses.
 //!
 //! A block whose columns nearly cancel on the training poses can be fitted with large
 //! coefficients of opposite signs: its prediction stays small on every training pose and

@@ -1,4 +1,4 @@
-//! The one quaternion check of every reader that takes quaternions (one rule, one message): a file
+//! The one quaternion check of every reader that takes quaternions: a file
 //! quaternion `[w, x, y, z]` is finite and of unit norm (a non-unit one is Euler angles, a
 //! rotation vector, wrong columns or a corrupted value — normalising it would silently turn
 //! it into some other rotation), and, where the same rotations are also known from the robot

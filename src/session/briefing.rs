@@ -1,4 +1,4 @@
-//! What a live session shows before it asks to move the arm (to refuse): the plan is made
+//! What a live session shows before it asks to move the arm: the plan is made
 //! first, then the operator sees the poses left to acquire, the predicted duration, the box
 //! the flange stays in and its lowest height against the table, the speed cap and every plan
 //! warning — and only then is asked (or `--yes` stands for the answer).

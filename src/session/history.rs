@@ -111,7 +111,7 @@ fn is_postgres(loc: &str) -> bool {
     loc.starts_with("postgres://") || loc.starts_with("postgresql://")
 }
 
-/// Checks a history location without creating or changing anything (read-only): an
+/// Checks a history location without creating or changing anything (before any device opens): an
 /// unknown URL scheme (`mysql://`) is an error naming the supported ones; an existing path
 /// must be a regular file holding a SQLite database that is empty or robocal's (a foreign
 /// database never gets robocal's tables added). A missing file is fine here: a session

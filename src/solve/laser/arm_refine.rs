@@ -1,4 +1,4 @@
-//! The arm's wrist orientation from the laser's own data (the arm's calibration leaves it off).
+//! The arm's wrist orientation from the laser's own data (the beam is the longer lever).
 //!
 //! A laser on the flange is a long lever: a flange orientation error of 0.05° moves a spot
 //! 250–750 mm away by 0.2–0.7 mm, while the tracker's marker, ~110 mm from the flange, sees
