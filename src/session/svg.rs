@@ -331,7 +331,7 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
         t = esc(title),
         cx = W / 2.0,
         x0 = x(0.0),
-        yb = h - 24.0
+        yb = axis_y - 16.0
     );
     for (i, (name, d, ci)) in rows.iter().enumerate() {
         let y = 40.0 + 16.0 * i as f64;
