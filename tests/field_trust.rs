@@ -7,24 +7,30 @@ use std::path::Path;
 use crate::common::{bin as run, root, s as p};
 use crate::e2e::SimServe;
 
-#[test]
-fn a_file_of_another_robocal_kind_is_named() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dataset = root().join("tests/data/kin-geometric/train.jsonl");
-    let targets = tmp.path().join("targets.csv");
+/// A one-row targets file and a pretty-printed calibration file (the writer's layout: its
+/// first line is `{`) in `dir`.
+fn targets_and_calibration(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let targets = dir.join("targets.csv");
     std::fs::write(
         &targets,
         "name,x_mm,y_mm,z_mm,qw,qx,qy,qz\nA,400,0,300,0,1,0,0\n",
     )
     .unwrap();
-    // A pretty-printed calibration file (the writer's layout): its first line is `{`.
-    let cal = tmp.path().join("calibration.json");
+    let cal = dir.join("calibration.json");
     std::fs::write(
         &cal,
         "{\n  \"format\": \"robocal-calibration/1\",\n  \"robot\": {\"model\": \"denso-vs060\"},\n  \
          \"params\": []\n}\n",
     )
     .unwrap();
+    (targets, cal)
+}
+
+#[test]
+fn a_file_of_another_robocal_kind_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dataset = root().join("tests/data/kin-geometric/train.jsonl");
+    let (targets, cal) = targets_and_calibration(tmp.path());
     let cases: [(&str, Vec<&str>, &str); 4] = [
         (
             "correct --calibration DATASET",
@@ -64,19 +70,7 @@ fn a_toml_file_given_for_json_and_a_json_file_given_for_toml_are_named() {
     let spec = root().join("plans/seed004-shell.toml");
     let accept = root().join("accept/camera.toml");
     let devices = root().join("examples/CELL.toml");
-    let targets = tmp.path().join("targets.csv");
-    std::fs::write(
-        &targets,
-        "name,x_mm,y_mm,z_mm,qw,qx,qy,qz\nA,400,0,300,0,1,0,0\n",
-    )
-    .unwrap();
-    let cal = tmp.path().join("calibration.json");
-    std::fs::write(
-        &cal,
-        "{\n  \"format\": \"robocal-calibration/1\",\n  \"robot\": {\"model\": \"denso-vs060\"},\n  \
-         \"params\": []\n}\n",
-    )
-    .unwrap();
+    let (targets, cal) = targets_and_calibration(tmp.path());
     let out = tmp.path().join("session");
     let toml_for_json = "this is a TOML file (";
     let cases: Vec<(&str, Vec<&str>, [&str; 2])> = vec![
