@@ -653,6 +653,30 @@ def issue26_round6(P, d, j, good, cal):
         b("wrong kind: chain --registration DATASET", ["chain", "--registration", good, "--robot-world", rw, "--targets", pts, "--robot-sigma-mm", "0.1"], [ds])
 
 
+def issue26_round7(P, j, good, cal):
+    """Issue 26, seventh round: a robocal TOML file (scenario, plan spec, accept spec, device
+    file) given to a JSON reader, and a robocal JSON file given to a TOML reader, are named."""
+    b = P.run
+    tg = j("r7-targets.csv")
+    open(tg, "w").write("name,x_mm,y_mm,z_mm,qw,qx,qy,qz\nA,400,0,300,0,1,0,0\n")
+    acc = os.path.join(ROOT, "accept/surgical.toml")
+    dev = os.path.join(ROOT, "examples/CELL.toml")
+    t = "this is a TOML file"
+    b("toml for json: correct --calibration SCENARIO", ["correct", "--calibration", LAB, "--targets", tg], [t + " (a scenario"])
+    b("toml for json: predict --calibration PLAN-SPEC", ["predict", "--calibration", ANNULUS, "--data", good], [t + " (a plan spec"])
+    b("toml for json: inspect PLAN-SPEC", ["inspect", ANNULUS], [t + " (a plan spec"])
+    b("toml for json: predict --data ACCEPT", ["predict", "--calibration", cal, "--data", acc], [t + " (an accept spec"])
+    b("toml for json: calibrate kinematics --data DEVICES", ["calibrate", "kinematics", "--data", dev, "--out", j("r7-k")], [t + " (a device file"])
+    b("toml for json: plan --check SCENARIO", ["plan", "--check", LAB], [t + " (a scenario"])
+    b("json for toml: session --sim CALIBRATION", ["session", "--sim", cal, "--out", j("r7-s1"), "--plan-only", "--no-history"], ["not a scenario"])
+    b("json for toml: sim serve --scenario DATASET", ["sim", "serve", "--scenario", good, "--virtual-clock"], ["not a scenario"], timeout=10, server=True)
+    b("json for toml: session --accept DATASET", ["session", "--sim", LAB, "--accept", good, "--out", j("r7-s2"), "--plan-only", "--poses", "20", "--heldout-points", "10", "--no-history"], ["not an accept spec"], timeout=60)
+    b("json for toml: devices --devices CALIBRATION", ["devices", "--devices", cal], ["not a device file"])
+    b("json for toml: plan --spec DATASET", ["plan", "--spec", good, "--robot", "denso-vs060"], ["not a plan spec"])
+    b("toml for toml: devices --devices PLAN-SPEC", ["devices", "--devices", ANNULUS], ["a plan spec"])
+    b("toml for toml: session --accept SCENARIO", ["session", "--sim", LAB, "--accept", LAB, "--out", j("r7-s3"), "--plan-only", "--poses", "20", "--heldout-points", "10", "--no-history"], ["a scenario"], timeout=60)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--bin", default=os.path.join(ROOT, "target/debug/robocal"))
@@ -900,6 +924,7 @@ def main():
     issue26_round3(P, j, small, good, cal, lgood, lheldp)
     issue26_round5(P, j, good, cal, lgood)
     issue26_round6(P, d, j, good, cal)
+    issue26_round7(P, j, good, cal)
 
     # ---- summary
     cats = {}

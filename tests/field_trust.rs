@@ -1,29 +1,36 @@
 //! Issue 26 / 28: a robocal file of another kind is named by the reader that got it (not
-//! "invalid JSON"); a simulated session plans inside its scenario's `[arm.safety]`; `devices
-//! --probe` checks the arm's current joints against the device file's `[safety]`.
+//! "invalid JSON"), a robocal TOML file given for a JSON one and the reverse too; a simulated
+//! session plans inside its scenario's `[arm.safety]`; `devices --probe` checks the arm's
+//! current joints against the device file's `[safety]`.
 use std::path::Path;
 
 use crate::common::{bin as run, root, s as p};
 use crate::e2e::SimServe;
 
-#[test]
-fn a_file_of_another_robocal_kind_is_named() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dataset = root().join("tests/data/kin-geometric/train.jsonl");
-    let targets = tmp.path().join("targets.csv");
+/// A one-row targets file and a pretty-printed calibration file (the writer's layout: its
+/// first line is `{`) in `dir`.
+fn targets_and_calibration(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let targets = dir.join("targets.csv");
     std::fs::write(
         &targets,
         "name,x_mm,y_mm,z_mm,qw,qx,qy,qz\nA,400,0,300,0,1,0,0\n",
     )
     .unwrap();
-    // A pretty-printed calibration file (the writer's layout): its first line is `{`.
-    let cal = tmp.path().join("calibration.json");
+    let cal = dir.join("calibration.json");
     std::fs::write(
         &cal,
         "{\n  \"format\": \"robocal-calibration/1\",\n  \"robot\": {\"model\": \"denso-vs060\"},\n  \
          \"params\": []\n}\n",
     )
     .unwrap();
+    (targets, cal)
+}
+
+#[test]
+fn a_file_of_another_robocal_kind_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dataset = root().join("tests/data/kin-geometric/train.jsonl");
+    let (targets, cal) = targets_and_calibration(tmp.path());
     let cases: [(&str, Vec<&str>, &str); 4] = [
         (
             "correct --calibration DATASET",
@@ -52,6 +59,122 @@ fn a_file_of_another_robocal_kind_is_named() {
         assert_eq!(code, Some(1), "{name}: {stdout}\n{stderr}");
         assert!(stderr.contains(want), "{name}: {stderr}");
         assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+    }
+}
+
+#[test]
+fn a_toml_file_given_for_json_and_a_json_file_given_for_toml_are_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dataset = root().join("tests/data/kin-geometric/train.jsonl");
+    let scenario = root().join("mocks/scenarios/hospital-vs060-vega.toml");
+    let spec = root().join("plans/seed004-shell.toml");
+    let accept = root().join("accept/camera.toml");
+    let devices = root().join("examples/CELL.toml");
+    let (targets, cal) = targets_and_calibration(tmp.path());
+    let out = tmp.path().join("session");
+    let toml_for_json = "this is a TOML file (";
+    let cases: Vec<(&str, Vec<&str>, [&str; 2])> = vec![
+        (
+            "correct --calibration SCENARIO",
+            vec![
+                "correct",
+                "--calibration",
+                p(&scenario),
+                "--targets",
+                p(&targets),
+            ],
+            [toml_for_json, "a scenario, judging by its tables [arm]"],
+        ),
+        (
+            "inspect PLAN-SPEC",
+            vec!["inspect", p(&spec)],
+            [toml_for_json, "a plan spec, judging by its tables ["],
+        ),
+        (
+            "predict --data ACCEPT",
+            vec!["predict", "--calibration", p(&cal), "--data", p(&accept)],
+            [toml_for_json, "an accept spec, judging by its keys `"],
+        ),
+        (
+            "predict --calibration DEVICES",
+            vec![
+                "predict",
+                "--calibration",
+                p(&devices),
+                "--data",
+                p(&dataset),
+            ],
+            [
+                toml_for_json,
+                "a device file, judging by its tables [device]",
+            ],
+        ),
+        (
+            "session --sim CALIBRATION",
+            vec![
+                "session",
+                "--sim",
+                p(&cal),
+                "--out",
+                p(&out),
+                "--plan-only",
+                "--no-history",
+            ],
+            [
+                "this is a calibration file",
+                "not a scenario (TOML, `--sim`)",
+            ],
+        ),
+        (
+            "session --accept DATASET",
+            vec![
+                "session",
+                "--sim",
+                p(&scenario),
+                "--accept",
+                p(&dataset),
+                "--out",
+                p(&out),
+                "--plan-only",
+                "--poses",
+                "20",
+                "--heldout-points",
+                "10",
+                "--no-history",
+            ],
+            ["this is a dataset", "not an accept spec (TOML, `--accept`)"],
+        ),
+        (
+            "devices --devices CALIBRATION",
+            vec!["devices", "--devices", p(&cal)],
+            [
+                "this is a calibration file",
+                "not a device file (TOML, `--devices`)",
+            ],
+        ),
+        (
+            "devices --devices PLAN-SPEC",
+            vec!["devices", "--devices", p(&spec)],
+            ["this is a TOML file (a plan spec", "not a device file"],
+        ),
+        (
+            "plan --spec DATASET",
+            vec!["plan", "--spec", p(&dataset), "--robot", "denso-vs060"],
+            ["this is a dataset", "not a plan spec (TOML"],
+        ),
+    ];
+    for (name, args, want) in cases {
+        let (code, stdout, stderr) = run(&args);
+        println!("{name}: {}", stderr.trim());
+        assert_ne!(code, Some(0), "{name}: {stdout}\n{stderr}");
+        assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+        for w in want {
+            assert!(stderr.contains(w), "{name}: wanted {w:?} in {stderr}");
+        }
+        assert!(
+            stderr.contains("check which file went to which option"),
+            "{name}: {stderr}"
+        );
     }
 }
 

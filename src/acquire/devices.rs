@@ -278,7 +278,11 @@ impl DevicesFile {
     pub fn parse(text: &str, path: &str) -> Result<Self, DevicesError> {
         let f: DevicesFile = toml::from_str(text).map_err(|e| DevicesError::Parse {
             path: path.into(),
-            message: e.to_string(),
+            message: crate::schema::kind::with_toml_hint(
+                &e,
+                text,
+                crate::schema::kind::TomlKind::DeviceFile,
+            ),
         })?;
         f.validate(path)?;
         Ok(f)

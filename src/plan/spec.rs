@@ -375,7 +375,11 @@ impl PlanSpec {
     /// Parse and validate a TOML spec.
     pub fn from_toml_str(s: &str) -> Result<Self, PlanError> {
         let spec: PlanSpec = toml::from_str(s).map_err(|e| PlanError::Spec {
-            message: e.to_string(),
+            message: crate::schema::kind::with_toml_hint(
+                &e,
+                s,
+                crate::schema::kind::TomlKind::PlanSpec,
+            ),
         })?;
         spec.validate()?;
         Ok(spec)

@@ -134,7 +134,11 @@ impl AcceptSpec {
     pub fn from_toml_str(text: &str, path: &str) -> Result<AcceptSpec, AcceptError> {
         let spec: AcceptSpec = toml::from_str(text).map_err(|e| AcceptError::Parse {
             path: path.into(),
-            message: e.to_string(),
+            message: crate::schema::kind::with_toml_hint(
+                &e,
+                text,
+                crate::schema::kind::TomlKind::AcceptSpec,
+            ),
         })?;
         let check = |field: &str, v: Option<f64>, max: f64| -> Result<(), AcceptError> {
             match v {

@@ -92,7 +92,13 @@ pub struct LaserSummary {
 /// nominal beam mounting), laser window, constraints and timing. Returns the planes' spec and
 /// the plate's spec, each a valid single-generator plan spec.
 pub fn parse_spec(text: &str) -> anyhow::Result<(PlanSpec, PlanSpec)> {
-    let both: PlanSpec = toml::from_str(text).context("not a valid plan spec")?;
+    let both: PlanSpec = toml::from_str(text).map_err(|e| {
+        anyhow::anyhow!(crate::schema::kind::with_toml_hint(
+            format_args!("not a valid plan spec: {e}"),
+            text,
+            crate::schema::kind::TomlKind::PlanSpec,
+        ))
+    })?;
     if both.planes.as_ref().is_none_or(|p| p.planes.is_empty()) {
         bail!("a laser session needs calibration planes: add [planes] with [[planes.planes]] (see plans/seed000-session.toml)");
     }

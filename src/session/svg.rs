@@ -307,8 +307,11 @@ pub fn histogram(before: &[f64], after: &[f64]) -> String {
 }
 
 /// Parameter changes (value − nominal) with 95 % intervals, one row per parameter.
+///
+/// Each interval ends in caps. One narrower than its dot (half-width under [`MIN_HALF_PX`]
+/// px) would vanish behind it: its caps are drawn at ± [`MIN_HALF_PX`] px instead, joined by a
+/// thin line, with the true half-width in a tooltip and a footnote saying what the caps mean.
 pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)]) -> String {
-    let h = 40.0 + 16.0 * rows.len() as f64 + 30.0;
     let lim = nice_max(
         rows.iter()
             .map(|(_, d, c)| d.abs() + c.unwrap_or(0.0))
@@ -316,6 +319,10 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
     );
     let (l, r) = (110.0, W - 20.0);
     let x = |v: f64| l + (r - l) * (v + lim) / (2.0 * lim);
+    let narrow = |c: f64| (x(c) - x(0.0)) < MIN_HALF_PX;
+    let any_narrow = rows.iter().any(|(_, _, c)| c.is_some_and(narrow));
+    let h = 40.0 + 16.0 * rows.len() as f64 + 30.0 + if any_narrow { 14.0 } else { 0.0 };
+    let axis_y = if any_narrow { h - 22.0 } else { h - 8.0 };
     let mut s = format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"0 0 {W} {h}\" width=\"{W}\" height=\"{h}\" role=\"img\" aria-label=\"{t}\" font-family=\"sans-serif\" font-size=\"11\">\
          <rect width=\"{W}\" height=\"{h}\" fill=\"white\"/>\
@@ -324,7 +331,7 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
         t = esc(title),
         cx = W / 2.0,
         x0 = x(0.0),
-        yb = h - 24.0
+        yb = axis_y - 16.0
     );
     for (i, (name, d, ci)) in rows.iter().enumerate() {
         let y = 40.0 + 16.0 * i as f64;
@@ -335,17 +342,12 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
             ty = y + 4.0,
             n = esc(name)
         );
-        if let Some(c) = ci {
-            let _ = write!(
-                s,
-                "<line x1=\"{:.1}\" x2=\"{:.1}\" y1=\"{y}\" y2=\"{y}\" stroke=\"#1f77b4\" stroke-width=\"2\"/>",
-                x(d - c),
-                x(d + c)
-            );
+        if let Some(c) = *ci {
+            interval(&mut s, x(*d), y, x(d - c), x(d + c), c, unit);
         }
         let _ = write!(
             s,
-            "<circle cx=\"{:.1}\" cy=\"{y}\" r=\"3\" fill=\"black\"/>",
+            "<circle cx=\"{:.1}\" cy=\"{y}\" r=\"{DOT_R}\" fill=\"black\"/>",
             x(*d)
         );
     }
@@ -364,9 +366,98 @@ pub fn param_changes(title: &str, unit: &str, rows: &[(String, f64, Option<f64>)
             s,
             "<text x=\"{:.1}\" y=\"{}\" text-anchor=\"{anchor}\">{label}</text>",
             x(v),
-            h - 8.0
+            axis_y
+        );
+    }
+    if any_narrow {
+        let _ = write!(
+            s,
+            "<text x=\"{l}\" y=\"{}\" font-size=\"10\" fill=\"#555\">{NARROW_NOTE}</text>",
+            h - 6.0
         );
     }
     s.push_str("</svg>");
     s
+}
+
+/// The dot's radius (px) in [`param_changes`].
+const DOT_R: f64 = 3.0;
+/// The least half-width (px) an interval is drawn with: twice the dot's radius.
+pub const MIN_HALF_PX: f64 = 2.0 * DOT_R;
+/// The footnote of a plot with an interval drawn at the least width.
+pub const NARROW_NOTE: &str =
+    "Grey caps: an interval narrower than its dot, drawn wider to be seen (hover: its value).";
+
+/// One row's 95 % interval around the dot at `xd`: the bar from `a` to `b` with caps, or, when
+/// narrower than [`MIN_HALF_PX`] each side, grey caps at ± [`MIN_HALF_PX`] joined by a thin
+/// line (the true half-width `c` in the tooltip).
+fn interval(s: &mut String, xd: f64, y: f64, a: f64, b: f64, c: f64, unit: &str) {
+    let narrow = (b - a) / 2.0 < MIN_HALF_PX;
+    let (a, b, colour, width) = if narrow {
+        (xd - MIN_HALF_PX, xd + MIN_HALF_PX, "#777", 1)
+    } else {
+        (a, b, "#1f77b4", 2)
+    };
+    let _ = write!(
+        s,
+        "<g class=\"ci{}\" stroke=\"{colour}\" stroke-width=\"{width}\"><title>95 % interval ±{} {}</title>\
+         <line x1=\"{a:.1}\" x2=\"{b:.1}\" y1=\"{y}\" y2=\"{y}\"/>\
+         <line x1=\"{a:.1}\" x2=\"{a:.1}\" y1=\"{}\" y2=\"{}\"/>\
+         <line x1=\"{b:.1}\" x2=\"{b:.1}\" y1=\"{}\" y2=\"{}\"/></g>",
+        if narrow { " narrow" } else { "" },
+        tick(c),
+        esc(unit),
+        y - 4.0,
+        y + 4.0,
+        y - 4.0,
+        y + 4.0,
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rows(c: &[Option<f64>]) -> Vec<(String, f64, Option<f64>)> {
+        c.iter()
+            .enumerate()
+            .map(|(i, c)| (format!("p{i}"), 1.0 - i as f64, *c))
+            .collect()
+    }
+
+    /// The caps' x positions of the interval groups of `svg`, per group.
+    fn caps(svg: &str) -> Vec<(bool, f64, f64)> {
+        svg.split("<g class=\"ci")
+            .skip(1)
+            .map(|g| {
+                let xs: Vec<f64> = g
+                    .split("x1=\"")
+                    .skip(2)
+                    .map(|t| t.split('"').next().unwrap().parse().unwrap())
+                    .collect();
+                (g.starts_with(" narrow"), xs[0], xs[1])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn an_interval_narrower_than_its_dot_is_drawn_at_the_least_width() {
+        // Plot range ±2 over 510 px: 1e-4 is 0.01 px, far inside the dot; 0.5 is 64 px.
+        let svg = param_changes("t", "px", &rows(&[Some(1e-4), Some(0.5), None]));
+        let c = caps(&svg);
+        assert_eq!(c.len(), 2, "{svg}");
+        let (narrow, a, b) = c[0];
+        assert!(narrow, "{svg}");
+        assert!(
+            ((b - a) / 2.0 - MIN_HALF_PX).abs() < 0.11,
+            "narrow caps at {a}, {b}"
+        );
+        assert!(svg.contains("95 % interval ±0.0001 px"), "{svg}");
+        let (narrow, a, b) = c[1];
+        assert!(!narrow && (b - a) / 2.0 > 50.0, "wide caps at {a}, {b}");
+        assert!(svg.contains(NARROW_NOTE), "{svg}");
+        // With no narrow interval: no grey caps and no footnote.
+        let svg = param_changes("t", "px", &rows(&[Some(0.5), Some(0.3)]));
+        assert!(caps(&svg).iter().all(|c| !c.0) && !svg.contains(NARROW_NOTE));
+    }
 }

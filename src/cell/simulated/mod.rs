@@ -29,13 +29,30 @@ pub use wire::wire_cell;
 
 /// The simulated cell of the scenario file at `path`, on a virtual or the wall clock.
 pub fn open_world(path: &Path, virtual_clock: bool) -> anyhow::Result<SimCell> {
-    SimCell::open(path, virtual_clock)
-        .with_context(|| format!("building the world of {}", path.display()))
+    SimCell::open(path, virtual_clock).with_context(|| {
+        format!(
+            "building the world of {}{}",
+            path.display(),
+            other_kind(path)
+        )
+    })
 }
 
 /// What the scenario file at `path` states.
 pub fn stated_scenario(path: &Path) -> anyhow::Result<StatedScenario> {
-    StatedScenario::load(path).with_context(|| format!("reading {}", path.display()))
+    StatedScenario::load(path)
+        .with_context(|| format!("reading {}{}", path.display(), other_kind(path)))
+}
+
+/// ": this is a calibration file …, not a scenario" when the file at `path` (a regular file
+/// robocal can read) is another robocal file; empty otherwise.
+fn other_kind(path: &Path) -> String {
+    crate::fsio::read_to_string(path)
+        .ok()
+        .and_then(|t| {
+            crate::schema::kind::toml_reader_hint(&t, crate::schema::kind::TomlKind::Scenario)
+        })
+        .map_or_else(String::new, |h| format!(": {h}"))
 }
 
 /// The scenario file at `path` cut to arm `arm` (its trackers, lasers and cameras) and to the
