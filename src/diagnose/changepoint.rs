@@ -42,8 +42,11 @@ impl ShiftColumns {
     pub fn at(&self, t_change: f64) -> DMatrix<f64> {
         let mut g = self.all.clone();
         for (k, t) in self.times.iter().enumerate() {
-            // the same test as `BaseShift::columns` (`ctx.t >= t_change`), negated
-            if !(*t >= t_change) {
+            // the negation of `BaseShift::columns`' test `ctx.t >= t_change`
+            if matches!(
+                t.partial_cmp(&t_change),
+                None | Some(std::cmp::Ordering::Less)
+            ) {
                 for a in 0..3 {
                     g.row_mut(3 * k + a).fill(0.0);
                 }
