@@ -22,6 +22,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 
 pub mod camera;
 pub mod camera_stage;
+pub mod changepoint;
 pub mod effects;
 pub mod error;
 pub mod extrapolation;
@@ -548,13 +549,45 @@ pub fn score_round(
                 .filter(|t| *t > lo && *t < hi && (*t - tc).abs() > 1e-9)
                 .collect();
             let tests = group.len() + fine.len();
-            let fine: Vec<Block> = fine
-                .into_iter()
-                .map(|t_change| effects::BaseShift { t_change }.into())
-                .collect();
-            for (b, g) in fine.iter().zip(candidate_columns(state, train, &fine)) {
-                consider(eval_block(b, g, tests), &mut best);
-            }
+            // Columns from one shift before every pose, masked per change point
+            // ([`changepoint::ShiftColumns`]: the same numbers), scored a chunk at a time
+            // in parallel and taken in order (the same choice as one at a time). Above
+            // [`changepoint::TWO_LEVEL_ABOVE`] mid-points: every k-th first, then every one
+            // within k of the best (each mid-point still counts as a test).
+            let sc = changepoint::ShiftColumns::new(state, train);
+            let score = |idx: &[usize], best: &mut Option<(Score, DMatrix<f64>)>| {
+                use rayon::prelude::*;
+                for chunk in idx.chunks(64) {
+                    let scored: Vec<_> = chunk
+                        .par_iter()
+                        .map(|&i| {
+                            let b: Block = effects::BaseShift { t_change: fine[i] }.into();
+                            let g = sc.at(fine[i]);
+                            eval_block(&b, g, tests)
+                        })
+                        .collect();
+                    for c in scored {
+                        consider(c, best);
+                    }
+                }
+            };
+            let (first, stride) = changepoint::first_level(fine.len());
+            score(&first, &mut best);
+            let t_best = match &best {
+                Some((
+                    Score {
+                        block: Block::BaseShift(s),
+                        ..
+                    },
+                    _,
+                )) => s.t_change,
+                _ => tc,
+            };
+            let pos = fine.partition_point(|t| *t < t_best);
+            score(
+                &changepoint::second_level(fine.len(), stride, pos),
+                &mut best,
+            );
             if let Some((s, _)) = &mut best {
                 s.tests = tests;
             }
