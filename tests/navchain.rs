@@ -527,16 +527,30 @@ fn cli_register_predict_robot_world_chain() {
     cal.extra
         .insert("bootstrap".into(), serde_json::json!({ "covariance": bc }));
     cal.save(d.path().join("calibration.json")).unwrap();
-    let (ok, out, err) = robocal(&[
-        "chain",
-        "--registration",
-        &p("registration.json"),
-        "--robot-world",
-        &p("robot_world.json"),
-        "--targets",
-        &p("targets.csv"),
+    // `robocal chain` on this cell's registration, robot-world and targets, plus `extra`.
+    let (reg, rw, targets) = (
+        p("registration.json"),
+        p("robot_world.json"),
+        p("targets.csv"),
+    );
+    let chain = |extra: &[&str]| {
+        let mut a = vec![
+            "chain",
+            "--registration",
+            reg.as_str(),
+            "--robot-world",
+            rw.as_str(),
+            "--targets",
+            targets.as_str(),
+        ];
+        a.extend_from_slice(extra);
+        robocal(&a)
+    };
+    let (cal_file, bad_out) = (p("calibration.json"), p("chain_bad.json"));
+    let cal_out = p("chain_cal.json");
+    let (ok, out, err) = chain(&[
         "--calibration",
-        &p("calibration.json"),
+        &cal_file,
         "--joints-deg",
         "10,-20,80,5,40,-30",
         "--tool-sigma-mm",
@@ -544,7 +558,7 @@ fn cli_register_predict_robot_world_chain() {
         "--mc",
         "4000",
         "--out",
-        &p("chain_cal.json"),
+        &cal_out,
     ]);
     assert!(
         ok && out.contains("robot link: bootstrap covariance"),
@@ -569,20 +583,13 @@ fn cli_register_predict_robot_world_chain() {
     // A pose the robot cannot take (800°: degrees mistyped, or radians × 1000) is refused
     // naming the joint and its limits, not propagated.
     for q in ["10,-20,800,5,40,-30", "0.1,-0.2,1.4,0.05,0.7,-0.5e3"] {
-        let (ok, _, err) = robocal(&[
-            "chain",
-            "--registration",
-            &p("registration.json"),
-            "--robot-world",
-            &p("robot_world.json"),
-            "--targets",
-            &p("targets.csv"),
+        let (ok, _, err) = chain(&[
             "--calibration",
-            &p("calibration.json"),
+            &cal_file,
             "--joints-deg",
             q,
             "--out",
-            &p("chain_bad.json"),
+            &bad_out,
         ]);
         assert!(
             !ok && err.contains("is outside the robot's limits") && err.contains("joint "),
@@ -591,15 +598,7 @@ fn cli_register_predict_robot_world_chain() {
         assert!(!d.path().join("chain_bad.json").exists());
     }
     // Neither a calibration nor a σ: refused.
-    let (ok, _, err) = robocal(&[
-        "chain",
-        "--registration",
-        &p("registration.json"),
-        "--robot-world",
-        &p("robot_world.json"),
-        "--targets",
-        &p("targets.csv"),
-    ]);
+    let (ok, _, err) = chain(&[]);
     assert!(!ok && err.contains("robot-sigma-mm"), "{err}");
     // Bad input: collinear CT fiducials are refused with the reason.
     write_csv(
