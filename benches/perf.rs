@@ -16,8 +16,16 @@
 //! - **peer**: pybotics + SciPy `least_squares` on the same 500-pose kinematic problem
 //!   (`examples/ident_pybotics.rs`, needs `.venv/peers-pybotics` from `.ci/peers.sh`).
 //!
-//! `quick` stops the pose ladder at 10,000; `camera` runs the camera row only. Nothing in CI
-//! runs this or depends on a timing.
+//! - **diagnose** (the default policy, whole process) on real UR10 + laser-tracker poses: the
+//!   first 2,000 training poses of `../shared/data/real-ur10-ipa-grid` (Series A) with the
+//!   held-out poses of the same span, then the whole series (8,934 + 2,977), plus any dataset
+//!   named in `$ROBOCAL_BENCH_DIAGNOSE` (`:`-separated files whose `validation` records are
+//!   held out, e.g. IPA Series C imported with `robocal import ipa`). There is no peer that
+//!   diagnoses; the row prints the held-out RMS beside SciPy's geometric reference on Series A.
+//!   Real data is read from outside the project and never copied; absent, the row says SKIPPED.
+//!
+//! `quick` stops the pose ladder at 10,000; `camera` runs the camera row only; `diagnose` the
+//! diagnose row only. Nothing in CI runs this or depends on a timing.
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -124,6 +132,11 @@ fn main() {
     if std::env::args().any(|a| a == "camera") {
         let tmp = tempfile::tempdir().expect("tempdir");
         camera_row(tmp.path());
+        return;
+    }
+    if std::env::args().any(|a| a == "diagnose") {
+        let tmp = tempfile::tempdir().expect("tempdir");
+        diagnose_row(tmp.path());
         return;
     }
     let data = root().join("tests/data/kin-geometric");
@@ -233,6 +246,7 @@ fn main() {
     }
 
     camera_row(tmp.path());
+    diagnose_row(tmp.path());
 
     // --- peer: pybotics + SciPy least_squares on the same 500-pose problem
     println!("peer (examples/ident_pybotics.rs):");
@@ -307,4 +321,95 @@ fn camera_row(tmp: &Path) {
             String::from_utf8_lossy(&res.stderr).trim()
         ),
     }
+}
+
+/// `robocal diagnose` (default policy, whole process) on real UR10 poses: Series A's first
+/// 2,000 training poses (and its held-out poses of the same span), all of Series A, and the
+/// datasets named in `$ROBOCAL_BENCH_DIAGNOSE`.
+fn diagnose_row(tmp: &Path) {
+    let series = root().join("../shared/data/real-ur10-ipa-grid");
+    let mut cases: Vec<(String, PathBuf, Option<PathBuf>)> = Vec::new();
+    if series.join("train.jsonl").is_file() {
+        let (train, held) = (series.join("train.jsonl"), series.join("heldout.jsonl"));
+        let (t2k, h2k) = (tmp.join("a2k-train.jsonl"), tmp.join("a2k-held.jsonl"));
+        write_first_span(&train, &held, 2_000, &t2k, &h2k);
+        cases.push(("Series A, first 2,000".into(), t2k, Some(h2k)));
+        cases.push(("Series A, all".into(), train, Some(held)));
+    } else {
+        println!(
+            "diagnose on real UR10 poses: SKIPPED ({} absent; real data is never copied into \
+             the project)",
+            series.display()
+        );
+    }
+    if let Ok(extra) = std::env::var("ROBOCAL_BENCH_DIAGNOSE") {
+        for f in extra.split(':').filter(|f| !f.is_empty()) {
+            let name = Path::new(f)
+                .file_name()
+                .map_or(f.to_string(), |n| n.to_string_lossy().into_owned());
+            cases.push((name, PathBuf::from(f), None));
+        }
+    }
+    if cases.is_empty() {
+        return;
+    }
+    println!("diagnose (default policy, whole process; held-out RMS mm geometric -> final):");
+    println!(
+        "{:<24} {:>7} {:>7} {:>8} {:>8} {:>8} {:>17}",
+        "data", "train", "held", "wall s", "CPU s", "peak MB", "held-out mm"
+    );
+    for (name, train, held) in cases {
+        let out = tmp.join("diag");
+        let _ = std::fs::remove_dir_all(&out);
+        let mut args = vec![
+            "diagnose".to_string(),
+            "--data".into(),
+            train.to_string_lossy().into_owned(),
+            "--out".into(),
+            out.to_string_lossy().into_owned(),
+        ];
+        if let Some(h) = &held {
+            args.push("--heldout".into());
+            args.push(h.to_string_lossy().into_owned());
+        }
+        let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (w, cpu, rss) = run_robocal_cpu(&argv);
+        let d = std::fs::read_to_string(out.join("diagnosis.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<Value>(&t).ok());
+        let Some(d) = d else {
+            println!("{name:<24} diagnose failed (no diagnosis.json)");
+            continue;
+        };
+        let f = |k: &str| d["heldout_rms"][k].as_f64().unwrap_or(f64::NAN);
+        println!(
+            "{name:<24} {:>7} {:>7} {w:>8.2} {cpu:>8.2} {rss:>8.0} {:>8.4} -> {:.4}",
+            d["n_train"],
+            d["n_heldout"],
+            f("base_model_mm"),
+            f("final_mm")
+        );
+    }
+    println!("  reference (the data's README): SciPy geometric least squares on all of Series A, held-out 0.438 mm");
+}
+
+/// The header and first `n` training records of `train`, and the held-out records of `held`
+/// acquired within their span (by id).
+fn write_first_span(train: &Path, held: &Path, n: usize, t_out: &Path, h_out: &Path) {
+    let t = std::fs::read_to_string(train).expect("read train");
+    let mut lines = t.lines();
+    let header = lines.next().expect("header");
+    let recs: Vec<&str> = lines.take(n).collect();
+    let id = |l: &str| {
+        serde_json::from_str::<Value>(l)
+            .ok()
+            .and_then(|v| v["id"].as_u64())
+    };
+    let last = recs.iter().rev().find_map(|l| id(l)).expect("ids");
+    std::fs::write(t_out, format!("{header}\n{}\n", recs.join("\n"))).expect("write");
+    let h = std::fs::read_to_string(held).expect("read held-out");
+    let mut hl = h.lines();
+    let hh = hl.next().expect("header");
+    let hr: Vec<&str> = hl.filter(|l| id(l).is_some_and(|i| i <= last)).collect();
+    std::fs::write(h_out, format!("{hh}\n{}\n", hr.join("\n"))).expect("write");
 }

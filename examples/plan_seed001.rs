@@ -15,13 +15,7 @@ fn main() -> anyhow::Result<()> {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("plans/seed001-annulus.toml");
     let spec = PlanSpec::from_file(&path)?;
     let model = KinematicModel::preset("denso-vs060")?;
-    let robot = RobotBlock {
-        model: "denso-vs060".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    };
+    let robot = RobotBlock::named("denso-vs060");
     let all = build_plan(&spec, robot.clone(), &model, &PlanOptions::default())?;
     println!("== all feasible poses ==");
     print!("{}", export::summary_text(&all.file.summary));

@@ -31,13 +31,7 @@ fn arm() -> KinematicModel {
 }
 
 fn robot() -> RobotBlock {
-    RobotBlock {
-        model: "ur5e".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    }
+    RobotBlock::named("ur5e")
 }
 
 fn save_cal(dir: &Path, m: &KinematicModel) -> PathBuf {

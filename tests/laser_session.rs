@@ -185,13 +185,7 @@ fn laser_accept_spec_and_arm_calibration_are_checked() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let cal = CalibrationFile::new(
-        robocal::dataset::RobotBlock {
-            model: "ur5e".into(),
-            serial: None,
-            chain: None,
-            flange: None,
-            extra: Default::default(),
-        },
+        robocal::dataset::RobotBlock::named("ur5e"),
         vec![param("phi2", 180.0, "deg")],
     );
     cal.save(dir.join("ur5e.json")).unwrap();

@@ -63,13 +63,7 @@ fn plan(file: &str) -> Vec<robocal::plan::PlanPose> {
         .join(file);
     let spec = PlanSpec::from_toml_str(&std::fs::read_to_string(path).unwrap()).unwrap();
     let model = KinematicModel::preset("denso-vs060").unwrap();
-    let robot = RobotBlock {
-        model: "denso-vs060".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    };
+    let robot = RobotBlock::named("denso-vs060");
     build_plan(&spec, robot, &model, &PlanOptions::default())
         .unwrap()
         .file

@@ -492,13 +492,7 @@ fn cli_register_predict_robot_world_chain() {
     }
     // The robot link from a calibration's bootstrap covariance instead of one σ.
     let model = robocal::model::presets::preset("vs060").unwrap();
-    let robot = robocal::dataset::RobotBlock {
-        model: "denso-vs060".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    };
+    let robot = robocal::dataset::RobotBlock::named("denso-vs060");
     let mut cal = robocal::solve::calfile::kinematic_file(&robot, &model);
     let names: Vec<String> = model
         .params()

@@ -151,13 +151,7 @@ fn correct_applies_the_calibrations_network() {
         nalgebra::Vector3::new(0.1, -0.2, 0.7),
     ));
     m.set_tool(&nalgebra::Isometry3::translation(5.0, -3.0, 120.0));
-    let robot = robocal::dataset::RobotBlock {
-        model: "ur5e".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    };
+    let robot = robocal::dataset::RobotBlock::named("ur5e");
     let plain = robocal::solve::calfile::kinematic_file(&robot, &m);
     // A network fitted to a smooth position error of a few tenths of a mm (tracker frame).
     let qs: Vec<[f64; 6]> = (0..300)

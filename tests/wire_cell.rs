@@ -312,13 +312,7 @@ fn seed001_poses(s: &Scenario, n: usize) -> (RobotBlock, Vec<PlannedPose>) {
         a.points = a.points.min(3 * n);
     }
     let model = KinematicModel::preset("denso-vs060").unwrap();
-    let robot = RobotBlock {
-        model: "denso-vs060".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    };
+    let robot = RobotBlock::named("denso-vs060");
     let out = build_plan(&spec, robot, &model, &PlanOptions::default()).unwrap();
     let poses: Vec<PlannedPose> = out
         .file

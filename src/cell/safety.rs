@@ -160,13 +160,7 @@ mod tests {
             a.points = 5;
         }
         let model = KinematicModel::preset("denso-vs060").unwrap();
-        let robot = crate::dataset::RobotBlock {
-            model: "denso-vs060".into(),
-            serial: None,
-            chain: None,
-            flange: None,
-            extra: Default::default(),
-        };
+        let robot = crate::dataset::RobotBlock::named("denso-vs060");
         let plan = crate::plan::build_plan(&spec, robot, &model, &Default::default())
             .unwrap()
             .file;

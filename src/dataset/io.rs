@@ -33,6 +33,17 @@ pub fn preset_dof(model: &str) -> Option<usize> {
 }
 
 impl RobotBlock {
+    /// A block that names a preset model only (no serial, chain, flange or extra keys).
+    pub fn named(model: &str) -> Self {
+        RobotBlock {
+            model: model.into(),
+            serial: None,
+            chain: None,
+            flange: None,
+            extra: Default::default(),
+        }
+    }
+
     /// Number of joints: the chain's length, else the preset's.
     pub fn dof(&self) -> Option<usize> {
         match &self.chain {

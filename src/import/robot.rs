@@ -15,13 +15,7 @@ pub const UR10_CHAIN_JSON: &str = include_str!("../../robots/ur10.json");
 /// The UR10 robot block.
 pub fn ur10() -> RobotBlock {
     // The embedded file is checked by a unit test.
-    serde_json::from_str(UR10_CHAIN_JSON).unwrap_or_else(|_| RobotBlock {
-        model: "ur10".into(),
-        serial: None,
-        chain: None,
-        flange: None,
-        extra: Default::default(),
-    })
+    serde_json::from_str(UR10_CHAIN_JSON).unwrap_or_else(|_| RobotBlock::named("ur10"))
 }
 
 fn iso_to_origin(iso: &nalgebra::Isometry3<f64>) -> ([f64; 3], [f64; 3]) {

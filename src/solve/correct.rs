@@ -340,13 +340,7 @@ mod tests {
             m.set_param(n, v + dv).unwrap();
         }
         m.set_tool(&Isometry3::translation(5.0, -3.0, 120.0));
-        let robot = RobotBlock {
-            model: "ur5e".into(),
-            serial: None,
-            chain: None,
-            flange: None,
-            extra: Default::default(),
-        };
+        let robot = RobotBlock::named("ur5e");
         crate::solve::calfile::kinematic_file(&robot, &m)
     }
 

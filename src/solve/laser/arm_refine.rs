@@ -558,13 +558,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn empty_cal() -> CalibrationFile {
-        let robot = crate::dataset::RobotBlock {
-            model: "denso-vs060".into(),
-            serial: None,
-            chain: None,
-            flange: None,
-            extra: Default::default(),
-        };
+        let robot = crate::dataset::RobotBlock::named("denso-vs060");
         CalibrationFile::new(robot, Vec::new())
     }
 

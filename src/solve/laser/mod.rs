@@ -496,13 +496,7 @@ mod tests {
             r: Vector3::new(1.0, 2.0, 3.0),
             v: Unit::new_normalize(Vector3::new(0.01, 0.0, 1.0)),
         };
-        let robot = crate::dataset::RobotBlock {
-            model: "denso-vs060".into(),
-            serial: None,
-            chain: None,
-            flange: None,
-            extra: Default::default(),
-        };
+        let robot = crate::dataset::RobotBlock::named("denso-vs060");
         let mut cal = CalibrationFile::new(robot, beam_params(&beam, None));
         cal.set_kind("laser");
         let back = beam_from_calibration(&cal).unwrap();
