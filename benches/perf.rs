@@ -64,6 +64,9 @@ fn run_robocal_cpu(args: &[&str]) -> (f64, f64, f64) {
     let child = Command::new(BIN)
         .args(args)
         .stdout(std::process::Stdio::null())
+        // Warnings about the data (e.g. a missing `q_prev`) would break the printed table;
+        // a failed run shows as a missing output file in the row that reads it.
+        .stderr(std::process::Stdio::null())
         .spawn()
         .expect("spawn robocal");
     let mut status = 0;
