@@ -72,13 +72,13 @@ impl Candidate {
     ///
     /// When the robot's pose error dominates the residual (`robot_dominates`: the best closed
     /// form's training residual is more than [`ROBOT_DOMINATES_RATIO`]× what the board alone
-    /// leaves; simulated cells with exact flange poses sit near 1×, the real KUKA and UR3e sets
-    /// at 11–35×), the ML fits that treat every flange pose as exact are a model the data
-    /// already contradict: the fits that model the pose error come before them, the per-view
-    /// corrections from the tightest prior (the fewest effective parameters: 10⁻⁴ × the implied
-    /// noise) to the implied noise itself. On a real UR3e the exact-pose ML and the corrections
-    /// with the 10⁻⁴ prior tie in the CV on the training views and on both halves, but the
-    /// exact-pose ML's X moves 2.28 mm between the halves and the corrections' 0.86 mm.
+    /// leaves, the diagnosis' threshold; the real KUKA and UR3e sets are at 11–35×), the ML
+    /// fits that treat every flange pose as exact are a model the data already contradict: the
+    /// fits that model the pose error come before them, the per-view corrections from the
+    /// tightest prior (the fewest effective parameters: 10⁻⁴ × the implied noise) to the
+    /// implied noise itself. On a real UR3e the exact-pose ML and the corrections with the
+    /// 10⁻⁴ prior tie in the CV on the training views and on both halves, but the exact-pose
+    /// ML's X moves 2.28 mm between the halves and the corrections' 0.86 mm.
     pub fn preference(&self, robot_dominates: bool) -> usize {
         match (self, robot_dominates) {
             (Candidate::Closed(Method::ParkMartin), _) => 0,
