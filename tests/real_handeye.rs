@@ -11,7 +11,15 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>) {
+/// `held_max`: the written held-out RMS at most this multiple of the best reference's;
+/// `split_max`: the written X's split-half difference at most this multiple of OpenCV Park's.
+fn check(
+    name: &str,
+    dir: &str,
+    load: impl Fn(&Path) -> Result<RealSet, String>,
+    held_max: f64,
+    split_max: f64,
+) {
     let dir = root().join("../shared/data").join(dir);
     if !dir.exists() {
         crate::common::skipped(format_args!("real set {name} absent ({})", dir.display()));
@@ -86,8 +94,8 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
     };
     let best = reference.iter().copied().fold(f64::INFINITY, f64::min);
     assert!(
-        r.written.heldout_px <= best * 1.0001,
-        "{name}: written held-out {:.3} px worse than the best closed form {best:.3} px",
+        r.written.heldout_px <= best * held_max,
+        "{name}: written held-out {:.3} px above {held_max} x the best closed form {best:.3} px",
         r.written.heldout_px
     );
     // The floor is below what any estimate from other views reaches.
@@ -100,10 +108,11 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
         "{name}: split half / σ {:?}",
         r.split.ratios
     );
-    // Split-half stability within 1.6× OpenCV Park's (the goal, ≤ 1×, is not met yet).
+    // Split-half stability against OpenCV Park's (the goal, ≤ 1×, is met on the UR3e, not on
+    // kuka_1: see `docs/findings.md`).
     if let Some((park_mm, _)) = r.split.opencv_park {
         assert!(
-            r.split.dx_mm <= 1.6 * park_mm,
+            r.split.dx_mm <= split_max * park_mm,
             "{name}: split half {:.2} mm vs OpenCV Park {park_mm:.2} mm",
             r.split.dx_mm
         );
@@ -121,14 +130,26 @@ fn check(name: &str, dir: &str, load: impl Fn(&Path) -> Result<RealSet, String>)
 
 #[test]
 fn real_kuka1_hand_eye() {
-    check("kuka_1", "real-handeye-kuka1", realeval::load_kuka1);
+    // Measured: held-out 0.989x OpenCV's best, split half 1.65 / 1.23 mm = 1.34x Park's.
+    check(
+        "kuka_1",
+        "real-handeye-kuka1",
+        realeval::load_kuka1,
+        1.0001,
+        1.4,
+    );
 }
 
 #[test]
 fn real_ur3e_hand_eye() {
-    check("ur3e", "real-handeye-ur3e", |d| {
-        realeval::load_ur3e(d, 12.5)
-    });
+    // Measured: held-out 0.834x OpenCV's best, split half 0.86 / 1.80 mm = 0.48x Park's.
+    check(
+        "ur3e",
+        "real-handeye-ur3e",
+        |d| realeval::load_ur3e(d, 12.5),
+        0.85,
+        1.0,
+    );
 }
 
 /// Issue 31 §3: on the UR3e set's `cam0_079.jpg` OpenCV's detectors label the grid wrongly

@@ -892,7 +892,8 @@ pub fn calibrate(
             .iter()
             .map(|(c, v)| (c.name(), select::cv_of(v.as_deref())))
             .collect();
-        chosen = select::choose(&per).unwrap_or(chosen);
+        let robot_dominates = best.train_rms_px > select::ROBOT_DOMINATES_RATIO * k1_rms;
+        chosen = select::choose(&per, robot_dominates).unwrap_or(chosen);
         candidates.push(ml_free.clone());
         all_fits = [
             select::Candidate::MlBoardIntrinsics,
