@@ -9,6 +9,10 @@
 //! ```
 //!
 //! `--pf-max N`: at most `N` physical effects in the physics-first chain (default 6).
+//! `--cv-stop K` / `--cv-stop-fold K` / `--no-cv-stop`: the physics-first chain also stops
+//! when the next effect lowers the time-blocked CV error of the training poses by no more
+//! than `K` standard errors (per pose / per fold; `robocal::diagnose::inner_cv`), or only
+//! at its cap.
 //! `--why`: after each split, what the final model leaves: the held-out error's distribution
 //! (median, p95, max, share of the squared error on the worst 5 % of poses) and the library
 //! candidates scored against the final physical model's training residual (the strongest
@@ -192,6 +196,7 @@ fn main() -> anyhow::Result<()> {
     let mut max_extrapolation = None;
     let mut pf_max = None;
     let mut why = false;
+    let mut cv_stop = None;
     let mut series: Vec<PathBuf> = Vec::new();
     let mut i = 0;
     while i < args.len() {
@@ -242,6 +247,18 @@ fn main() -> anyhow::Result<()> {
                 );
                 i += 1;
             }
+            "--cv-stop" | "--cv-stop-fold" => {
+                let k_se = args
+                    .get(i + 1)
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .ok_or_else(|| anyhow::anyhow!("{} needs a number", args[i]))?;
+                cv_stop = Some(Some(diagnose::inner_cv::CvStop {
+                    k_se,
+                    by_fold: args[i] == "--cv-stop-fold",
+                }));
+                i += 1;
+            }
+            "--no-cv-stop" => cv_stop = Some(None),
             "--why" => why = true,
             "--no-time-blocked" => time_blocked = false,
             a if a.starts_with("--") => {
@@ -262,6 +279,9 @@ fn main() -> anyhow::Result<()> {
         if policy == "physics-first" {
             opt.max_effects = n;
         }
+    }
+    if let Some(c) = cv_stop {
+        opt.physics_first_stop = c;
     }
     if series.is_empty() {
         let p = std::env::var_os("ROBOCAL_REAL_DATA")
@@ -328,6 +348,13 @@ fn main() -> anyhow::Result<()> {
                 secs,
                 &chain(&d),
             ) as usize;
+            if let Some(s) = d
+                .policy_choice
+                .as_ref()
+                .and_then(|c| c.physics_first_stopped.as_ref())
+            {
+                println!("    physics first {s}");
+            }
             if why {
                 explain(&d, &tr, &he, &opt);
             }
