@@ -8,7 +8,7 @@
 //! The linearised refit per fold is the one the chain's CV RMS uses
 //! ([`super::stats::CvBase`]): the model and effect Jacobian at the refitted state, each
 //! fold's coefficients from the other folds' rows.
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 
 use super::fit::{stack, State};
 use crate::solve::obs::PoseObs;
@@ -21,12 +21,21 @@ pub struct CvStop {
     /// Standard error from the per-fold mean differences (time blocks: the errors of
     /// neighbouring poses are correlated) instead of the per-pose ones.
     pub by_fold: bool,
+    /// Each fold refits the effect coefficients only (the geometric parameters stay at the
+    /// fit to every training pose): a time block left out can leave geometric parameters
+    /// undetermined, and their extrapolation then swamps what the effects change.
+    pub effects_only: bool,
+    /// Each fold is predicted from the folds before it only (does an effect carry over to
+    /// poses measured later?) instead of from every other fold.
+    pub forward: bool,
 }
 
 /// Default of [`super::Options::physics_first_stop`].
 pub const DEFAULT_CV_STOP: CvStop = CvStop {
     k_se: 1.0,
     by_fold: false,
+    effects_only: true,
+    forward: false,
 };
 
 /// Per-pose time-blocked CV errors of one state: `sq[i]` is the squared 3-D error of pose
@@ -40,8 +49,8 @@ pub struct PoseCv {
 impl PoseCv {
     /// CV RMS per row (per axis, mm), as [`super::stats::CvBase::rms`] reports it.
     pub fn rms(&self) -> f64 {
-        let n = self.sq.len().max(1) as f64;
-        (self.sq.iter().sum::<f64>() / (3.0 * n)).sqrt()
+        let v: Vec<f64> = self.sq.iter().copied().filter(|v| v.is_finite()).collect();
+        (v.iter().sum::<f64>() / (3.0 * v.len().max(1) as f64)).sqrt()
     }
 }
 
@@ -49,7 +58,27 @@ impl PoseCv {
 /// pose `i` (`n_folds` folds). Normal equations with the columns scaled to unit norm and
 /// eigenvalues below 1e-12 of the largest dropped: the solve [`super::stats::CvBase`] uses.
 pub fn pose_cv(state: &State, train: &[PoseObs], fold: &[usize], n_folds: usize) -> PoseCv {
-    let (r, mut j) = stack(state, train);
+    pose_cv_of(state, train, fold, n_folds, false, false)
+}
+
+/// [`pose_cv`], with only the effect coefficients refitted per fold when `effects_only`,
+/// and each fold predicted from the folds before it only when `forward` (the first fold's
+/// poses are then not predicted: `sq` NaN).
+pub fn pose_cv_of(
+    state: &State,
+    train: &[PoseObs],
+    fold: &[usize],
+    n_folds: usize,
+    effects_only: bool,
+    forward: bool,
+) -> PoseCv {
+    let (r, j) = stack(state, train);
+    let mut j = if effects_only {
+        let p0 = state.model.free_count();
+        j.columns(p0, j.ncols() - p0).into_owned()
+    } else {
+        j
+    };
     for mut c in j.column_iter_mut() {
         let n = c.norm();
         if n > 0.0 {
@@ -57,26 +86,45 @@ pub fn pose_cv(state: &State, train: &[PoseObs], fold: &[usize], n_folds: usize)
         }
     }
     let p = j.ncols();
-    let jtj = j.transpose() * &j;
-    let jtr = j.transpose() * &r;
-    let mut sq = vec![0.0; train.len()];
-    for f in 0..n_folds {
-        let test: Vec<usize> = (0..train.len()).filter(|&i| fold[i] == f).collect();
-        let rows: Vec<usize> = test
-            .iter()
-            .flat_map(|&i| [3 * i, 3 * i + 1, 3 * i + 2])
-            .collect();
-        if test.is_empty() || 3 * train.len() - rows.len() <= p {
-            // No refit on the other folds: the pose keeps its residual (as if unpredicted).
-            for &i in &test {
+    // Each fold's rows, and their normal-equation blocks.
+    let tests: Vec<Vec<usize>> = (0..n_folds)
+        .map(|f| (0..train.len()).filter(|&i| fold[i] == f).collect())
+        .collect();
+    let blocks: Vec<(DMatrix<f64>, DVector<f64>, DMatrix<f64>, DVector<f64>)> = tests
+        .iter()
+        .map(|t| {
+            let rows: Vec<usize> = t
+                .iter()
+                .flat_map(|&i| [3 * i, 3 * i + 1, 3 * i + 2])
+                .collect();
+            let jt = j.select_rows(&rows);
+            let rt = r.select_rows(&rows);
+            (jt.transpose() * &jt, jt.transpose() * &rt, jt, rt)
+        })
+        .collect();
+    let mut sq = vec![f64::NAN; train.len()];
+    for (f, test) in tests.iter().enumerate() {
+        let others = |g: usize| if forward { g < f } else { g != f };
+        let n_rows: usize = (0..n_folds)
+            .filter(|&g| others(g))
+            .map(|g| 3 * tests[g].len())
+            .sum();
+        if forward && f == 0 {
+            continue;
+        }
+        if test.is_empty() || p == 0 || n_rows <= p {
+            // Nothing to refit (or too few rows to): the pose keeps its residual.
+            for &i in test {
                 sq[i] = (0..3).map(|a| r[3 * i + a].powi(2)).sum();
             }
             continue;
         }
-        let jt = j.select_rows(&rows);
-        let rt = r.select_rows(&rows);
-        let m = &jtj - jt.transpose() * &jt;
-        let b = &jtr - jt.transpose() * &rt;
+        let mut m = DMatrix::zeros(p, p);
+        let mut b = DVector::zeros(p);
+        for (_, blk) in blocks.iter().enumerate().filter(|(g, _)| others(*g)) {
+            m += &blk.0;
+            b += &blk.1;
+        }
         let eig = m.symmetric_eigen();
         let lmax = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         let mut x = DVector::zeros(p);
@@ -86,7 +134,8 @@ pub fn pose_cv(state: &State, train: &[PoseObs], fold: &[usize], n_folds: usize)
                 x += v * (v.dot(&b) / l);
             }
         }
-        let e: DVector<f64> = &rt - &jt * &x;
+        let (_, _, jt, rt) = &blocks[f];
+        let e: DVector<f64> = rt - jt * &x;
         for (k, &i) in test.iter().enumerate() {
             sq[i] = (0..3).map(|a| e[3 * k + a].powi(2)).sum();
         }
@@ -100,12 +149,15 @@ pub fn pose_cv(state: &State, train: &[PoseObs], fold: &[usize], n_folds: usize)
 /// The CV gain of going from `before` to `after` (mean per-pose squared error, mm²) and its
 /// standard error under `rule`.
 pub fn gain(before: &PoseCv, after: &PoseCv, rule: &CvStop) -> (f64, f64) {
-    let d: Vec<f64> = before
+    // Pairs of predicted poses only (a forward CV does not predict its first fold).
+    let (d, fo): (Vec<f64>, Vec<usize>) = before
         .sq
         .iter()
         .zip(&after.sq)
-        .map(|(b, a)| b - a)
-        .collect();
+        .zip(&before.fold)
+        .filter(|((b, a), _)| b.is_finite() && a.is_finite())
+        .map(|((b, a), f)| (b - a, *f))
+        .unzip();
     let n = d.len();
     if n < 2 {
         return (0.0, f64::INFINITY);
@@ -120,7 +172,7 @@ pub fn gain(before: &PoseCv, after: &PoseCv, rule: &CvStop) -> (f64, f64) {
         .filter_map(|f| {
             let v: Vec<f64> = d
                 .iter()
-                .zip(&before.fold)
+                .zip(&fo)
                 .filter(|(_, g)| **g == f)
                 .map(|(v, _)| *v)
                 .collect();
@@ -222,7 +274,12 @@ mod tests {
             c2.rms()
         );
         for by_fold in [false, true] {
-            let rule = CvStop { k_se: 1.0, by_fold };
+            let rule = CvStop {
+                k_se: 1.0,
+                by_fold,
+                effects_only: false,
+                forward: false,
+            };
             let (keep, g, se) = keeps(&c0, &c1, &rule);
             assert!(keep, "by_fold {by_fold}: gain {g:.3e}, se {se:.3e}");
             let (keep, g, se) = keeps(&c1, &c2, &rule);

@@ -842,7 +842,16 @@ fn select_chain(
     // The held-out-free stop of a chain without the kernel-benchmark rule ([`inner_cv`]).
     let stop = opt.physics_first_stop.filter(|_| !use_np);
     let cv_folds = folds(train, opt.n_folds);
-    let mut cv_prev = stop.map(|_| inner_cv::pose_cv(&state, train, &cv_folds, opt.n_folds));
+    let mut cv_prev = stop.map(|s| {
+        inner_cv::pose_cv_of(
+            &state,
+            train,
+            &cv_folds,
+            opt.n_folds,
+            s.effects_only,
+            s.forward,
+        )
+    });
     let mut stopped = None;
     // Each pass accepts an effect, leaves one out (its group dropped) or stops.
     while steps.len() < opt.max_effects {
@@ -936,7 +945,14 @@ fn select_chain(
             }
         }
         if let (Some(rule), Some(prev)) = (stop, cv_prev.as_ref()) {
-            let now = inner_cv::pose_cv(&state, train, &cv_folds, opt.n_folds);
+            let now = inner_cv::pose_cv_of(
+                &state,
+                train,
+                &cv_folds,
+                opt.n_folds,
+                rule.effects_only,
+                rule.forward,
+            );
             let (keep, g, se) = inner_cv::keeps(prev, &now, &rule);
             tracing::debug!(
                 "{}: inner CV RMS {:.4} -> {:.4} mm, gain {g:.3e} mm² (standard error {se:.3e})",
