@@ -31,13 +31,13 @@
 //! with several series, `cross-series` (the first series' final model carried to every
 //! other series with only the setup re-registered, [`robocal::diagnose::transfer`]; two
 //! more cross-series rows, not counted, carry its physical effects alone and its geometric
-//! fit alone).
+//! fit alone; each is printed again with the joint zero offsets re-fitted as well).
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::fit::{residuals, rms3, State};
-use robocal::diagnose::transfer::refit_setup;
+use robocal::diagnose::transfer::{refit_setup, refit_setup_and_joint_offsets};
 use robocal::diagnose::{self, Options, OVERFIT_GAP};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::PoseObs;
@@ -401,6 +401,10 @@ fn main() -> anyhow::Result<()> {
                                 n += 1;
                                 n_ok += ok as usize;
                             }
+                            let carried = refit_setup_and_joint_offsets(st, &train)?;
+                            let (t, h) = (rms(&carried, &train), rms(&carried, &held));
+                            let what = format!("{what}; joint zero offsets re-fitted too");
+                            row(&name, "cross-series", geo, h, t, 0.0, &what);
                         }
                     }
                 }
