@@ -61,6 +61,9 @@ pub fn pose_cv(state: &State, train: &[PoseObs], fold: &[usize], n_folds: usize)
     pose_cv_of(state, train, fold, n_folds, false, false)
 }
 
+/// One fold's normal-equation blocks (`JᵀJ`, `Jᵀr`) and its rows of `J` and `r`.
+type FoldBlock = (DMatrix<f64>, DVector<f64>, DMatrix<f64>, DVector<f64>);
+
 /// [`pose_cv`], with only the effect coefficients refitted per fold when `effects_only`,
 /// and each fold predicted from the folds before it only when `forward` (the first fold's
 /// poses are then not predicted: `sq` NaN).
@@ -90,7 +93,7 @@ pub fn pose_cv_of(
     let tests: Vec<Vec<usize>> = (0..n_folds)
         .map(|f| (0..train.len()).filter(|&i| fold[i] == f).collect())
         .collect();
-    let blocks: Vec<(DMatrix<f64>, DVector<f64>, DMatrix<f64>, DVector<f64>)> = tests
+    let blocks: Vec<FoldBlock> = tests
         .iter()
         .map(|t| {
             let rows: Vec<usize> = t
