@@ -56,7 +56,7 @@ impl PoseCv {
 
 /// The per-pose CV errors of `state` on `train` (time-sorted) with `fold[i]` the fold of
 /// pose `i` (`n_folds` folds). Normal equations with the columns scaled to unit norm and
-/// eigenvalues below 1e-12 of the largest dropped: the solve [`super::stats::CvBase`] uses.
+/// directions below 1e-12 of the largest dropped, as [`super::stats::CvBase`] solves them.
 pub fn pose_cv(state: &State, train: &[PoseObs], fold: &[usize], n_folds: usize) -> PoseCv {
     pose_cv_of(state, train, fold, n_folds, false, false)
 }
@@ -128,15 +128,10 @@ pub fn pose_cv_of(
             m += &blk.0;
             b += &blk.1;
         }
-        let eig = m.symmetric_eigen();
-        let lmax = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        let mut x = DVector::zeros(p);
-        for (k, l) in eig.eigenvalues.iter().enumerate() {
-            if *l > 1e-12 * lmax {
-                let v = eig.eigenvectors.column(k);
-                x += v * (v.dot(&b) / l);
-            }
-        }
+        // Minimum-norm solution, directions below 1e-12 of the largest dropped.
+        let svd = m.svd(true, true);
+        let tol = 1e-12 * svd.singular_values.max();
+        let x = svd.solve(&b, tol).unwrap_or_else(|_| DVector::zeros(p));
         let (_, _, jt, rt) = &blocks[f];
         let e: DVector<f64> = rt - jt * &x;
         for (k, &i) in test.iter().enumerate() {
