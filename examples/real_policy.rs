@@ -9,6 +9,12 @@
 //! ```
 //!
 //! `--pf-max N`: at most `N` physical effects in the physics-first chain (default 6).
+//! `--cv-stop K` / `--cv-stop-fold K` / `--no-cv-stop`: the physics-first chain also stops
+//! when the next effect lowers the time-blocked CV error of the training poses by no more
+//! than `K` standard errors (per pose / per fold; `robocal::diagnose::inner_cv`), or only
+//! at its cap. After it, `--cv-stop-all-params` (each fold refits the geometric parameters
+//! too, not only the effect coefficients) and `--cv-stop-forward` (each fold predicted from
+//! the folds before it only).
 //! `--why`: after each split, what the final model leaves: the held-out error's distribution
 //! (median, p95, max, share of the squared error on the worst 5 % of poses) and the library
 //! candidates scored against the final physical model's training residual (the strongest
@@ -23,13 +29,15 @@
 //! Splits printed for every series: `interleaved` (the file's own split), `time-blocked`
 //! (the first 75 % of the training poses train, the held-out poses after them score), and,
 //! with several series, `cross-series` (the first series' final model carried to every
-//! other series with only the setup re-registered, [`robocal::diagnose::transfer`]).
+//! other series with only the setup re-registered, [`robocal::diagnose::transfer`]; two
+//! more cross-series rows, not counted, carry its physical effects alone and its geometric
+//! fit alone; each is printed again with the joint zero offsets re-fitted as well).
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::fit::{residuals, rms3, State};
-use robocal::diagnose::transfer::refit_setup;
+use robocal::diagnose::transfer::{refit_setup, refit_setup_and_joint_offsets};
 use robocal::diagnose::{self, Options, OVERFIT_GAP};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::PoseObs;
@@ -192,6 +200,7 @@ fn main() -> anyhow::Result<()> {
     let mut max_extrapolation = None;
     let mut pf_max = None;
     let mut why = false;
+    let mut cv_stop = None;
     let mut series: Vec<PathBuf> = Vec::new();
     let mut i = 0;
     while i < args.len() {
@@ -242,6 +251,30 @@ fn main() -> anyhow::Result<()> {
                 );
                 i += 1;
             }
+            "--cv-stop" | "--cv-stop-fold" => {
+                let k_se = args
+                    .get(i + 1)
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .ok_or_else(|| anyhow::anyhow!("{} needs a number", args[i]))?;
+                cv_stop = Some(Some(diagnose::inner_cv::CvStop {
+                    k_se,
+                    by_fold: args[i] == "--cv-stop-fold",
+                    effects_only: true,
+                    forward: false,
+                }));
+                i += 1;
+            }
+            "--no-cv-stop" => cv_stop = Some(None),
+            "--cv-stop-all-params" | "--cv-stop-forward" => {
+                let Some(Some(c)) = cv_stop.as_mut() else {
+                    anyhow::bail!("{} after --cv-stop K or --cv-stop-fold K", args[i]);
+                };
+                if args[i] == "--cv-stop-forward" {
+                    c.forward = true;
+                } else {
+                    c.effects_only = false;
+                }
+            }
             "--why" => why = true,
             "--no-time-blocked" => time_blocked = false,
             a if a.starts_with("--") => {
@@ -263,6 +296,9 @@ fn main() -> anyhow::Result<()> {
             opt.max_effects = n;
         }
     }
+    if let Some(c) = cv_stop {
+        opt.physics_first_stop = c;
+    }
     if series.is_empty() {
         let p = std::env::var_os("ROBOCAL_REAL_DATA")
             .map(PathBuf::from)
@@ -282,7 +318,8 @@ fn main() -> anyhow::Result<()> {
     println!("| series | split | geometric | final | below geometric | train | gap | target met | s | chain |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let (mut n_ok, mut n) = (0, 0);
-    let mut first: Option<State> = None;
+    // The first series' final model, its physical part alone and its geometric fit.
+    let mut first: Option<[(State, &str); 3]> = None;
     for s in &series {
         let name = s
             .file_stem()
@@ -328,27 +365,47 @@ fn main() -> anyhow::Result<()> {
                 secs,
                 &chain(&d),
             ) as usize;
+            if let Some(s) = d
+                .policy_choice
+                .as_ref()
+                .and_then(|c| c.physics_first_stopped.as_ref())
+            {
+                println!("    physics first {s}");
+            }
             if why {
                 explain(&d, &tr, &he, &opt);
             }
             if split == "interleaved" {
                 match &first {
-                    None => first = Some(d.state.clone()),
-                    Some(st) => {
-                        // Cross-series: the first series' model, setup re-registered here.
-                        let carried = refit_setup(st, &train)?;
-                        let t = rms(&carried, &train);
-                        let h = rms(&carried, &held);
-                        n += 1;
-                        n_ok += row(
-                            &name,
-                            "cross-series",
-                            geo,
-                            h,
-                            t,
-                            0.0,
-                            "first series' model, setup re-registered",
-                        ) as usize;
+                    None => {
+                        let mut phys = d.state.clone();
+                        phys.effects.retain(|e| {
+                            !matches!(e.block, diagnose::effects::Block::Nonparametric(_))
+                        });
+                        first = Some([
+                            (d.state.clone(), "first series' model, setup re-registered"),
+                            (phys, "its physical effects only (no correction)"),
+                            (d.geometric.clone(), "its geometric fit only"),
+                        ]);
+                    }
+                    Some(models) => {
+                        // Cross-series: the first series' model, setup re-registered here
+                        // (the target counts the whole model; the other two rows say which
+                        // part carries over).
+                        for (k, (st, what)) in models.iter().enumerate() {
+                            let carried = refit_setup(st, &train)?;
+                            let t = rms(&carried, &train);
+                            let h = rms(&carried, &held);
+                            let ok = row(&name, "cross-series", geo, h, t, 0.0, what);
+                            if k == 0 {
+                                n += 1;
+                                n_ok += ok as usize;
+                            }
+                            let carried = refit_setup_and_joint_offsets(st, &train)?;
+                            let (t, h) = (rms(&carried, &train), rms(&carried, &held));
+                            let what = format!("{what}; joint zero offsets re-fitted too");
+                            row(&name, "cross-series", geo, h, t, 0.0, &what);
+                        }
                     }
                 }
             }

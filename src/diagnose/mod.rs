@@ -28,6 +28,7 @@ pub mod error;
 pub mod extrapolation;
 pub mod fit;
 pub mod foldchol;
+pub mod inner_cv;
 pub mod nonparam;
 pub mod plot;
 pub mod stage;
@@ -84,6 +85,11 @@ pub struct Options {
     pub policy: Policy,
     /// Under [`Policy::Best`]: at most this many physical effects in the physics-first chain.
     pub physics_first_max_effects: usize,
+    /// The physics-first chain (under [`Policy::Best`], or the single chain of a policy
+    /// without the kernel-benchmark rule) also stops when the next effect no longer lowers
+    /// the time-blocked CV error of the training poses by more than its standard error
+    /// ([`inner_cv`]); `None`: only the cap stops it.
+    pub physics_first_stop: Option<inner_cv::CvStop>,
     /// Under [`Policy::Best`]: the physics-first chain is kept only when its time-blocked CV
     /// RMS is at least this fraction below the kernel-benchmark chain's.
     pub policy_margin: f64,
@@ -160,6 +166,7 @@ impl Default for Options {
             ripple_harmonics: RIPPLE_HARMONICS.collect(),
             policy: Policy::Best,
             physics_first_max_effects: 6,
+            physics_first_stop: None,
             policy_margin: 0.05,
             correction_max_gap: 0.10,
             max_extrapolation: MAX_EXTRAPOLATION,
@@ -258,8 +265,13 @@ impl Diagnosis {
         } else {
             c.other_chain.join(", ")
         };
+        let stop = c
+            .physics_first_stopped
+            .as_ref()
+            .map(|s| format!("; the physics-first chain {s}"))
+            .unwrap_or_default();
         Some(format!(
-            "policy: kept the {} chain (time-blocked CV RMS on the training poses: kernel benchmark {:.4} mm, physics first {:.4} mm; physics first is kept when ≥ {:.0} % lower); the other chain was: {other}",
+            "policy: kept the {} chain (time-blocked CV RMS on the training poses: kernel benchmark {:.4} mm, physics first {:.4} mm; physics first is kept when ≥ {:.0} % lower); the other chain was: {other}{stop}",
             c.chosen,
             c.cv_rms_kernel_benchmark,
             c.cv_rms_physics_first,
@@ -803,6 +815,8 @@ struct Chain {
     /// Effects left out because their prediction grows outside the training poses (one
     /// sentence each, for the warnings).
     extrapolating: Vec<String>,
+    /// Why the chain stopped before its cap, when the inner CV stopped it ([`inner_cv`]).
+    stopped: Option<String>,
 }
 
 /// Select effects one at a time from `start` under the rules of `opt` (see the module doc).
@@ -825,6 +839,20 @@ fn select_chain(
     // The kernel benchmark only matters to the rule that uses it.
     let use_np = opt.min_np_ratio > 0.0;
     let mut extrapolating = Vec::new();
+    // The held-out-free stop of a chain without the kernel-benchmark rule ([`inner_cv`]).
+    let stop = opt.physics_first_stop.filter(|_| !use_np);
+    let cv_folds = folds(train, opt.n_folds);
+    let mut cv_prev = stop.map(|s| {
+        inner_cv::pose_cv_of(
+            &state,
+            train,
+            &cv_folds,
+            opt.n_folds,
+            s.effects_only,
+            s.forward,
+        )
+    });
+    let mut stopped = None;
     // Each pass accepts an effect, leaves one out (its group dropped) or stops.
     while steps.len() < opt.max_effects {
         let t_round = std::time::Instant::now();
@@ -916,6 +944,32 @@ fn select_chain(
                 continue;
             }
         }
+        if let (Some(rule), Some(prev)) = (stop, cv_prev.as_ref()) {
+            let now = inner_cv::pose_cv_of(
+                &state,
+                train,
+                &cv_folds,
+                opt.n_folds,
+                rule.effects_only,
+                rule.forward,
+            );
+            let (keep, g, se) = inner_cv::keeps(prev, &now, &rule);
+            tracing::debug!(
+                "{}: inner CV RMS {:.4} -> {:.4} mm, gain {g:.3e} mm² (standard error {se:.3e})",
+                best.label,
+                prev.rms(),
+                now.rms()
+            );
+            if !keep {
+                stopped = Some(format!(
+                    "stopped before {}: refitted, it lowers the time-blocked CV error of the training poses by {g:.2e} mm² per pose, not more than {} standard error(s) ({se:.2e})",
+                    best.label, rule.k_se
+                ));
+                state = before_state;
+                break;
+            }
+            cv_prev = Some(now);
+        }
         let effect = state.effects.last().cloned().expect("just pushed");
         steps.push(Step {
             effect,
@@ -956,6 +1010,7 @@ fn select_chain(
         cv_rms,
         pending: None,
         extrapolating,
+        stopped,
     }
 }
 
@@ -1066,6 +1121,8 @@ pub struct PolicyChoice {
     pub margin: f64,
     /// Effects of the chain that was not kept.
     pub other_chain: Vec<String>,
+    /// Why the physics-first chain stopped before its cap ([`inner_cv`]), when it did.
+    pub physics_first_stopped: Option<String>,
 }
 
 /// Run the whole diagnosis. `model` is the nominal model (its free flags are used for the
@@ -1159,6 +1216,7 @@ pub fn diagnose(
                 cv_rms_physics_first: pf.cv_rms,
                 margin: opt.policy_margin,
                 other_chain: Vec::new(),
+                physics_first_stopped: pf.stopped.clone(),
             };
             let (keep, other) = if use_pf { (pf, kb) } else { (kb, pf) };
             choice.other_chain = label(&other);

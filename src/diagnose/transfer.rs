@@ -57,6 +57,17 @@ impl LsqProblem for SetupProblem<'_> {
 /// poses); everything else as identified. The free flags of the returned model are those of
 /// `state`.
 pub fn refit_setup(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
+    refit(state, obs, false)
+}
+
+/// [`refit_setup`] with the joint zero offsets (`phi*`, those free in `state`) re-fitted
+/// too: what carries over when the arm was re-homed between the two setups (every other
+/// joint parameter and every effect as identified).
+pub fn refit_setup_and_joint_offsets(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
+    refit(state, obs, true)
+}
+
+fn refit(state: &State, obs: &[PoseObs], offsets: bool) -> Result<State, FitError> {
     if obs.len() < 6 {
         return Err(FitError::TooFewPoses {
             what: "re-registering a setup needs",
@@ -89,7 +100,13 @@ pub fn refit_setup(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
         .model
         .params()
         .iter()
-        .map(|p| (p.name.clone(), is_setup(p.group, &p.name)))
+        .map(|p| {
+            let offset = offsets
+                && p.free
+                && matches!(p.group, ParamGroup::Joint(_))
+                && p.name.starts_with("phi");
+            (p.name.clone(), offset || is_setup(p.group, &p.name))
+        })
         .collect();
     for (n, f) in &setup {
         st.model.set_free(n, *f)?;
@@ -173,5 +190,34 @@ mod tests {
         assert_eq!(st.model.param("phi2"), truth.param("phi2"));
         assert_eq!(st.model.param("a3"), truth.param("a3"));
         assert!(refit_setup(&state, &obs[..5]).is_err());
+        // Re-homed: joint 3's zero moved 0.05°. Setup alone leaves it; with the offsets the
+        // poses are predicted again, and the link lengths stay as identified.
+        let mut rehomed = moved.clone();
+        let phi3 = rehomed.param("phi3").unwrap();
+        rehomed
+            .set_param("phi3", phi3 + 0.05f64.to_radians())
+            .unwrap();
+        let obs: Vec<PoseObs> = obs
+            .iter()
+            .map(|o| {
+                PoseObs::at(
+                    o.ctx.id,
+                    o.ctx.t,
+                    o.ctx.q.clone(),
+                    rehomed.measured_point(&o.ctx.q),
+                )
+            })
+            .collect();
+        let setup_only = rms3(&residuals(&refit_setup(&state, &obs).unwrap(), &obs));
+        let st = refit_setup_and_joint_offsets(&state, &obs).unwrap();
+        let with_offsets = rms3(&residuals(&st, &obs));
+        assert!(setup_only > 0.05, "setup alone: {setup_only} mm");
+        assert!(with_offsets < 1e-3, "with the offsets: {with_offsets} mm");
+        let dphi3 = st.model.param("phi3").unwrap() - phi3;
+        assert!(
+            (dphi3 - 0.05f64.to_radians()).abs() < 1e-5,
+            "phi3 moved {dphi3} rad"
+        );
+        assert_eq!(st.model.param("a3"), truth.param("a3"));
     }
 }
