@@ -28,6 +28,7 @@ pub mod error;
 pub mod extrapolation;
 pub mod fit;
 pub mod foldchol;
+pub mod heap;
 pub mod nonparam;
 pub mod plot;
 pub mod stage;
