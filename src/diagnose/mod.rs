@@ -1116,19 +1116,26 @@ pub fn diagnose(
     let geometric = state.clone();
     let train_rms_geometric = rms3(&residuals(&geometric, train));
     let (mut cands, untestable) = candidates_with(&state.model, train, opt);
-    prune_mass_points(&geometric, train, &mut cands);
     // Hyper-parameters of the kernel benchmark, chosen once on the geometric residual (only
-    // the kernel-benchmark rule uses them).
-    let np_cv = if train.len() >= 40 && opt.min_np_ratio > 0.0 {
-        let (qs, rv) = np_data(&state, train);
-        nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
-    } else {
-        None
-    };
+    // the kernel-benchmark rule uses them); independent of the candidates' pruning and
+    // first round, so computed beside them.
+    let (np_cv, round0) = rayon::join(
+        || {
+            (train.len() >= 40 && opt.min_np_ratio > 0.0)
+                .then(|| {
+                    let (qs, rv) = np_data(&state, train);
+                    nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
+                })
+                .flatten()
+        },
+        || {
+            prune_mass_points(&geometric, train, &mut cands);
+            // Both chains of [`Policy::Best`] start with the same round: score it once.
+            (opt.policy == Policy::Best && opt.max_effects > 0)
+                .then(|| score_round(&geometric, train, &cands, opt))
+        },
+    );
     let np_hp = np_cv.as_ref().map(|c| (c.length_scale, c.lambda));
-    // Both chains of [`Policy::Best`] start with the same round: score it once.
-    let round0 = (opt.policy == Policy::Best && opt.max_effects > 0)
-        .then(|| score_round(&geometric, train, &cands, opt));
     let single = |o: &Options| {
         let mut c = select_chain(
             &geometric,
