@@ -4,8 +4,8 @@
 //! systems and factors (35 MB each at 2,080 poses) and every round's candidate Jacobian. Above
 //! glibc's mmap threshold (at most 32 MB by default) each one is a fresh mapping whose
 //! pages the kernel faults in and zeroes, and which is unmapped again on free. Keeping freed
-//! blocks in the heap for reuse halves the system time of a 2,080-pose diagnosis (real UR10
-//! Series C: 1.7–2.2 → 0.8–0.9 s system, peak memory +100 MB; `docs/findings.md`).
+//! blocks in the heap for reuse cuts the system time of a 2,080-pose diagnosis (real UR10
+//! Series C: 1.9–2.4 → 0.5–0.7 s system, peak memory +60–110 MB; `docs/findings.md`).
 
 /// Raise glibc's mmap and trim thresholds (to 1 GiB; 32 MiB where glibc refuses that) so
 /// that freed large blocks stay in the heap. Process-wide, set once; nothing off glibc.
