@@ -66,11 +66,15 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
     (r, j)
 }
 
-/// Residuals only.
+/// Residuals only (the poses' predictions in parallel, written in order).
 pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
+    use rayon::prelude::*;
+    let pred: Vec<_> = obs
+        .par_iter()
+        .map(|o| crate::diagnose::effects::apply_effects(&state.model, &state.effects, &o.ctx))
+        .collect();
     let mut r = DVector::zeros(3 * obs.len());
-    for (k, o) in obs.iter().enumerate() {
-        let p = crate::diagnose::effects::apply_effects(&state.model, &state.effects, &o.ctx);
+    for (k, (o, p)) in obs.iter().zip(pred).enumerate() {
         let d = o.p - p;
         for a in 0..3 {
             r[3 * k + a] = d[a];

@@ -28,6 +28,7 @@ pub mod error;
 pub mod extrapolation;
 pub mod fit;
 pub mod foldchol;
+pub mod heap;
 pub mod inner_cv;
 pub mod nonparam;
 pub mod plot;
@@ -470,7 +471,6 @@ pub fn score_round(
     // coefficients (which leaves the prediction and the other columns unchanged).
     let all: Vec<Block> = cands.iter().flatten().cloned().collect();
     let mut cols = candidate_columns(state, train, &all).into_iter();
-    let mut out = Vec::new();
     let eval_block = |b: &Block, g: DMatrix<f64>, tests: usize| -> Option<(Score, DMatrix<f64>)> {
         if g.iter().all(|v| v.abs() < 1e-15) {
             return None;
@@ -506,7 +506,15 @@ pub fn score_round(
     };
     let mut times: Vec<f64> = train.iter().map(|o| o.ctx.t).collect();
     times.sort_by(|a, b| a.total_cmp(b));
-    for group in cands {
+    // Every group is scored on its own (its best block, change-point refinement, CV gain):
+    // the groups in parallel and each group's blocks in parallel, then taken in order (the
+    // same numbers and the same choices as one at a time).
+    use rayon::prelude::*;
+    let group_cols: Vec<Vec<DMatrix<f64>>> = cands
+        .iter()
+        .map(|g| cols.by_ref().take(g.len()).collect())
+        .collect();
+    let score_group = |group: &Vec<Block>, gcols: Vec<DMatrix<f64>>| -> Option<Score> {
         let mut best: Option<(Score, DMatrix<f64>)> = None;
         let consider = |cand: Option<(Score, DMatrix<f64>)>,
                         best: &mut Option<(Score, DMatrix<f64>)>| {
@@ -519,10 +527,13 @@ pub fn score_round(
                 }
             }
         };
-        for b in group {
-            if let Some(g) = cols.next() {
-                consider(eval_block(b, g, group.len()), &mut best);
-            }
+        let scored: Vec<_> = group
+            .par_iter()
+            .zip(gcols)
+            .map(|(b, g)| eval_block(b, g, group.len()))
+            .collect();
+        for c in scored {
+            consider(c, &mut best);
         }
         // Refine a change point between its coarse neighbours: every mid-point between two
         // consecutive poses (each one counts as a test).
@@ -568,7 +579,6 @@ pub fn score_round(
             // within k of the best (each mid-point still counts as a test).
             let sc = changepoint::ShiftColumns::new(state, train);
             let score = |idx: &[usize], best: &mut Option<(Score, DMatrix<f64>)>| {
-                use rayon::prelude::*;
                 for chunk in idx.chunks(64) {
                     let scored: Vec<_> = chunk
                         .par_iter()
@@ -604,12 +614,17 @@ pub fn score_round(
                 s.tests = tests;
             }
         }
-        if let Some((mut s, g)) = best {
+        best.map(|(mut s, g)| {
             let cv1 = cvb.rms(&j, &g, &r);
             s.cv_gain = 1.0 - cv1 / cv0;
-            out.push(s);
-        }
-    }
+            s
+        })
+    };
+    let mut out: Vec<Score> = cands
+        .par_iter()
+        .zip(group_cols)
+        .filter_map(|(group, gcols)| score_group(group, gcols))
+        .collect();
     out.sort_by(|a, b| b.delta_bic.total_cmp(&a.delta_bic));
     out
 }
@@ -1158,19 +1173,26 @@ pub fn diagnose(
     let geometric = state.clone();
     let train_rms_geometric = rms3(&residuals(&geometric, train));
     let (mut cands, untestable) = candidates_with(&state.model, train, opt);
-    prune_mass_points(&geometric, train, &mut cands);
     // Hyper-parameters of the kernel benchmark, chosen once on the geometric residual (only
-    // the kernel-benchmark rule uses them).
-    let np_cv = if train.len() >= 40 && opt.min_np_ratio > 0.0 {
-        let (qs, rv) = np_data(&state, train);
-        nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
-    } else {
-        None
-    };
+    // the kernel-benchmark rule uses them); independent of the candidates' pruning and
+    // first round, so computed beside them.
+    let (np_cv, round0) = rayon::join(
+        || {
+            (train.len() >= 40 && opt.min_np_ratio > 0.0)
+                .then(|| {
+                    let (qs, rv) = np_data(&state, train);
+                    nonparam::cross_validate(&qs, &rv, &folds(train, opt.n_folds), opt.n_folds)
+                })
+                .flatten()
+        },
+        || {
+            prune_mass_points(&geometric, train, &mut cands);
+            // Both chains of [`Policy::Best`] start with the same round: score it once.
+            (opt.policy == Policy::Best && opt.max_effects > 0)
+                .then(|| score_round(&geometric, train, &cands, opt))
+        },
+    );
     let np_hp = np_cv.as_ref().map(|c| (c.length_scale, c.lambda));
-    // Both chains of [`Policy::Best`] start with the same round: score it once.
-    let round0 = (opt.policy == Policy::Best && opt.max_effects > 0)
-        .then(|| score_round(&geometric, train, &cands, opt));
     let single = |o: &Options| {
         let mut c = select_chain(
             &geometric,

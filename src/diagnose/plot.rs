@@ -34,38 +34,40 @@ pub fn partial_residual(
         .block
         .joint()
         .filter(|_| !matches!(e.block, Block::LinkDeflection(_)));
-    let mut pts = Vec::with_capacity(obs.len());
-    for o in obs {
-        let full = apply_effects(&state.model, &state.effects, &o.ctx);
-        let without = apply_effects(&state.model, &others, &o.ctx);
-        let g: Vector3<f64> = full - without;
-        let r = o.p - full;
-        let pr = r + g;
-        match joint {
-            Some(j) => {
-                let (_, jm) = state.model.point_param_jacobian(&o.ctx.q);
-                let Some(ip) = state.model.param_index(&format!("phi{j}")) else {
-                    continue;
-                };
-                let c = jm.column(ip).into_owned();
-                let n2 = c.norm_squared();
-                if n2 < 1e-9 {
-                    continue;
+    // Every pose on its own (two predictions with the correction's kernel sums each): in
+    // parallel, collected in pose order.
+    use rayon::prelude::*;
+    let pts: Vec<(f64, f64)> = obs
+        .par_iter()
+        .filter_map(|o| {
+            let full = apply_effects(&state.model, &state.effects, &o.ctx);
+            let without = apply_effects(&state.model, &others, &o.ctx);
+            let g: Vector3<f64> = full - without;
+            let r = o.p - full;
+            let pr = r + g;
+            match joint {
+                Some(j) => {
+                    let (_, jm) = state.model.point_param_jacobian(&o.ctx.q);
+                    let ip = state.model.param_index(&format!("phi{j}"))?;
+                    let c = jm.column(ip).into_owned();
+                    let n2 = c.norm_squared();
+                    if n2 < 1e-9 {
+                        return None;
+                    }
+                    let x = g.dot(&c) / n2;
+                    let y = pr.dot(&c) / n2;
+                    Some((x.to_degrees() * 1e3, y.to_degrees() * 1e3))
                 }
-                let x = g.dot(&c) / n2;
-                let y = pr.dot(&c) / n2;
-                pts.push((x.to_degrees() * 1e3, y.to_degrees() * 1e3));
-            }
-            None => {
-                let n = g.norm();
-                if n < 1e-12 {
-                    pts.push((0.0, 0.0));
-                    continue;
+                None => {
+                    let n = g.norm();
+                    if n < 1e-12 {
+                        return Some((0.0, 0.0));
+                    }
+                    Some((n, pr.dot(&(g / n))))
                 }
-                pts.push((n, pr.dot(&(g / n))));
             }
-        }
-    }
+        })
+        .collect();
     let (xl, yl) = match joint {
         Some(j) => (
             format!("{} correction of joint {j} (mdeg)", e.block.kind()),

@@ -57,6 +57,7 @@ pub fn run_loaded(
     if main.dataset.header.camera().ok().flatten().is_some() {
         return super::camera_stage::run(&args.data, args.heldout.as_deref(), &args.out);
     }
+    super::heap::keep_large_blocks();
     // Bad input is refused at the boundary: strict reader + plausibility.
     let ds = &main.dataset;
     crate::plausible::check_dataset(ds, &args.data)?;

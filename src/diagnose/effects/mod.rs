@@ -575,10 +575,21 @@ impl Effect {
     }
 }
 
+/// Whether `e` leaves every prediction exactly as it is: coefficients present and all
+/// zero (a candidate appended at zero to take its columns). Its joint offsets (`d + 0·f`),
+/// frame change (`v + 0`, growth `1 + 0·x`) and displacement (`p + 0`) change no bit of a
+/// finite prediction, so [`joint_offsets`], [`pose_model`] and [`point_displacement`] skip
+/// it; its columns are still computed. (A round's ~1,000 candidates otherwise cost their
+/// features, a model copy per base shift and two forward kinematics per link deflection at
+/// every pose, for nothing.)
+fn inert(e: &Effect) -> bool {
+    !e.coefs.is_empty() && e.coefs.iter().all(|&c| c == 0.0)
+}
+
 /// `δθ` (rad, per joint) of all joint-angle effects at one pose.
 pub fn joint_offsets(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Vec<f64> {
     let mut d = vec![0.0; model.dof()];
-    for e in effects {
+    for e in effects.iter().filter(|e| !inert(e)) {
         for (j, c, f) in e.block.joint_features(model, ctx) {
             if let Some(v) = e.coefs.get(c) {
                 d[j] += v * f;
@@ -596,7 +607,7 @@ pub fn pose_model<'a>(
     ctx: &PoseCtx,
 ) -> Cow<'a, KinematicModel> {
     let mut out: Cow<KinematicModel> = Cow::Borrowed(model);
-    for e in effects {
+    for e in effects.iter().filter(|e| !inert(e)) {
         e.block.apply_frame(&e.coefs, &mut out, ctx);
     }
     out
@@ -610,7 +621,7 @@ pub fn point_displacement(
     ctx: &PoseCtx,
 ) -> Vector3<f64> {
     let mut d = Vector3::zeros();
-    for e in effects {
+    for e in effects.iter().filter(|e| !inert(e)) {
         if let Some(v) = e.block.point_displacement(model, &e.coefs, ctx) {
             d += v;
         }
