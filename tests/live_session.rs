@@ -64,6 +64,30 @@ const HOSPITAL_TRACKER: &str = "tools = [\"tools/flange-marker.rom\"]\n\
     marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }\n\
     volume = \"polaris-pyramid\"";
 
+/// The arguments of a live session on device file `file` into `out`: 20 training poses, 40
+/// held-out points, 3 frames a pose, 120 °/s, judged by `accept`, no fleet history.
+fn live_args<'a>(file: &'a Path, out: &'a Path, accept: &'a Path) -> Vec<&'a str> {
+    vec![
+        "session",
+        "--devices",
+        p(file),
+        "--live",
+        "--out",
+        p(out),
+        "--poses",
+        "20",
+        "--heldout-points",
+        "40",
+        "--frames",
+        "3",
+        "--speed-deg-s",
+        "120",
+        "--accept",
+        p(accept),
+        "--no-history",
+    ]
+}
+
 fn pose_lines(journal: &Path) -> usize {
     std::fs::read_to_string(journal)
         .map(|t| t.lines().filter(|l| l.contains("\"pose\"")).count())
@@ -80,25 +104,7 @@ fn live_session_consent_after_plan_interrupt_and_resume() {
     let file = cell(tmp.path(), &bcap, &ndi, HOSPITAL_TRACKER);
     let out = tmp.path().join("session");
     let accept = root().join("accept/research.toml");
-    let start = [
-        "session",
-        "--devices",
-        p(&file),
-        "--live",
-        "--out",
-        p(&out),
-        "--poses",
-        "20",
-        "--heldout-points",
-        "40",
-        "--frames",
-        "3",
-        "--speed-deg-s",
-        "120",
-        "--accept",
-        p(&accept),
-        "--no-history",
-    ];
+    let start = live_args(&file, &out, &accept);
     // 1. No --yes and no terminal: the plan is made and shown, then consent is refused;
     //    nothing is acquired.
     let (code, stdout, stderr) = run(&start);
@@ -394,25 +400,7 @@ fn misplaced_tracker_cell(dir: &Path) -> (SimServe, PathBuf) {
 /// `robocal session --live` on `file` into `out` (20 poses, 40 held-out points), then `extra`.
 fn survey_session(file: &Path, out: &Path, extra: &[&str]) -> (Option<i32>, String, String) {
     let accept = root().join("accept/research.toml");
-    let mut v = vec![
-        "session",
-        "--devices",
-        p(file),
-        "--live",
-        "--out",
-        p(out),
-        "--poses",
-        "20",
-        "--heldout-points",
-        "40",
-        "--frames",
-        "3",
-        "--speed-deg-s",
-        "120",
-        "--accept",
-        p(&accept),
-        "--no-history",
-    ];
+    let mut v = live_args(file, out, &accept);
     v.extend_from_slice(extra);
     run(&v)
 }
