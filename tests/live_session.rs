@@ -64,6 +64,30 @@ const HOSPITAL_TRACKER: &str = "tools = [\"tools/flange-marker.rom\"]\n\
     marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }\n\
     volume = \"polaris-pyramid\"";
 
+/// The arguments of a live session on device file `file` into `out`: 20 training poses, 40
+/// held-out points, 3 frames a pose, 120 °/s, judged by `accept`, no fleet history.
+fn live_args<'a>(file: &'a Path, out: &'a Path, accept: &'a Path) -> Vec<&'a str> {
+    vec![
+        "session",
+        "--devices",
+        p(file),
+        "--live",
+        "--out",
+        p(out),
+        "--poses",
+        "20",
+        "--heldout-points",
+        "40",
+        "--frames",
+        "3",
+        "--speed-deg-s",
+        "120",
+        "--accept",
+        p(accept),
+        "--no-history",
+    ]
+}
+
 fn pose_lines(journal: &Path) -> usize {
     std::fs::read_to_string(journal)
         .map(|t| t.lines().filter(|l| l.contains("\"pose\"")).count())
@@ -80,25 +104,7 @@ fn live_session_consent_after_plan_interrupt_and_resume() {
     let file = cell(tmp.path(), &bcap, &ndi, HOSPITAL_TRACKER);
     let out = tmp.path().join("session");
     let accept = root().join("accept/research.toml");
-    let start = [
-        "session",
-        "--devices",
-        p(&file),
-        "--live",
-        "--out",
-        p(&out),
-        "--poses",
-        "20",
-        "--heldout-points",
-        "40",
-        "--frames",
-        "3",
-        "--speed-deg-s",
-        "120",
-        "--accept",
-        p(&accept),
-        "--no-history",
-    ];
+    let start = live_args(&file, &out, &accept);
     // 1. No --yes and no terminal: the plan is made and shown, then consent is refused;
     //    nothing is acquired.
     let (code, stdout, stderr) = run(&start);
@@ -376,57 +382,39 @@ fn probe_names_http_on_the_bcap_port() {
     );
 }
 
-/// `--survey` (issue 28 §1): a device file whose tracker pose is wrong by ~310 mm / 20°.
-/// Without the survey the plan puts poses where the tracker does not see the marker and the
-/// acquisition stops early on the accept spec's skipped fraction; with it, a few probe poses
-/// (shown and confirmed like the plan) locate the tracker and the marker, the plan uses the
-/// surveyed pose, and the session ends with a verdict and few poses skipped.
-#[test]
-fn live_survey_locates_a_misplaced_tracker() {
+/// `--survey` (issue 28 §1): the hospital cell served by `robocal sim serve`, with a device file
+/// whose tracker pose is wrong by ~310 mm / 20° (the scenario's tracker stands at
+/// (1700, 80, 650) mm, rpy (180, -80, 0)°).
+fn misplaced_tracker_cell(dir: &Path) -> (SimServe, PathBuf) {
     let serve = SimServe::start(&root().join("mocks/scenarios/hospital-vs060-vega.toml"));
     let bcap = serve.endpoint("bcap", "addr").expect("bcap endpoint");
     let ndi = serve.endpoint("ndi-tcp", "addr").expect("ndi-tcp endpoint");
-    let tmp = tempfile::tempdir().unwrap();
-    // The scenario's tracker stands at (1700, 80, 650) mm, rpy (180, -80, 0)°.
     let wrong = "tools = [\"tools/flange-marker.rom\"]\n\
         tracker_in_base = { xyz_mm = [1480.0, 280.0, 560.0], rpy_deg = [180.0, -100.0, 0.0] }\n\
         marker_on_flange = { xyz_mm = [25.0, -10.0, 110.0], rpy_deg = [0.0, 0.0, 30.0] }\n\
         volume = \"polaris-pyramid\"";
-    let file = cell(tmp.path(), &bcap, &ndi, wrong);
+    let file = cell(dir, &bcap, &ndi, wrong);
+    (serve, file)
+}
+
+/// `robocal session --live` on `file` into `out` (20 poses, 40 held-out points), then `extra`.
+fn survey_session(file: &Path, out: &Path, extra: &[&str]) -> (Option<i32>, String, String) {
     let accept = root().join("accept/research.toml");
-    let args = |out: &Path, extra: &[&str]| -> Vec<String> {
-        let mut v: Vec<String> = [
-            "session",
-            "--devices",
-            p(&file),
-            "--live",
-            "--out",
-            p(out),
-            "--poses",
-            "20",
-            "--heldout-points",
-            "40",
-            "--frames",
-            "3",
-            "--speed-deg-s",
-            "120",
-            "--accept",
-            p(&accept),
-            "--no-history",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-        v.extend(extra.iter().map(|s| s.to_string()));
-        v
-    };
-    let run_v = |v: Vec<String>| {
-        let r: Vec<&str> = v.iter().map(String::as_str).collect();
-        run(&r)
-    };
-    // 1. Without the survey: poses skipped, the acquisition stops early.
+    let mut v = live_args(file, out, &accept);
+    v.extend_from_slice(extra);
+    run(&v)
+}
+
+/// Without the survey the plan puts poses where the tracker does not see the marker and the
+/// acquisition stops early on the accept spec's skipped fraction. (A test of its own, on its own
+/// simulator, so that it runs beside [`live_survey_locates_a_misplaced_tracker`]: both wait on
+/// the real clock.)
+#[test]
+fn live_survey_absent_stops_early_on_a_misplaced_tracker() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (serve, file) = misplaced_tracker_cell(tmp.path());
     let plain = tmp.path().join("plain");
-    let (code, stdout, stderr) = run_v(args(&plain, &["--yes"]));
+    let (code, stdout, stderr) = survey_session(&file, &plain, &["--yes"]);
     println!("without --survey: {code:?}\n{stdout}\n{stderr}");
     assert_eq!(code, Some(1), "{stderr}");
     assert!(stderr.contains("stopped early"), "{stderr}");
@@ -440,9 +428,19 @@ fn live_survey_locates_a_misplaced_tracker() {
     );
     println!("without --survey: {recorded} recorded, {skipped} skipped before the early stop");
     assert!(skipped >= 2, "{summary}");
-    // 2. With the survey, no --yes and no terminal: the probe poses are shown, nothing moves.
+    drop(serve);
+}
+
+/// With the survey, a few probe poses (shown and confirmed like the plan) locate the tracker
+/// and the marker, the plan uses the surveyed pose, and the session ends with a verdict and few
+/// poses skipped.
+#[test]
+fn live_survey_locates_a_misplaced_tracker() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (serve, file) = misplaced_tracker_cell(tmp.path());
+    // 1. With the survey, no --yes and no terminal: the probe poses are shown, nothing moves.
     let out = tmp.path().join("survey");
-    let (code, _, stderr) = run_v(args(&out, &["--survey"]));
+    let (code, _, stderr) = survey_session(&file, &out, &["--survey"]);
     assert_eq!(code, Some(1), "{stderr}");
     assert!(stderr.contains("confirmation needed"), "{stderr}");
     assert!(stderr.contains("first a survey"), "{stderr}");
@@ -453,7 +451,7 @@ fn live_survey_locates_a_misplaced_tracker() {
         !out.join("plan/train.json").exists(),
         "planned before the survey"
     );
-    // 3. Resume with consent: survey, then the plan from the surveyed pose (shown again
+    // 2. Resume with consent: survey, then the plan from the surveyed pose (shown again
     //    before it moves), acquisition, verdict.
     let (code, stdout, stderr) = run(&[
         "session",

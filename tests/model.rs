@@ -837,6 +837,18 @@ proptest! {
 
 // ---------------------------------------------------------------- performance
 
+/// The CPU time this thread has used (`CLOCK_THREAD_CPUTIME_ID`).
+fn thread_cpu_time() -> std::time::Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant the kernel knows.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID)");
+    std::time::Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
 #[test]
 fn point_param_jacobian_is_fast() {
     // identification evaluates 500 poses × many iterations; one pass over 500 poses must be
@@ -845,13 +857,15 @@ fn point_param_jacobian_is_fast() {
     let mut s = 5u64;
     let qs: Vec<Vec<f64>> = (0..500).map(|_| random_q(&m, &mut s)).collect();
     let mut buf = nalgebra::Matrix3xX::zeros(m.params().len());
-    let t0 = std::time::Instant::now();
+    // This thread's CPU time, not the wall clock: the budget is the work's, and a test binary
+    // running other tests beside this one (or a loaded machine) must not make it fail.
+    let t0 = thread_cpu_time();
     let mut acc = 0.0;
     for q in &qs {
         acc += m.point_param_jacobian_into(q, &mut buf).unwrap().x;
     }
-    let dt = t0.elapsed();
-    println!("500 point_param_jacobian evaluations: {dt:?}");
+    let dt = thread_cpu_time() - t0;
+    println!("500 point_param_jacobian evaluations: {dt:?} of CPU");
     assert!(acc.is_finite());
     assert!(dt.as_millis() < 20, "500 point Jacobians took {dt:?}");
 }
