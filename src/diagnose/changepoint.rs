@@ -107,9 +107,7 @@ mod tests {
         let train: Vec<PoseObs> = (0..60)
             .map(|k| {
                 let f = k as f64;
-                let q: Vec<f64> = (0..6)
-                    .map(|i| 1.1 * ((f + 1.0) * (i as f64 + 1.7)).sin())
-                    .collect();
+                let q = crate::diagnose::test_joints(f, 1.1, 1.7);
                 // times out of order: every 7th pose late
                 let t = if k % 7 == 3 { 500.0 + f } else { 10.0 * f };
                 PoseObs::at(k, t, q.clone(), model.measured_point(&q))

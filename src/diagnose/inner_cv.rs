@@ -211,9 +211,7 @@ mod tests {
         let obs = (0..300u64)
             .map(|k| {
                 let f = k as f64;
-                let q: Vec<f64> = (0..6)
-                    .map(|i| 1.2 * ((f + 1.0) * (i as f64 + 1.3)).sin())
-                    .collect();
+                let q = crate::diagnose::test_joints(f, 1.2, 1.3);
                 let mut qt = q.clone();
                 qt[1] += 3e-4 * (17.0 * q[1]).sin();
                 let mut p = model.measured_point(&qt);

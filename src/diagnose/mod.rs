@@ -36,6 +36,15 @@ pub mod stage;
 pub mod transfer;
 pub use crate::solve::inference as stats;
 
+/// Six joint angles (rad) of synthetic test pose `f` (`amp · sin((f + 1)(i + phase))` for joint
+/// `i`): the unit tests' spread of poses.
+#[cfg(test)]
+pub(crate) fn test_joints(f: f64, amp: f64, phase: f64) -> Vec<f64> {
+    (0..6)
+        .map(|i| amp * ((f + 1.0) * (i as f64 + phase)).sin())
+        .collect()
+}
+
 use crate::solve::obs::PoseObs;
 use effects::{Block, Driver, Effect, EffectModel};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
@@ -1680,9 +1689,7 @@ mod tests {
         let obs: Vec<PoseObs> = (0..12)
             .map(|k| {
                 let f = k as f64;
-                let q: Vec<f64> = (0..6)
-                    .map(|i| 0.7 * ((f + 1.0) * (i as f64 + 1.3)).sin())
-                    .collect();
+                let q = test_joints(f, 0.7, 1.3);
                 let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
                 o.ctx.approach = (0..6)
                     .map(|i| {
@@ -1755,9 +1762,7 @@ mod tests {
         let mut noise = lcg_noise(11, 0.01);
         let mut pose = |k: u64| {
             let f = k as f64;
-            let q: Vec<f64> = (0..6)
-                .map(|i| 0.9 * ((f + 1.0) * (i as f64 + 1.7)).sin())
-                .collect();
+            let q = test_joints(f, 0.9, 1.7);
             let mut o = PoseObs::at(k, 30.0 * f, q, Point3::origin());
             o.ctx.approach = (0..6)
                 .map(|i| {
@@ -1851,9 +1856,7 @@ mod tests {
         let mut noise = lcg_noise(5, 0.01);
         let mut pose = |k: u64| {
             let f = k as f64;
-            let q: Vec<f64> = (0..6)
-                .map(|i| 3.0 * ((f + 1.0) * (i as f64 + 1.37)).sin())
-                .collect();
+            let q = test_joints(f, 3.0, 1.37);
             let mut o = PoseObs::at(k, 20.0 * f, q, Point3::origin());
             o.p = effects::apply_effects(&model, &truth, &o.ctx)
                 + Vector3::new(noise(), noise(), noise());
@@ -1907,9 +1910,7 @@ mod tests {
         let mut noise = lcg_noise(7, 0.02);
         let mut pose = |id: u64, t: f64| {
             let f = id as f64;
-            let q: Vec<f64> = (0..6)
-                .map(|i| 0.9 * ((f + 1.0) * (i as f64 + 1.7)).sin())
-                .collect();
+            let q = test_joints(f, 0.9, 1.7);
             let mut o = PoseObs::at(id, t, q, Point3::origin());
             let p = effects::apply_effects(&model, std::slice::from_ref(&shift), &o.ctx);
             o.p = p + Vector3::new(noise(), noise(), noise());

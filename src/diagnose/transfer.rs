@@ -170,9 +170,7 @@ mod tests {
         let obs: Vec<PoseObs> = (0..30)
             .map(|k| {
                 let f = k as f64;
-                let q: Vec<f64> = (0..6)
-                    .map(|i| 0.8 * ((f + 1.0) * (i as f64 + 1.7)).sin())
-                    .collect();
+                let q = crate::diagnose::test_joints(f, 0.8, 1.7);
                 let mut o = PoseObs::at(k, f, q.clone(), moved.measured_point(&q));
                 o.ctx.approach = vec![1.0; 6];
                 o
