@@ -3,10 +3,12 @@
 //! between series and gives each series its own setup registration and joint zero offsets.
 //! Leave-one-series-out: the model is fitted on every other series (all their poses), the
 //! left-out series re-registers its setup and joint offsets on its first `--register N`
-//! poses in acquisition order (default 40) and every other pose of it is held out.
+//! poses in acquisition order (default 40; `--register-spread`: 40 poses spread evenly over
+//! its acquisition order; `--setup-only`: the joint offsets are not re-fitted) and every
+//! other pose of it is held out.
 //!
 //! ```text
-//! cargo run --release --example real_pooled -- [--register N] [--max-poses N]
+//! cargo run --release --example real_pooled -- [--register N] [--register-spread] [--setup-only] [--max-poses N]
 //!     [--max-effects N] [--targets B,C] [--no-ripple-check] NAME=SERIES ...
 //! ```
 //!
@@ -31,7 +33,7 @@ use std::time::Instant;
 use robocal::diagnose::effects::{Block, Effect, Ripple};
 use robocal::diagnose::fit::{fit, State};
 use robocal::diagnose::pooled::{
-    amplitude_phase, leave_one_series_out, load_series, start_states, PooledOptions,
+    amplitude_phase, leave_one_series_out, load_series, start_states, PooledOptions, Registration,
 };
 use robocal::diagnose::{Options, OVERFIT_GAP};
 use robocal::model::KinematicModel;
@@ -96,7 +98,13 @@ fn ripple_check(series: &[Series]) -> anyhow::Result<()> {
         );
         rows.push((s.name.clone(), phi, st));
     }
-    println!("| joint × k | {} |", rows.iter().map(|r| r.0.as_str()).collect::<Vec<_>>().join(" | "));
+    println!(
+        "| joint × k | {} |",
+        rows.iter()
+            .map(|r| r.0.as_str())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
     println!("|---|{}", "---|".repeat(rows.len()));
     for (b, &(joint, k)) in RIPPLES.iter().enumerate() {
         let cells: Vec<String> = rows
@@ -124,7 +132,11 @@ fn main() -> anyhow::Result<()> {
             .try_init();
     }
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let mut n_register = 40;
+    let mut reg = Registration {
+        n: 40,
+        spread: false,
+        offsets: true,
+    };
     let mut max_poses = usize::MAX;
     let mut popt = PooledOptions::default();
     let mut targets: Option<Vec<String>> = None;
@@ -139,7 +151,7 @@ fn main() -> anyhow::Result<()> {
     while i < args.len() {
         match args[i].as_str() {
             "--register" => {
-                n_register = num(i, "--register")?;
+                reg.n = num(i, "--register")?;
                 i += 1;
             }
             "--max-poses" => {
@@ -158,6 +170,8 @@ fn main() -> anyhow::Result<()> {
                 i += 1;
             }
             "--no-ripple-check" => ripple = false,
+            "--register-spread" => reg.spread = true,
+            "--setup-only" => reg.offsets = false,
             a if a.starts_with("--") => {
                 anyhow::bail!("unknown argument {a:?} (see the file's header)")
             }
@@ -208,7 +222,10 @@ fn main() -> anyhow::Result<()> {
         println!("one series: nothing to leave out");
         return Ok(());
     }
-    println!("\nleave one series out: register = the left-out series' first {n_register} poses (acquisition order), every other pose of it held out; training series thinned to ≤ {} poses each; RMS = 3-D marker error (mm); targets: held-out ≤ {TARGET_MM} mm or ≥ {:.0} % below the pooled geometric, gap < {:.0} %",
+    println!("\nleave one series out: register = the left-out series' {} {} poses (acquisition order), re-fitting {}, every other pose of it held out; training series thinned to ≤ {} poses each; RMS = 3-D marker error (mm); targets: held-out ≤ {TARGET_MM} mm or ≥ {:.0} % below the pooled geometric, gap < {:.0} %",
+        if reg.spread { "spread" } else { "first" },
+        reg.n,
+        if reg.offsets { "its setup and joint zero offsets" } else { "its setup only" },
         if max_poses == usize::MAX { "all".to_string() } else { max_poses.to_string() },
         100.0 * TARGET_GAIN, 100.0 * OVERFIT_GAP);
     println!("| training series | held out | register / held-out poses | pooled geometric: train / held-out | pooled physical: train / held-out | below geometric | gap | target met | s | shared effects |");
@@ -239,7 +256,7 @@ fn main() -> anyhow::Result<()> {
             &target.model,
             &refs,
             &target.all,
-            n_register,
+            &reg,
             &Options::default(),
             &popt,
         )?;

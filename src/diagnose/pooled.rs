@@ -9,7 +9,8 @@
 //!
 //! [`leave_one_series_out`] is the cross-series test as a user would run it: fit on the
 //! other series, re-register a new series' setup and joint offsets on a small subset of its
-//! poses (its first `n_register` in acquisition order), predict every other pose of it.
+//! poses (its first ones in acquisition order, or a few spread over it: [`Registration`]),
+//! predict every other pose of it.
 use nalgebra::{DMatrix, DVector};
 
 use super::effects::{Block, Effect, EffectModel};
@@ -326,7 +327,11 @@ pub fn shared_candidates(
         .into_iter()
         .flatten()
         .filter(|b| SHARED_KINDS.contains(&b.kind()))
-        .filter(|b| series.iter().all(|o| b.check_identifiable(model, o).is_ok()))
+        .filter(|b| {
+            series
+                .iter()
+                .all(|o| b.check_identifiable(model, o).is_ok())
+        })
         .collect()
 }
 
@@ -427,19 +432,55 @@ pub fn select_pooled(
     Ok((cur, steps))
 }
 
-/// A new series predicted from a pooled fit: its setup and joint offsets re-fitted on
-/// `register`, everything else as pooled. Returns the re-registered state.
-pub fn register_new_series(fit: &PooledFit, register: &[PoseObs]) -> Result<State, FitError> {
-    refit_setup_and_joint_offsets(fit.shared(), register)
+/// How a new series is registered to a pooled fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Registration {
+    /// Poses of the new series used to register it.
+    pub n: usize,
+    /// `false`: its first `n` poses in acquisition order; `true`: `n` poses spread evenly
+    /// over its acquisition order (every k-th).
+    pub spread: bool,
+    /// Re-fit the joint zero offsets too (else the setup only: tracker ← base, marker).
+    pub offsets: bool,
 }
 
-/// The split of a new series into its registration subset (the first `n` poses in
-/// acquisition order) and everything else (held out).
-pub fn registration_split(obs: &[PoseObs], n: usize) -> (Vec<PoseObs>, Vec<PoseObs>) {
+/// A new series predicted from a pooled fit: its setup (and, with `offsets`, its joint zero
+/// offsets) re-fitted on `register`, everything else as pooled (the first training series'
+/// values as the start).
+pub fn register_new_series(
+    fit: &PooledFit,
+    register: &[PoseObs],
+    offsets: bool,
+) -> Result<State, FitError> {
+    if offsets {
+        refit_setup_and_joint_offsets(fit.shared(), register)
+    } else {
+        super::transfer::refit_setup(fit.shared(), register)
+    }
+}
+
+/// The split of a new series into its registration subset and everything else (held
+/// out), see [`Registration`].
+pub fn registration_split(obs: &[PoseObs], reg: &Registration) -> (Vec<PoseObs>, Vec<PoseObs>) {
     let mut all: Vec<PoseObs> = obs.to_vec();
     all.sort_by(|a, b| a.ctx.t.total_cmp(&b.ctx.t).then(a.ctx.id.cmp(&b.ctx.id)));
-    let rest = all.split_off(n.min(all.len()));
-    (all, rest)
+    if !reg.spread || reg.n == 0 || reg.n >= all.len() {
+        let rest = all.split_off(reg.n.min(all.len()));
+        return (all, rest);
+    }
+    // Every k-th pose, k = len / n (the first pose included).
+    let (mut r, mut rest) = (Vec::new(), Vec::new());
+    let step = all.len() as f64 / reg.n as f64;
+    let mut next = 0.0;
+    for (i, o) in all.into_iter().enumerate() {
+        if r.len() < reg.n && i as f64 >= next {
+            r.push(o);
+            next += step;
+        } else {
+            rest.push(o);
+        }
+    }
+    (r, rest)
 }
 
 /// One real series as the examples read it: a directory holding `train.jsonl` +
@@ -473,7 +514,12 @@ pub fn amplitude_phase(e: &Effect) -> Option<(f64, f64, f64, f64)> {
         return None;
     };
     let amp = a.hypot(b);
-    let s = e.std.first().copied().unwrap_or(f64::NAN).max(e.std.get(1).copied().unwrap_or(f64::NAN));
+    let s = e
+        .std
+        .first()
+        .copied()
+        .unwrap_or(f64::NAN)
+        .max(e.std.get(1).copied().unwrap_or(f64::NAN));
     Some((
         amp.to_degrees(),
         b.atan2(a).to_degrees(),
@@ -499,21 +545,21 @@ pub struct LooReport {
 }
 
 /// Fit the pooled geometric and physical models on `train` (one slice per series), then
-/// predict `target` after re-registering its setup and joint offsets on its first
-/// `n_register` poses.
+/// predict `target` after re-registering its setup (and joint offsets) on a subset of its
+/// poses ([`Registration`]).
 pub fn leave_one_series_out(
     model: &KinematicModel,
     train: &[&[PoseObs]],
     target: &[PoseObs],
-    n_register: usize,
+    reg: &Registration,
     diag: &super::Options,
     opt: &PooledOptions,
 ) -> Result<LooReport, FitError> {
-    let (reg, held) = registration_split(target, n_register);
+    let (subset, held) = registration_split(target, reg);
     if held.is_empty() {
         return Err(FitError::TooFewPoses {
             what: "a held-out series needs poses beyond its registration subset:",
-            need: n_register + 1,
+            need: reg.n + 1,
             got: target.len(),
         });
     }
@@ -522,10 +568,10 @@ pub fn leave_one_series_out(
     let cands = shared_candidates(&geometric.shared().model, train, diag);
     let (physical, steps) = select_pooled(&geometric, train, &cands, opt)?;
     let train_rms = |f: &PooledFit| (f.rss / f.n_poses as f64).sqrt();
-    let g = register_new_series(&geometric, &reg)?;
-    let p = register_new_series(&physical, &reg)?;
+    let g = register_new_series(&geometric, &subset, reg.offsets)?;
+    let p = register_new_series(&physical, &subset, reg.offsets)?;
     Ok(LooReport {
-        n_register: reg.len(),
+        n_register: subset.len(),
         n_heldout: held.len(),
         geo_train: train_rms(&geometric),
         geo_heldout: rms3(&residuals(&g, &held)),
@@ -589,7 +635,12 @@ mod tests {
         let train: Vec<&[PoseObs]> = s[..3].iter().map(|v| v.as_slice()).collect();
         let cands: Vec<Block> = (5..=9)
             .flat_map(|h| {
-                (1..=3).map(move |j| Block::from(Ripple { joint: j, harmonic: h }))
+                (1..=3).map(move |j| {
+                    Block::from(Ripple {
+                        joint: j,
+                        harmonic: h,
+                    })
+                })
             })
             .collect();
         let starts = start_states(&nominal, &train).unwrap();
@@ -604,13 +655,31 @@ mod tests {
             },
         )
         .unwrap();
-        assert_eq!(steps.first().map(|s| s.label.as_str()), Some("transmission_ripple(j2, ×7)"));
+        assert_eq!(
+            steps.first().map(|s| s.label.as_str()),
+            Some("transmission_ripple(j2, ×7)")
+        );
         assert!(steps[0].series_gain.iter().all(|&g| g > 0.0));
         assert!(phys.rss.sqrt() < 1e-3, "pooled rss {}", phys.rss);
-        let (reg, held) = registration_split(&s[3], 30);
+        let first = Registration {
+            n: 30,
+            spread: false,
+            offsets: true,
+        };
+        let (reg, held) = registration_split(&s[3], &first);
         assert_eq!((reg.len(), held.len()), (30, 90));
-        let g = register_new_series(&geo, &reg).unwrap();
-        let p = register_new_series(&phys, &reg).unwrap();
+        assert_eq!(reg.last().map(|o| o.ctx.id), Some(29));
+        let spread = registration_split(
+            &s[3],
+            &Registration {
+                spread: true,
+                ..first
+            },
+        );
+        assert_eq!((spread.0.len(), spread.1.len()), (30, 90));
+        assert_eq!(spread.0[1].ctx.id, 4, "every 4th pose");
+        let g = register_new_series(&geo, &reg, true).unwrap();
+        let p = register_new_series(&phys, &reg, true).unwrap();
         let (eg, ep) = (rms3(&residuals(&g, &held)), rms3(&residuals(&p, &held)));
         assert!(eg > 0.02, "geometric pooled on the new session: {eg} mm");
         assert!(ep < 1e-3, "physical pooled on the new session: {ep} mm");
@@ -618,7 +687,11 @@ mod tests {
         let a3 = phys.shared().model.param("a3").unwrap();
         assert!((a3 - arm.param("a3").unwrap()).abs() < 1e-3, "a3 {a3}");
         // Too few poses to register is an error, not a panic.
-        assert!(register_new_series(&phys, &reg[..4]).is_err());
+        assert!(register_new_series(&phys, &reg[..4], true).is_err());
+        // Setup only: joint 3's re-homing of this session is then left in the error.
+        let so = register_new_series(&phys, &reg, false).unwrap();
+        let eso = rms3(&residuals(&so, &held));
+        assert!(eso > 10.0 * ep, "setup only: {eso} mm");
         assert!(fit_pooled(&starts[..1], &train, 5).is_err());
     }
 }
