@@ -26,7 +26,9 @@
 //! Then the table: the pooled geometric model (the split's baseline, same registration) and
 //! the pooled physical model, training RMS over the training series, held-out RMS on the
 //! left-out series, against the targets (held-out ≤ 0.26 mm or ≥ 40 % below the pooled
-//! geometric, gap < 15 %).
+//! geometric, gap < 15 %). "registered on all its poses" is a diagnostic, not a prediction:
+//! the pooled physical model with the left-out series registered on every one of its poses
+//! (the registration subset no longer the limit), scored on the same held-out poses.
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -228,8 +230,8 @@ fn main() -> anyhow::Result<()> {
         if reg.offsets { "its setup and joint zero offsets" } else { "its setup only" },
         if max_poses == usize::MAX { "all".to_string() } else { max_poses.to_string() },
         100.0 * TARGET_GAIN, 100.0 * OVERFIT_GAP);
-    println!("| training series | held out | register / held-out poses | pooled geometric: train / held-out | pooled physical: train / held-out | below geometric | gap | target met | s | shared effects |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| training series | held out | register / held-out poses | pooled geometric: train / held-out | pooled physical: train / held-out | below geometric | gap | target met | registered on all its poses | s | shared effects |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let (mut n, mut n_ok) = (0, 0);
     for (k, target) in series.iter().enumerate() {
         if targets
@@ -268,7 +270,7 @@ fn main() -> anyhow::Result<()> {
         n_ok += ok as usize;
         let chain: Vec<String> = r.steps.iter().map(|s| s.label.clone()).collect();
         println!(
-            "| {} ({}) | {} | {} / {} | {:.4} / {:.4} | {:.4} / {:.4} | {:.1} % | {:.1} % | {} | {secs:.0} | {} |",
+            "| {} ({}) | {} | {} / {} | {:.4} / {:.4} | {:.4} / {:.4} | {:.1} % | {:.1} % | {} | {:.4} | {secs:.0} | {} |",
             names.join("+"),
             train.iter().map(|v| v.len().to_string()).collect::<Vec<_>>().join("+"),
             target.name,
@@ -281,6 +283,7 @@ fn main() -> anyhow::Result<()> {
             100.0 * gain,
             100.0 * gap,
             if ok { "yes" } else { "NO" },
+            r.phys_all_registered,
             if chain.is_empty() { "none".into() } else { chain.join(", ") }
         );
         for s in &r.steps {

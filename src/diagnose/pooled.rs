@@ -539,6 +539,10 @@ pub struct LooReport {
     /// Pooled geometric + shared physical effects.
     pub phys_train: f64,
     pub phys_heldout: f64,
+    /// Diagnostic, not a prediction: the pooled physical model with the setup (and joint
+    /// offsets) registered on every pose of the new series, held-out RMS on the same held-out
+    /// poses. What the shared physics can reach when the registration is not the limit.
+    pub phys_all_registered: f64,
     pub steps: Vec<PooledStep>,
     pub geometric: PooledFit,
     pub physical: PooledFit,
@@ -570,6 +574,7 @@ pub fn leave_one_series_out(
     let train_rms = |f: &PooledFit| (f.rss / f.n_poses as f64).sqrt();
     let g = register_new_series(&geometric, &subset, reg.offsets)?;
     let p = register_new_series(&physical, &subset, reg.offsets)?;
+    let all = register_new_series(&physical, target, reg.offsets)?;
     Ok(LooReport {
         n_register: subset.len(),
         n_heldout: held.len(),
@@ -577,6 +582,7 @@ pub fn leave_one_series_out(
         geo_heldout: rms3(&residuals(&g, &held)),
         phys_train: train_rms(&physical),
         phys_heldout: rms3(&residuals(&p, &held)),
+        phys_all_registered: rms3(&residuals(&all, &held)),
         steps,
         geometric,
         physical,
