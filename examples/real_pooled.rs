@@ -127,12 +127,6 @@ fn ripple_check(series: &[Series]) -> anyhow::Result<()> {
 }
 
 fn main() -> anyhow::Result<()> {
-    if let Ok(f) = tracing_subscriber::EnvFilter::try_from_env("ROBOCAL_LOG") {
-        let _ = tracing_subscriber::fmt()
-            .with_env_filter(f)
-            .with_writer(std::io::stderr)
-            .try_init();
-    }
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut reg = Registration {
         n: 40,
@@ -234,10 +228,7 @@ fn main() -> anyhow::Result<()> {
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let (mut n, mut n_ok) = (0, 0);
     for (k, target) in series.iter().enumerate() {
-        if targets
-            .as_ref()
-            .is_some_and(|t| !t.iter().any(|x| *x == target.name))
-        {
+        if targets.as_ref().is_some_and(|t| !t.contains(&target.name)) {
             continue;
         }
         let train: Vec<Vec<PoseObs>> = series

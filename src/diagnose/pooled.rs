@@ -249,17 +249,13 @@ pub fn fit_pooled(
         });
     }
     let x0 = prob.layout.pack(states);
-    let rep = minimize(
-        &prob,
-        x0.clone(),
-        &LmOptions {
-            max_iter,
-            ftol: 1e-10,
-            xtol: 1e-12,
-            gtol: 1e-12,
-            lambda0: 1e-3,
-        },
-    );
+    // The solver's defaults, the diagnosis's cost tolerance.
+    let lm = LmOptions {
+        max_iter,
+        ftol: 1e-10,
+        ..LmOptions::default()
+    };
+    let rep = minimize(&prob, x0.clone(), &lm);
     if !rep.cost.is_finite() {
         return Err(FitError::NotFinite("the pooled fit diverged"));
     }
