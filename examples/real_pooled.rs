@@ -5,10 +5,12 @@
 //! left-out series re-registers its setup and joint offsets on its first `--register N`
 //! poses in acquisition order (default 40; `--register-spread`: 40 poses spread evenly over
 //! its acquisition order; `--setup-only`: the joint offsets are not re-fitted) and every
-//! other pose of it is held out.
+//! other pose of it is held out. `--local-ripple`: the ripple coefficients are per series (each
+//! training series its own; the left-out series re-fits them with its setup on the
+//! registration poses), everything else shared.
 //!
 //! ```text
-//! cargo run --release --example real_pooled -- [--register N] [--register-spread] [--setup-only] [--max-poses N]
+//! cargo run --release --example real_pooled -- [--register N] [--register-spread] [--setup-only] [--local-ripple] [--max-poses N]
 //!     [--max-effects N] [--targets B,C] [--no-ripple-check] NAME=SERIES ...
 //! ```
 //!
@@ -168,6 +170,7 @@ fn main() -> anyhow::Result<()> {
             "--no-ripple-check" => ripple = false,
             "--register-spread" => reg.spread = true,
             "--setup-only" => reg.offsets = false,
+            "--local-ripple" => popt.local_kinds = vec!["transmission_ripple".into()],
             a if a.starts_with("--") => {
                 anyhow::bail!("unknown argument {a:?} (see the file's header)")
             }
