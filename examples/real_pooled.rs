@@ -154,6 +154,7 @@ fn main() -> anyhow::Result<()> {
             }
             "--max-poses" => {
                 max_poses = num(i, "--max-poses")?;
+                anyhow::ensure!(max_poses > 0, "--max-poses needs at least 1");
                 i += 1;
             }
             "--max-effects" => {
