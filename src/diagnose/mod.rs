@@ -23,6 +23,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 pub mod camera;
 pub mod camera_stage;
 pub mod changepoint;
+pub mod colcache;
 pub mod effects;
 pub mod error;
 pub mod extrapolation;
@@ -642,6 +643,9 @@ pub fn score_round(
 /// the current state: the trailing columns of the [`fit::DiagnoseProblem`] Jacobian of the
 /// state with the blocks appended at zero coefficients.
 pub fn candidate_columns(state: &State, train: &[PoseObs], blocks: &[Block]) -> Vec<DMatrix<f64>> {
+    if colcache::StateColumns::applies(blocks) {
+        return colcache::StateColumns::new(state, train).columns(train, blocks);
+    }
     let mut st = state.clone();
     let mut off = st.model.free_count() + st.effects.iter().map(|e| e.coefs.len()).sum::<usize>();
     st.effects.extend(blocks.iter().cloned().map(Effect::zero));
@@ -708,6 +712,15 @@ fn with_points(b: &Block, pts: Vec<effects::MassPoint>) -> Block {
 fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>]) {
     let (_, j) = stack(state, train);
     let q = orth_basis(&j);
+    // Every call below is at the same state: evaluate it once.
+    let sc = colcache::StateColumns::new(state, train);
+    let candidate_columns = |bs: &[Block]| {
+        if colcache::StateColumns::applies(bs) {
+            sc.columns(train, bs)
+        } else {
+            candidate_columns(state, train, bs)
+        }
+    };
     for b in cands.iter_mut().flatten() {
         let pts = match b {
             Block::Compliance(c) => c.points.clone(),
@@ -715,7 +728,7 @@ fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>])
             _ => continue,
         };
         let mut pts = pts;
-        let mut cond = candidate_columns(state, train, std::slice::from_ref(b))
+        let mut cond = candidate_columns(std::slice::from_ref(b))
             .pop()
             .map_or(0.0, |g| block_conditioning(&q, &g));
         while cond < MIN_BLOCK_CONDITIONING && pts.len() > 1 {
@@ -726,7 +739,7 @@ fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>])
                     with_points(b, p)
                 })
                 .collect();
-            let conds: Vec<f64> = candidate_columns(state, train, &variants)
+            let conds: Vec<f64> = candidate_columns(&variants)
                 .iter()
                 .map(|g| block_conditioning(&q, g))
                 .collect();

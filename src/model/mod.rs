@@ -27,9 +27,11 @@ use crate::dataset::{CalParam, ChainJoint, FixedOrigin, RobotBlock};
 
 pub mod chain;
 pub mod error;
+mod frames;
 pub mod ik;
 pub mod point_fk;
 pub mod presets;
+pub use frames::PoseFrames;
 
 pub use chain::{origin_iso, ChainSpecJoint, SerialChain};
 pub use error::{IkError, ModelError};
