@@ -649,15 +649,34 @@ fn tracker_scale(effects: &[Effect]) -> f64 {
 
 /// Predicted marker origin (mm, tracker frame) of one pose with all effects applied.
 pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Point3<f64> {
+    let np = effects.iter().filter_map(|e| np_correction(model, e, ctx));
+    apply_effects_np(model, effects, ctx, np)
+}
+
+/// The kernel correction of a `nonparametric` effect at one pose (`None` for other effects).
+pub fn np_correction(model: &KinematicModel, e: &Effect, ctx: &PoseCtx) -> Option<Vector3<f64>> {
+    match &e.block {
+        Block::Nonparametric(r) => Some(r.correction(model, &ctx.q)),
+        _ => None,
+    }
+}
+
+/// [`apply_effects`] with the kernel corrections of the `nonparametric` effects of
+/// `effects` given (`np`, in `effects` order, [`np_correction`]): a caller predicting the
+/// same pose under several effect lists evaluates each kernel sum once.
+pub fn apply_effects_np(
+    model: &KinematicModel,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+    np: impl IntoIterator<Item = Vector3<f64>>,
+) -> Point3<f64> {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
     let p = m.measured_point(&th).coords + point_displacement(&m, effects, ctx);
     let mut y = p * (1.0 + tracker_scale(effects));
-    for e in effects {
-        if let Block::Nonparametric(r) = &e.block {
-            y += r.correction(model, &ctx.q);
-        }
+    for c in np {
+        y += c;
     }
     Point3::from(y)
 }
