@@ -49,7 +49,7 @@ pub(crate) fn test_joints(f: f64, amp: f64, phase: f64) -> Vec<f64> {
 use crate::solve::obs::PoseObs;
 use effects::{Block, Driver, Effect, EffectModel};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
-use stats::{f_sf, independence, orth_basis, project_out, CvBase};
+use stats::{f_sf, independence, orth_basis, project_out, project_out_t, CvBase};
 
 use crate::model::KinematicModel;
 
@@ -471,6 +471,8 @@ pub fn score_round(
     let (r, j) = stack(state, train);
     let nrow = r.len();
     let q = orth_basis(&j);
+    // `Qᵀ` once for every candidate's projection (the same products as `project_out`).
+    let qt = q.transpose();
     let rank_j = q.ncols();
     let rss0 = r.norm_squared();
     let rf = row_folds(&folds(train, opt.n_folds));
@@ -485,7 +487,7 @@ pub fn score_round(
         if g.iter().all(|v| v.abs() < 1e-15) {
             return None;
         }
-        let gp = project_out(&q, &g);
+        let gp = project_out_t(&q, &qt, &g);
         let indep = independence(&g, &gp);
         let qg = orth_basis(&gp);
         let df = qg.ncols();
