@@ -25,10 +25,11 @@ pub struct StateColumns<'a> {
 impl<'a> StateColumns<'a> {
     /// Evaluate `state` at every pose of `obs` (in parallel).
     pub fn new(state: &'a State, obs: &[PoseObs]) -> StateColumns<'a> {
+        let consts = state.model.consts();
         let poses = obs
             .par_iter()
             .map(|o| {
-                let b = effects::pose_base(&state.model, &state.effects, &o.ctx);
+                let b = effects::pose_base(&state.model, Some(&consts), &state.effects, &o.ctx);
                 let f = b.m.pose_frames(&o.ctx.q);
                 (b, f)
             })

@@ -29,7 +29,7 @@ use std::borrow::Cow;
 
 use super::nonparam::Rbf;
 use crate::dataset::CalEffect;
-use crate::model::{KinematicModel, ParamGroup, PoseFrames};
+use crate::model::{KinematicModel, ModelConsts, ParamGroup, PoseFrames};
 use crate::schema::EffectParameter;
 use crate::solve::obs::{PoseCtx, PoseObs};
 
@@ -702,12 +702,27 @@ pub struct PoseBase<'a> {
 }
 
 /// The [`PoseBase`] of one pose under `effects`. Effects with all-zero coefficients change
-/// none of it (they are skipped, and add `0` to the tracker scale).
-pub fn pose_base<'a>(model: &'a KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> PoseBase<'a> {
+/// none of it (they are skipped, and add `0` to the tracker scale). `consts`: those of
+/// `model` ([`KinematicModel::consts`]) when the caller formed them for many poses; used
+/// when the pose is predicted with `model` itself (the same values either way).
+pub fn pose_base<'a>(
+    model: &'a KinematicModel,
+    consts: Option<&ModelConsts>,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+) -> PoseBase<'a> {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
-    let (p0, jm_pose) = m.point_param_jacobian(&th);
+    let with_consts = match (&m, consts) {
+        (Cow::Borrowed(_), Some(c)) => {
+            let mut jm = Matrix3xX::zeros(m.params().len());
+            m.point_param_jacobian_with(c, &th, &mut jm)
+                .map(|p| (p, jm))
+        }
+        _ => None,
+    };
+    let (p0, jm_pose) = with_consts.unwrap_or_else(|| m.point_param_jacobian(&th));
     // Point effects add a displacement linear in their coefficients; its dependence on
     // the geometry (a second-order cross term) is left out of the model columns.
     let p = p0 + point_displacement(&m, effects, ctx);
@@ -767,7 +782,17 @@ pub fn block_columns_in(
 
 /// Evaluate one pose (see [`PoseEval`]).
 pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> PoseEval {
-    let PoseBase { m, p, jm_pose, s } = pose_base(model, effects, ctx);
+    eval_pose_with(model, None, effects, ctx)
+}
+
+/// [`eval_pose`] with the constants of `model` formed by the caller (see [`pose_base`]).
+pub fn eval_pose_with(
+    model: &KinematicModel,
+    consts: Option<&ModelConsts>,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+) -> PoseEval {
+    let PoseBase { m, p, jm_pose, s } = pose_base(model, consts, effects, ctx);
     // Link growth scales the length parameters: pred = P(a·(1 + g·x)), so
     // d pred / d a_i = (1 + g·x) ∂P/∂a'_i and d pred / d g = Σ ∂P/∂a'_i a_i x.
     let growth: f64 = effects
