@@ -72,7 +72,7 @@ mod tests {
     use super::*;
     use crate::diagnose::effects::{registry_examples, Effect};
     use crate::diagnose::fit::stack;
-    use crate::diagnose::test_joints;
+    use crate::diagnose::test_obs;
     use crate::model::KinematicModel;
 
     /// The per-pose columns equal the trailing columns of the whole Jacobian with the
@@ -83,19 +83,7 @@ mod tests {
     fn columns_are_bit_identical_to_the_whole_jacobian() {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
         model.fix_point_redundancies();
-        let obs: Vec<PoseObs> = (0..15)
-            .map(|k| {
-                let f = k as f64;
-                let q = test_joints(f, 0.7, 1.3);
-                let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
-                o.ctx.approach = (0..6)
-                    .map(|i| if (k + i) % 2 == 0 { 1.0 } else { -1.0 })
-                    .collect();
-                o.ctx.temp_c = Some(20.0 + 0.3 * f);
-                o.ctx.qd = Some(vec![0.05; 6]);
-                o
-            })
-            .collect();
+        let obs = test_obs(&model, 15);
         let examples = registry_examples(&model);
         let blocks: Vec<Block> = examples
             .iter()

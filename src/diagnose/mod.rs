@@ -46,6 +46,32 @@ pub(crate) fn test_joints(f: f64, amp: f64, phase: f64) -> Vec<f64> {
         .collect()
 }
 
+/// `n` synthetic poses of `model` ([`test_joints`], 300 s apart) with every context the
+/// candidates read (approach directions alternating per joint, a temperature ramp, joint
+/// velocities): the unit tests' observations of the candidate columns.
+#[cfg(test)]
+pub(crate) fn test_obs(model: &KinematicModel, n: u64) -> Vec<PoseObs> {
+    (0..n)
+        .map(|k| {
+            let f = k as f64;
+            let q = test_joints(f, 0.7, 1.3);
+            let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
+            o.ctx.approach = (0..6)
+                .map(|i| {
+                    if (k as usize + i).is_multiple_of(2) {
+                        1.0
+                    } else {
+                        -1.0
+                    }
+                })
+                .collect();
+            o.ctx.temp_c = Some(20.0 + 0.3 * f);
+            o.ctx.qd = Some(vec![0.05; 6]);
+            o
+        })
+        .collect()
+}
+
 use crate::solve::obs::PoseObs;
 use effects::{Block, Driver, Effect, EffectModel};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
@@ -1701,25 +1727,7 @@ mod tests {
     fn candidate_columns_are_the_problem_jacobian() {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
         model.fix_point_redundancies();
-        let obs: Vec<PoseObs> = (0..12)
-            .map(|k| {
-                let f = k as f64;
-                let q = test_joints(f, 0.7, 1.3);
-                let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
-                o.ctx.approach = (0..6)
-                    .map(|i| {
-                        if (k as usize + i).is_multiple_of(2) {
-                            1.0
-                        } else {
-                            -1.0
-                        }
-                    })
-                    .collect();
-                o.ctx.temp_c = Some(20.0 + 0.3 * f);
-                o.ctx.qd = Some(vec![0.05; 6]);
-                o
-            })
-            .collect();
+        let obs = test_obs(&model, 12);
         let mut fitted = Effect::zero(Block::Backlash(effects::Backlash { joint: 3 }));
         fitted.coefs = vec![2e-4];
         let state = State {
