@@ -33,6 +33,7 @@ pub mod heap;
 pub mod inner_cv;
 pub mod nonparam;
 pub mod plot;
+pub mod pooled;
 pub mod stage;
 pub mod transfer;
 pub use crate::solve::inference as stats;
