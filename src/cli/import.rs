@@ -8,6 +8,7 @@ use crate::import::generic::{
     AngleUnit, BodyColumns, CsvMapping, LengthUnit, Orientation, TimeUnit,
 };
 use crate::import::ipa::IpaOptions;
+use crate::import::serial_robots::{DifSign, SerialRobotsOptions};
 use crate::import::{robot, EulerSeq, Imported, QuatOrder};
 
 /// Arguments of `robocal import`.
@@ -26,6 +27,8 @@ pub enum What {
     Ipa(IpaArgs),
     /// Any delimited table with a column mapping.
     Csv(CsvArgs),
+    /// `pauljac7700/serial_robots_datasets` (UR5 / WAM + laser tracker: target + error).
+    SerialRobots(SerialRobotsArgs),
     /// Camera hand-eye: an image folder + the robot's flange poses (any common layout; the
     /// declared reading is checked by the AX = XB spread test).
     Handeye(crate::cli::import_handeye::HandeyeArgs),
@@ -49,6 +52,27 @@ pub struct IpaArgs {
     /// Robot: `ur10` (default), a preset, a chain JSON (a header `robot` block) or a URDF.
     #[arg(long, default_value = "ur10")]
     pub robot: String,
+}
+
+/// `robocal import serial-robots`.
+#[derive(Debug, clap::Args)]
+pub struct SerialRobotsArgs {
+    /// The file (`UR5/3D_UR5_uncalibrated_grid_cleaned.csv` or the like).
+    #[arg(long)]
+    pub input: PathBuf,
+    /// The dataset to write (`robocal-dataset/1`).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Every N-th pose goes to the `validation` group (0 = none).
+    #[arg(long, default_value_t = 4)]
+    pub heldout_every: usize,
+    /// Robot: `ur5` (default), a preset, a chain JSON or a URDF (7 joints for the WAM files).
+    #[arg(long, default_value = "ur5")]
+    pub robot: String,
+    /// The sign of the `*_dif` columns: `actual-minus-target` (measured = target + dif) or
+    /// `target-minus-actual`.
+    #[arg(long, value_parser = parse::<DifSign>, default_value = "actual-minus-target")]
+    pub dif: DifSign,
 }
 
 /// `robocal import csv`.
@@ -145,6 +169,17 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
             };
             let file = a.input.display().to_string();
             (crate::import::ipa::parse_ipa(&text, &file, &opts)?, a.out)
+        }
+        What::SerialRobots(a) => {
+            let text = read(&a.input)?;
+            let opts = SerialRobotsOptions {
+                heldout_every: a.heldout_every,
+                robot: robot::resolve(&a.robot)?,
+                dif: a.dif,
+            };
+            let file = a.input.display().to_string();
+            let imp = crate::import::serial_robots::parse_serial_robots(&text, &file, &opts)?;
+            (imp, a.out)
         }
         What::Csv(a) => {
             let text = read(&a.input)?;
