@@ -155,6 +155,23 @@ mod tests {
         assert!(e.contains("ur11") && e.contains("ur10e"), "{e}");
     }
 
+    /// `robots/ur5.json` and `robots/wam.json` are the published DH tables: their flange
+    /// positions equal a standard-DH forward kinematics (computed independently with numpy).
+    #[test]
+    fn ur5_and_wam_chains_are_the_published_dh_tables() {
+        let q = [0.3, -1.1, 0.7, -0.4, 1.2, 0.5, 0.2];
+        let ur5 = KinematicModel::from_robot_block(&ur5()).unwrap();
+        let p = ur5.flange_pose(&q[..6]).translation.vector;
+        let want = [-604.16945418, -332.36072187, 609.75428498];
+        assert!((p - nalgebra::Vector3::from(want)).norm() < 1e-6, "{p:?}");
+        let wam_file = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/wam.json");
+        let wam = KinematicModel::from_robot_block(&resolve(wam_file).unwrap()).unwrap();
+        assert_eq!(wam.dof(), 7);
+        let p = wam.flange_pose(&q).translation.vector;
+        let want = [-764.41786041, -298.73490676, 290.66965143];
+        assert!((p - nalgebra::Vector3::from(want)).norm() < 1e-6, "{p:?}");
+    }
+
     #[test]
     fn urdf_chain_round_trips_through_the_block() {
         let m = KinematicModel::from_robot_block(&ur10()).unwrap();
