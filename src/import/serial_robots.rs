@@ -360,6 +360,27 @@ mod tests {
     }
 
     #[test]
+    fn garbage_never_panics_and_what_is_accepted_reads_back() {
+        let seed = ur5_rows(5);
+        let mut rng = 2024u64;
+        for _ in 0..400 {
+            let mut v = seed.as_bytes().to_vec();
+            for _ in 0..4 {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let i = (rng >> 33) as usize % v.len();
+                v[i] = (rng >> 13) as u8 % 128;
+            }
+            let t = String::from_utf8_lossy(&v);
+            if let Ok(imp) = parse_serial_robots(&t, "f", &SerialRobotsOptions::default()) {
+                let text = imp.dataset.to_jsonl();
+                crate::dataset::parse_dataset(text.as_bytes(), std::path::Path::new("f")).unwrap();
+            }
+        }
+    }
+
+    #[test]
     fn bad_input_names_file_line_and_column() {
         let o = opts(DifSign::ActualMinusTarget);
         // A 7-joint (WAM) file with the 6-joint default robot.
