@@ -306,16 +306,8 @@ mod tests {
     fn the_other_sign_subtracts_the_difference() {
         let imp =
             parse_serial_robots(&ur5_rows(3), "x.csv", &opts(DifSign::TargetMinusActual)).unwrap();
-        let p0 = imp
-            .dataset
-            .poses()
-            .next()
-            .unwrap()
-            .marker
-            .as_ref()
-            .unwrap()
-            .p
-            .unwrap();
+        let first = imp.dataset.poses().next().and_then(|r| r.marker.clone());
+        let p0 = first.and_then(|m| m.p).unwrap();
         assert!((p0[0] - (-430.3 + 2.14)).abs() < 1e-9, "{p0:?}");
         assert_eq!(
             "target-minus-actual".parse(),
@@ -357,27 +349,6 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("step_order") && e.contains("twice"), "{e}");
-    }
-
-    #[test]
-    fn garbage_never_panics_and_what_is_accepted_reads_back() {
-        let seed = ur5_rows(5);
-        let mut rng = 2024u64;
-        for _ in 0..400 {
-            let mut v = seed.as_bytes().to_vec();
-            for _ in 0..4 {
-                rng = rng
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let i = (rng >> 33) as usize % v.len();
-                v[i] = (rng >> 13) as u8 % 128;
-            }
-            let t = String::from_utf8_lossy(&v);
-            if let Ok(imp) = parse_serial_robots(&t, "f", &SerialRobotsOptions::default()) {
-                let text = imp.dataset.to_jsonl();
-                crate::dataset::parse_dataset(text.as_bytes(), std::path::Path::new("f")).unwrap();
-            }
-        }
     }
 
     #[test]
