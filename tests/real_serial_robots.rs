@@ -75,3 +75,64 @@ fn real_ur5_grid_imports_and_the_ur5_chain_reproduces_the_targets() {
     // The source's mean |dif| is 2.635 mm (its thesis: 2.57 mm uncalibrated error).
     assert!((2.5..2.8).contains(&mean_error), "{mean_error}");
 }
+
+/// `robocal import serial-robots` end to end on synthetic rows in the source's layout: the
+/// dataset loads back, the sign option is applied, a robot with the wrong joint count is
+/// refused with nothing written.
+#[test]
+fn cli_import_serial_robots_loads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("3D_UR5_uncalibrated_grid_cleaned.csv");
+    let mut text = String::from(
+        "step_order,x_t,y_t,z_t,x_dif,y_dif,z_dif,joint_1,joint_2,joint_3,joint_4,joint_5,joint_6\n",
+    );
+    for i in 0..8 {
+        text.push_str(&format!(
+            "{i},-430.3,-6.27,-98.63,-2.0,-3.5,0.8,{},-43.7,135.4,-94.7,55.4,-5.5\n",
+            -22.9 + i as f64
+        ));
+    }
+    std::fs::write(&input, text).unwrap();
+    let out = dir.path().join("u.jsonl");
+    let run = |robot: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_robocal"))
+            .args(["import", "serial-robots", "--input"])
+            .arg(&input)
+            .arg("--out")
+            .arg(&out)
+            .args(["--robot", robot, "--dif", "target-minus-actual"])
+            .output()
+            .unwrap()
+    };
+    let wam = Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/wam.json");
+    let o = run(wam.to_str().unwrap());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("6 joint columns") && err.contains("7 joints"),
+        "{err}"
+    );
+    assert!(!out.exists(), "nothing written on error");
+    let o = run("ur5");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("8 poses (6 train, 2 validation)"),
+        "{stdout}"
+    );
+    let ds = robocal::dataset::read_dataset(&out).unwrap().dataset;
+    let p = ds
+        .poses()
+        .nth(2)
+        .unwrap()
+        .marker
+        .as_ref()
+        .unwrap()
+        .p
+        .unwrap();
+    assert!(
+        (p[0] - (-428.3)).abs() < 1e-9 && (p[2] - (-99.43)).abs() < 1e-9,
+        "{p:?}"
+    );
+    assert_eq!(ds.header.robot.model, "ur5");
+}
