@@ -41,6 +41,7 @@ mod rcm_session;
 #[path = "../examples/common/rcm_trials.rs"]
 mod rcm_trials;
 mod real_handeye;
+mod real_serial_robots;
 mod realcam_io;
 mod report;
 mod run_integrity;

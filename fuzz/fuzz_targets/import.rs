@@ -1,4 +1,4 @@
-//! `robocal import` parsers (IPA layout, generic CSV with a fixed mapping): never panic, and a
+//! `robocal import` parsers (IPA layout, serial_robots_datasets, generic CSV with a fixed mapping): never panic, and a
 //! table they accept becomes a dataset that robocal's strict reader reads back.
 #![no_main]
 
@@ -7,6 +7,7 @@ use robocal::import::generic::{
     parse_csv, AngleUnit, BodyColumns, CsvMapping, LengthUnit, Orientation, TimeUnit,
 };
 use robocal::import::ipa::{parse_ipa, IpaOptions};
+use robocal::import::serial_robots::{parse_serial_robots, SerialRobotsOptions};
 use robocal::import::{robot, Imported};
 
 fn reads_back(imp: &Imported) {
@@ -22,6 +23,9 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     if let Ok(imp) = parse_ipa(text, "fuzz.csv", &IpaOptions::default()) {
+        reads_back(&imp);
+    }
+    if let Ok(imp) = parse_serial_robots(text, "fuzz.csv", &SerialRobotsOptions::default()) {
         reads_back(&imp);
     }
     let Ok(robot) = robot::resolve("ur10") else {

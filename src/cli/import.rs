@@ -8,6 +8,7 @@ use crate::import::generic::{
     AngleUnit, BodyColumns, CsvMapping, LengthUnit, Orientation, TimeUnit,
 };
 use crate::import::ipa::IpaOptions;
+use crate::import::serial_robots::{DifSign, SerialRobotsOptions};
 use crate::import::{robot, EulerSeq, Imported, QuatOrder};
 
 /// Arguments of `robocal import`.
@@ -26,6 +27,8 @@ pub enum What {
     Ipa(IpaArgs),
     /// Any delimited table with a column mapping.
     Csv(CsvArgs),
+    /// `pauljac7700/serial_robots_datasets` (UR5 / WAM + laser tracker: target + error).
+    SerialRobots(SerialRobotsArgs),
     /// Camera hand-eye: an image folder + the robot's flange poses (any common layout; the
     /// declared reading is checked by the AX = XB spread test).
     Handeye(crate::cli::import_handeye::HandeyeArgs),
@@ -34,10 +37,11 @@ pub enum What {
     Ndi(crate::cli::import_handeye::NdiArgs),
 }
 
-/// `robocal import ipa`.
+/// The file arguments of the layout importers (`ipa`, `serial-robots`).
 #[derive(Debug, clap::Args)]
-pub struct IpaArgs {
-    /// The IPA measurement file (`Series_X/measurements_*.csv`).
+pub struct LayoutFileArgs {
+    /// The measurement file (`Series_X/measurements_*.csv` for `ipa`,
+    /// `UR5/3D_UR5_uncalibrated_grid_cleaned.csv` or the like for `serial-robots`).
     #[arg(long)]
     pub input: PathBuf,
     /// The dataset to write (`robocal-dataset/1`).
@@ -46,9 +50,30 @@ pub struct IpaArgs {
     /// Every N-th pose goes to the `validation` group (0 = none).
     #[arg(long, default_value_t = 4)]
     pub heldout_every: usize,
+}
+
+/// `robocal import ipa`.
+#[derive(Debug, clap::Args)]
+pub struct IpaArgs {
+    #[command(flatten)]
+    pub file: LayoutFileArgs,
     /// Robot: `ur10` (default), a preset, a chain JSON (a header `robot` block) or a URDF.
     #[arg(long, default_value = "ur10")]
     pub robot: String,
+}
+
+/// `robocal import serial-robots`.
+#[derive(Debug, clap::Args)]
+pub struct SerialRobotsArgs {
+    #[command(flatten)]
+    pub file: LayoutFileArgs,
+    /// Robot: `ur5` (default), a preset, a chain JSON or a URDF (7 joints for the WAM files).
+    #[arg(long, default_value = "ur5")]
+    pub robot: String,
+    /// The sign of the `*_dif` columns: `actual-minus-target` (measured = target + dif) or
+    /// `target-minus-actual`.
+    #[arg(long, value_parser = parse::<DifSign>, default_value = "actual-minus-target")]
+    pub dif: DifSign,
 }
 
 /// `robocal import csv`.
@@ -138,13 +163,27 @@ pub fn exec(args: Args) -> anyhow::Result<()> {
         What::Handeye(a) => return crate::cli::import_handeye::exec(&a),
         What::Ndi(a) => return crate::cli::import_handeye::exec_ndi(&a),
         What::Ipa(a) => {
-            let text = read(&a.input)?;
+            let text = read(&a.file.input)?;
             let opts = IpaOptions {
-                heldout_every: a.heldout_every,
+                heldout_every: a.file.heldout_every,
                 robot: robot::resolve(&a.robot)?,
             };
-            let file = a.input.display().to_string();
-            (crate::import::ipa::parse_ipa(&text, &file, &opts)?, a.out)
+            let file = a.file.input.display().to_string();
+            (
+                crate::import::ipa::parse_ipa(&text, &file, &opts)?,
+                a.file.out,
+            )
+        }
+        What::SerialRobots(a) => {
+            let text = read(&a.file.input)?;
+            let opts = SerialRobotsOptions {
+                heldout_every: a.file.heldout_every,
+                robot: robot::resolve(&a.robot)?,
+                dif: a.dif,
+            };
+            let file = a.file.input.display().to_string();
+            let imp = crate::import::serial_robots::parse_serial_robots(&text, &file, &opts)?;
+            (imp, a.file.out)
         }
         What::Csv(a) => {
             let text = read(&a.input)?;

@@ -3,6 +3,8 @@
 //!
 //! - [`ipa`]: the IPA robot-accuracy layout (UR10 + Leica laser tracker + T-Mac;
 //!   `christianlandgraf/ipa-robot-accuracy`, MIT, Landgraf et al., CASE 2021).
+//! - [`serial_robots`]: `pauljac7700/serial_robots_datasets` (UR5 / Barrett WAM + laser
+//!   tracker; target + positioning error per pose; MIT, Jacobi 2025).
 //! - [`generic`]: any delimited table with a column mapping (joints in deg or rad, positions
 //!   in mm or m, a quaternion in either order or Euler angles in any SciPy sequence, time,
 //!   temperature, tracker RMS, a reference body).
@@ -19,6 +21,7 @@ pub mod ipa;
 pub mod matrices;
 pub mod ndi;
 pub mod robot;
+pub mod serial_robots;
 pub mod table;
 
 use nalgebra::{Quaternion, UnitQuaternion};

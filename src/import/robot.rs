@@ -1,5 +1,6 @@
 //! The robot of an imported dataset (`--robot`): a built-in preset name, `ur10` (the UR10 CB3
-//! nominal chain of the IPA dataset, `robots/ur10.json`), a chain JSON file (a header `robot`
+//! nominal chain of the IPA dataset, `robots/ur10.json`), `ur5` (the UR5 CB3 chain,
+//! `robots/ur5.json`), a chain JSON file (a header `robot`
 //! block) or a URDF file. The header always gets a full `robot` block that loads back.
 use std::path::Path;
 
@@ -16,6 +17,18 @@ pub const UR10_CHAIN_JSON: &str = include_str!("../../robots/ur10.json");
 pub fn ur10() -> RobotBlock {
     // The embedded file is checked by a unit test.
     serde_json::from_str(UR10_CHAIN_JSON).unwrap_or_else(|_| RobotBlock::named("ur10"))
+}
+
+/// The UR5 (CB3) nominal chain: Universal Robots' published DH (d1 89.159, a2 −425,
+/// a3 −392.25, d4 109.15, d5 94.65, d6 82.3 mm) written URDF-style like the UR10's; the
+/// robot of `pauljac7700/serial_robots_datasets` (its targets are this chain's forward
+/// kinematics to 0.012 mm RMS).
+pub const UR5_CHAIN_JSON: &str = include_str!("../../robots/ur5.json");
+
+/// The UR5 (CB3) robot block.
+pub fn ur5() -> RobotBlock {
+    // The embedded file is checked by a unit test.
+    serde_json::from_str(UR5_CHAIN_JSON).unwrap_or_else(|_| RobotBlock::named("ur5"))
 }
 
 fn iso_to_origin(iso: &nalgebra::Isometry3<f64>) -> ([f64; 3], [f64; 3]) {
@@ -68,6 +81,8 @@ pub fn resolve(spec: &str) -> Result<RobotBlock, ImportError> {
     let lower = spec.trim().to_ascii_lowercase();
     let block = if lower == "ur10" {
         ur10()
+    } else if lower == "ur5" {
+        ur5()
     } else if lower.ends_with(".json") || lower.ends_with(".urdf") {
         let path = Path::new(spec);
         let text = crate::fsio::read_to_string(path).map_err(|e| ImportError::Io {
@@ -106,7 +121,7 @@ pub fn resolve(spec: &str) -> Result<RobotBlock, ImportError> {
             },
             Err(_) => {
                 return Err(ImportError::Usage(format!(
-                "--robot \"{spec}\": not a known robot (ur10, {}) nor a .json chain / .urdf file",
+                "--robot \"{spec}\": not a known robot (ur10, ur5, {}) nor a .json chain / .urdf file",
                 crate::model::presets::PRESET_NAMES.join(", ")
             )))
             }
@@ -130,8 +145,31 @@ mod tests {
         assert_eq!(c[2].origin_xyz, [-612.0, 0.0, 0.0]);
         assert_eq!(b.flange.as_ref().unwrap().origin_xyz, [0.0, 0.0, 92.2]);
         assert_eq!(resolve("ur10e").unwrap().model, "ur10e");
+        let u5 = resolve("ur5").unwrap();
+        assert_eq!((u5.model.as_str(), u5.dof()), ("ur5", Some(6)));
+        let c5 = u5.chain.as_ref().unwrap();
+        assert_eq!(c5[1].origin_xyz, [0.0, 0.0, 89.159]);
+        assert_eq!(c5[3].origin_xyz, [-392.25, 0.0, 0.0]);
+        assert_eq!(u5.flange.as_ref().unwrap().origin_xyz, [0.0, 0.0, 82.3]);
         let e = resolve("ur11").unwrap_err().to_string();
         assert!(e.contains("ur11") && e.contains("ur10e"), "{e}");
+    }
+
+    /// `robots/ur5.json` and `robots/wam.json` are the published DH tables: their flange
+    /// positions equal a standard-DH forward kinematics (computed independently with numpy).
+    #[test]
+    fn ur5_and_wam_chains_are_the_published_dh_tables() {
+        let q = [0.3, -1.1, 0.7, -0.4, 1.2, 0.5, 0.2];
+        let ur5 = KinematicModel::from_robot_block(&ur5()).unwrap();
+        let p = ur5.flange_pose(&q[..6]).translation.vector;
+        let want = [-604.16945418, -332.36072187, 609.75428498];
+        assert!((p - nalgebra::Vector3::from(want)).norm() < 1e-6, "{p:?}");
+        let wam_file = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/wam.json");
+        let wam = KinematicModel::from_robot_block(&resolve(wam_file).unwrap()).unwrap();
+        assert_eq!(wam.dof(), 7);
+        let p = wam.flange_pose(&q).translation.vector;
+        let want = [-764.41786041, -298.73490676, 290.66965143];
+        assert!((p - nalgebra::Vector3::from(want)).norm() < 1e-6, "{p:?}");
     }
 
     #[test]

@@ -3,6 +3,7 @@ use super::generic::{
     parse_csv, AngleUnit, BodyColumns, CsvMapping, LengthUnit, Orientation, TimeUnit,
 };
 use super::ipa::{parse_ipa, parse_stamp, series_of, IpaOptions};
+use super::serial_robots::{parse_serial_robots, SerialRobotsOptions};
 use super::*;
 
 const IPA_HEAD_STD: &str = "Timestamp;Goal x;Goal y;Goal z;Goal roll;Goal pitch;Goal yaw;shoulder_pan_joint;shoulder_lift_joint;elbow_joint;wrist_1_joint;wrist_2_joint;wrist_3_joint;measurement_temperature;measurement_x;measurement_std_x;measurement_y;measurement_std_y;measurement_z;measurement_std_z;measurement_rx;measurement_std_rx;measurement_ry;measurement_std_ry;measurement_rz;measurement_std_rz";
@@ -485,7 +486,8 @@ fn generic_csv_errors() {
 #[test]
 fn parsers_never_panic_on_garbage() {
     let map = mapping();
-    let seeds = [ipa_a(3), ipa_b(3), csv_text(3)];
+    let serial = "step_order,x_t,y_t,z_t,x_dif,y_dif,z_dif,joint_1,joint_2,joint_3,joint_4,joint_5,joint_6\n0,-430.3,-6.27,-98.6,-2.14,-3.52,0.81,-22.9,-43.7,135.4,-94.7,55.4,-5.55\n1,-463.7,-3.94,-104.9,-2.07,-2.88,-0.03,-19.7,-45.9,127.6,-71.4,63.3,-12.7\n".to_string();
+    let seeds = [ipa_a(3), ipa_b(3), csv_text(3), serial];
     let mut rng = 12345u64;
     for s in &seeds {
         let b = s.as_bytes();
@@ -501,6 +503,7 @@ fn parsers_never_panic_on_garbage() {
             let t = String::from_utf8_lossy(&v);
             let _ = parse_ipa(&t, "f", &IpaOptions::default());
             let _ = parse_csv(&t, "f", &map);
+            let _ = parse_serial_robots(&t, "f", &SerialRobotsOptions::default());
         }
     }
 }
