@@ -47,22 +47,7 @@ const TARGET_MM: f64 = 0.26;
 const TARGET_GAIN: f64 = 0.40;
 
 fn load(series: &Path) -> anyhow::Result<(KinematicModel, Vec<PoseObs>, Vec<PoseObs>)> {
-    let (main, extra) = if series.is_dir() {
-        (
-            series.join("train.jsonl"),
-            Some(series.join("heldout.jsonl")),
-        )
-    } else {
-        (series.to_path_buf(), None)
-    };
-    let main = robocal::dataset::read_dataset(&main)?.dataset;
-    let extra = extra
-        .map(|h| robocal::dataset::read_dataset(&h).map(|l| l.dataset))
-        .transpose()?;
-    let model = KinematicModel::from_robot_block(&main.header.robot)?;
-    let (train, held, _) =
-        robocal::solve::obs::split_observations(&main, extra.as_ref(), model.dof());
-    Ok((model, train, held))
+    robocal::diagnose::pooled::load_series(series)
 }
 
 fn rms(st: &State, obs: &[PoseObs]) -> f64 {

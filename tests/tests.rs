@@ -33,6 +33,7 @@ mod opencv_left;
 mod perf;
 mod pivot;
 mod plan;
+mod pooled_real;
 mod rcm;
 mod rcm_images;
 mod rcm_session;

@@ -4,7 +4,7 @@
 use nalgebra::{DMatrix, DVector, Isometry3, Point3};
 
 use super::stats::{lstsq, normal_inverse};
-use crate::diagnose::effects::{eval_pose, Effect, EffectModel};
+use crate::diagnose::effects::{eval_pose_with, Effect, EffectModel};
 use crate::model::{KinematicModel, ParamGroup};
 use crate::solve::lm::{minimize, LmOptions, LsqProblem};
 use crate::solve::obs::PoseObs;
@@ -27,9 +27,11 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
     // Poses are evaluated in parallel (a round's candidate columns evaluate hundreds of
     // blocks per pose), then written in order.
     use rayon::prelude::*;
+    // The model's angle-independent kinematics once for every pose (the same values).
+    let consts = state.model.consts();
     let evals: Vec<_> = obs
         .par_iter()
-        .map(|o| eval_pose(&state.model, &state.effects, &o.ctx))
+        .map(|o| eval_pose_with(&state.model, Some(&consts), &state.effects, &o.ctx))
         .collect();
     for (k, (o, ev)) in obs.iter().zip(&evals).enumerate() {
         let d = o.p - ev.pred;

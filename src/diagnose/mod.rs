@@ -23,6 +23,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 pub mod camera;
 pub mod camera_stage;
 pub mod changepoint;
+pub mod colcache;
 pub mod effects;
 pub mod error;
 pub mod extrapolation;
@@ -32,6 +33,7 @@ pub mod heap;
 pub mod inner_cv;
 pub mod nonparam;
 pub mod plot;
+pub mod pooled;
 pub mod stage;
 pub mod transfer;
 pub use crate::solve::inference as stats;
@@ -45,10 +47,36 @@ pub(crate) fn test_joints(f: f64, amp: f64, phase: f64) -> Vec<f64> {
         .collect()
 }
 
+/// `n` synthetic poses of `model` ([`test_joints`], 300 s apart) with every context the
+/// candidates read (approach directions alternating per joint, a temperature ramp, joint
+/// velocities): the unit tests' observations of the candidate columns.
+#[cfg(test)]
+pub(crate) fn test_obs(model: &KinematicModel, n: u64) -> Vec<PoseObs> {
+    (0..n)
+        .map(|k| {
+            let f = k as f64;
+            let q = test_joints(f, 0.7, 1.3);
+            let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
+            o.ctx.approach = (0..6)
+                .map(|i| {
+                    if (k as usize + i).is_multiple_of(2) {
+                        1.0
+                    } else {
+                        -1.0
+                    }
+                })
+                .collect();
+            o.ctx.temp_c = Some(20.0 + 0.3 * f);
+            o.ctx.qd = Some(vec![0.05; 6]);
+            o
+        })
+        .collect()
+}
+
 use crate::solve::obs::PoseObs;
 use effects::{Block, Driver, Effect, EffectModel};
 use fit::{fit, fit_nominal, residuals, rms3, stack, State};
-use stats::{f_sf, independence, orth_basis, project_out, CvBase};
+use stats::{f_sf, independence, orth_basis, project_out, project_out_t, CvBase};
 
 use crate::model::KinematicModel;
 
@@ -470,6 +498,8 @@ pub fn score_round(
     let (r, j) = stack(state, train);
     let nrow = r.len();
     let q = orth_basis(&j);
+    // `Qᵀ` once for every candidate's projection (the same products as `project_out`).
+    let qt = q.transpose();
     let rank_j = q.ncols();
     let rss0 = r.norm_squared();
     let rf = row_folds(&folds(train, opt.n_folds));
@@ -484,7 +514,7 @@ pub fn score_round(
         if g.iter().all(|v| v.abs() < 1e-15) {
             return None;
         }
-        let gp = project_out(&q, &g);
+        let gp = project_out_t(&q, &qt, &g);
         let indep = independence(&g, &gp);
         let qg = orth_basis(&gp);
         let df = qg.ncols();
@@ -642,6 +672,9 @@ pub fn score_round(
 /// the current state: the trailing columns of the [`fit::DiagnoseProblem`] Jacobian of the
 /// state with the blocks appended at zero coefficients.
 pub fn candidate_columns(state: &State, train: &[PoseObs], blocks: &[Block]) -> Vec<DMatrix<f64>> {
+    if colcache::StateColumns::applies(blocks) {
+        return colcache::StateColumns::new(state, train).columns(train, blocks);
+    }
     let mut st = state.clone();
     let mut off = st.model.free_count() + st.effects.iter().map(|e| e.coefs.len()).sum::<usize>();
     st.effects.extend(blocks.iter().cloned().map(Effect::zero));
@@ -708,6 +741,15 @@ fn with_points(b: &Block, pts: Vec<effects::MassPoint>) -> Block {
 fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>]) {
     let (_, j) = stack(state, train);
     let q = orth_basis(&j);
+    // Every call below is at the same state: evaluate it once.
+    let sc = colcache::StateColumns::new(state, train);
+    let candidate_columns = |bs: &[Block]| {
+        if colcache::StateColumns::applies(bs) {
+            sc.columns(train, bs)
+        } else {
+            candidate_columns(state, train, bs)
+        }
+    };
     for b in cands.iter_mut().flatten() {
         let pts = match b {
             Block::Compliance(c) => c.points.clone(),
@@ -715,7 +757,7 @@ fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>])
             _ => continue,
         };
         let mut pts = pts;
-        let mut cond = candidate_columns(state, train, std::slice::from_ref(b))
+        let mut cond = candidate_columns(std::slice::from_ref(b))
             .pop()
             .map_or(0.0, |g| block_conditioning(&q, &g));
         while cond < MIN_BLOCK_CONDITIONING && pts.len() > 1 {
@@ -726,7 +768,7 @@ fn prune_mass_points(state: &State, train: &[PoseObs], cands: &mut [Vec<Block>])
                     with_points(b, p)
                 })
                 .collect();
-            let conds: Vec<f64> = candidate_columns(state, train, &variants)
+            let conds: Vec<f64> = candidate_columns(&variants)
                 .iter()
                 .map(|g| block_conditioning(&q, g))
                 .collect();
@@ -1686,25 +1728,7 @@ mod tests {
     fn candidate_columns_are_the_problem_jacobian() {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
         model.fix_point_redundancies();
-        let obs: Vec<PoseObs> = (0..12)
-            .map(|k| {
-                let f = k as f64;
-                let q = test_joints(f, 0.7, 1.3);
-                let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
-                o.ctx.approach = (0..6)
-                    .map(|i| {
-                        if (k as usize + i).is_multiple_of(2) {
-                            1.0
-                        } else {
-                            -1.0
-                        }
-                    })
-                    .collect();
-                o.ctx.temp_c = Some(20.0 + 0.3 * f);
-                o.ctx.qd = Some(vec![0.05; 6]);
-                o
-            })
-            .collect();
+        let obs = test_obs(&model, 12);
         let mut fitted = Effect::zero(Block::Backlash(effects::Backlash { joint: 3 }));
         fitted.coefs = vec![2e-4];
         let state = State {

@@ -9,7 +9,7 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use std::path::Path;
 
-use super::effects::{apply_effects, Block, Effect, EffectModel};
+use super::effects::{apply_effects_np, np_correction, Block, Effect, EffectModel};
 use super::error::PlotError;
 use super::fit::State;
 use crate::solve::obs::PoseObs;
@@ -20,65 +20,116 @@ pub fn partial_residual(
     obs: &[PoseObs],
     idx: usize,
 ) -> (Vec<(f64, f64)>, String, String) {
-    let e = &state.effects[idx];
-    let others: Vec<Effect> = state
-        .effects
+    partial_residuals(state, obs, &[idx])
+        .pop()
+        .expect("one plot per index")
+}
+
+/// [`partial_residual`] of each effect `idxs[i]`, one pass over the poses: each pose's
+/// prediction with every effect, its kernel corrections and its parameter Jacobian are
+/// computed once for all the plots (the same values as one plot at a time).
+pub fn partial_residuals(
+    state: &State,
+    obs: &[PoseObs],
+    idxs: &[usize],
+) -> Vec<(Vec<(f64, f64)>, String, String)> {
+    // Per plot: the other effects, and the joint it projects on. Effects that act on a
+    // joint angle project on that joint; link deflection moves the point directly (its
+    // joint is where it bends, not an angle).
+    let plots: Vec<(usize, Vec<Effect>, Option<usize>)> = idxs
         .iter()
-        .enumerate()
-        .filter(|(i, _)| *i != idx)
-        .map(|(_, e)| e.clone())
-        .collect();
-    // Effects that act on a joint angle project on that joint; link deflection moves the
-    // point directly (its joint is where it bends, not an angle).
-    let joint = e
-        .block
-        .joint()
-        .filter(|_| !matches!(e.block, Block::LinkDeflection(_)));
-    // Every pose on its own (two predictions with the correction's kernel sums each): in
-    // parallel, collected in pose order.
-    use rayon::prelude::*;
-    let pts: Vec<(f64, f64)> = obs
-        .par_iter()
-        .filter_map(|o| {
-            let full = apply_effects(&state.model, &state.effects, &o.ctx);
-            let without = apply_effects(&state.model, &others, &o.ctx);
-            let g: Vector3<f64> = full - without;
-            let r = o.p - full;
-            let pr = r + g;
-            match joint {
-                Some(j) => {
-                    let (_, jm) = state.model.point_param_jacobian(&o.ctx.q);
-                    let ip = state.model.param_index(&format!("phi{j}"))?;
-                    let c = jm.column(ip).into_owned();
-                    let n2 = c.norm_squared();
-                    if n2 < 1e-9 {
-                        return None;
-                    }
-                    let x = g.dot(&c) / n2;
-                    let y = pr.dot(&c) / n2;
-                    Some((x.to_degrees() * 1e3, y.to_degrees() * 1e3))
-                }
-                None => {
-                    let n = g.norm();
-                    if n < 1e-12 {
-                        return Some((0.0, 0.0));
-                    }
-                    Some((n, pr.dot(&(g / n))))
-                }
-            }
+        .map(|&idx| {
+            let e = &state.effects[idx];
+            let others: Vec<Effect> = state
+                .effects
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != idx)
+                .map(|(_, e)| e.clone())
+                .collect();
+            let joint = e
+                .block
+                .joint()
+                .filter(|_| !matches!(e.block, Block::LinkDeflection(_)));
+            (idx, others, joint)
         })
         .collect();
-    let (xl, yl) = match joint {
-        Some(j) => (
-            format!("{} correction of joint {j} (mdeg)", e.block.kind()),
-            format!("partial residual as joint-{j} angle (mdeg)"),
-        ),
-        None => (
-            format!("{} displacement (mm)", e.block.kind()),
-            "partial residual along it (mm)".to_string(),
-        ),
-    };
-    (pts, xl, yl)
+    // Every pose on its own (in parallel, collected in pose order): the kernel sums of the
+    // correction once per pose, not twice per plot.
+    use rayon::prelude::*;
+    let per_pose: Vec<Vec<Option<(f64, f64)>>> = obs
+        .par_iter()
+        .map(|o| {
+            let np: Vec<Option<Vector3<f64>>> = state
+                .effects
+                .iter()
+                .map(|e| np_correction(&state.model, e, &o.ctx))
+                .collect();
+            let full = apply_effects_np(
+                &state.model,
+                &state.effects,
+                &o.ctx,
+                np.iter().flatten().copied(),
+            );
+            let mut jm = None;
+            plots
+                .iter()
+                .map(|(idx, others, joint)| {
+                    let np_others = np
+                        .iter()
+                        .enumerate()
+                        .filter(|(i, _)| i != idx)
+                        .filter_map(|(_, c)| *c);
+                    let without = apply_effects_np(&state.model, others, &o.ctx, np_others);
+                    let g: Vector3<f64> = full - without;
+                    let r = o.p - full;
+                    let pr = r + g;
+                    match joint {
+                        Some(j) => {
+                            let jm = jm.get_or_insert_with(|| {
+                                state.model.point_param_jacobian(&o.ctx.q).1
+                            });
+                            let ip = state.model.param_index(&format!("phi{j}"))?;
+                            let c = jm.column(ip).into_owned();
+                            let n2 = c.norm_squared();
+                            if n2 < 1e-9 {
+                                return None;
+                            }
+                            let x = g.dot(&c) / n2;
+                            let y = pr.dot(&c) / n2;
+                            Some((x.to_degrees() * 1e3, y.to_degrees() * 1e3))
+                        }
+                        None => {
+                            let n = g.norm();
+                            if n < 1e-12 {
+                                return Some((0.0, 0.0));
+                            }
+                            Some((n, pr.dot(&(g / n))))
+                        }
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    plots
+        .iter()
+        .enumerate()
+        .map(|(k, (idx, _, joint))| {
+            let pts: Vec<(f64, f64)> = per_pose.iter().filter_map(|p| p[k]).collect();
+            let e = &state.effects[*idx];
+            let (xl, yl) = match joint {
+                Some(j) => (
+                    format!("{} correction of joint {j} (mdeg)", e.block.kind()),
+                    format!("partial residual as joint-{j} angle (mdeg)"),
+                ),
+                None => (
+                    format!("{} displacement (mm)", e.block.kind()),
+                    "partial residual along it (mm)".to_string(),
+                ),
+            };
+            (pts, xl, yl)
+        })
+        .collect()
 }
 
 /// The plotting library's error `e` on the plot `path`.

@@ -172,8 +172,9 @@ pub fn run_loaded(
         extra: Map::new(),
     };
     w("calibration.json", &serde_json::to_string_pretty(&cal)?)?;
+    use rayon::prelude::*;
     let rows: Vec<crate::schema::points_csv::IdPoint> = held
-        .iter()
+        .par_iter()
         .map(|o| {
             let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
             crate::schema::points_csv::IdPoint {
@@ -188,8 +189,9 @@ pub fn run_loaded(
         "heldout_predictions.csv",
         &crate::schema::points_csv::to_string(&rows),
     )?;
-    for (i, e) in d.state.effects.iter().enumerate() {
-        let (pts, xl, yl) = plot::partial_residual(&d.state, &train, i);
+    let idxs: Vec<usize> = (0..d.state.effects.len()).collect();
+    let plots = plot::partial_residuals(&d.state, &train, &idxs);
+    for ((i, e), (pts, xl, yl)) in d.state.effects.iter().enumerate().zip(plots) {
         let name = format!("effect_{}_{}.svg", i + 1, e.block.kind());
         plot::write_svg(&args.out.join(&name), &e.block.label(), &pts, &xl, &yl)?;
     }

@@ -26,10 +26,14 @@ use serde_json::Map;
 use crate::dataset::{CalParam, ChainJoint, FixedOrigin, RobotBlock};
 
 pub mod chain;
+mod consts;
 pub mod error;
+mod frames;
 pub mod ik;
 pub mod point_fk;
 pub mod presets;
+pub use consts::ModelConsts;
+pub use frames::PoseFrames;
 
 pub use chain::{origin_iso, ChainSpecJoint, SerialChain};
 pub use error::{IkError, ModelError};
@@ -159,8 +163,13 @@ fn pose6(v: &[f64]) -> Frame {
 /// World axes of the three rpy rotations of a pose group whose parent frame has rotation `rp`:
 /// `R = rp·Rz·Ry·Rx`, d/drx about `rp·Rz·Ry·x`, d/dry about `rp·Rz·y`, d/drz about `rp·z`.
 fn rpy_axes(rp: &Matrix3<f64>, v: &[f64]) -> [Vector3<f64>; 3] {
-    let rz = rp * rot_z(v[5]);
-    let ry = rz * rot_y(v[4]);
+    rpy_axes_with(rp, &rot_z(v[5]), &rot_y(v[4]))
+}
+
+/// [`rpy_axes`] with `Rz(rz)` and `Ry(ry)` of the group given.
+fn rpy_axes_with(rp: &Matrix3<f64>, rz: &Matrix3<f64>, ry: &Matrix3<f64>) -> [Vector3<f64>; 3] {
+    let rz = rp * rz;
+    let ry = rz * ry;
     [
         ry.column(0).into_owned(),
         rz.column(1).into_owned(),

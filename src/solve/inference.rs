@@ -180,10 +180,16 @@ pub fn orth_basis(a: &DMatrix<f64>) -> DMatrix<f64> {
 
 /// `(I − Q Qᵀ) M` for an orthonormal `Q`.
 pub fn project_out(q: &DMatrix<f64>, m: &DMatrix<f64>) -> DMatrix<f64> {
+    project_out_t(q, &q.transpose(), m)
+}
+
+/// [`project_out`] with `Qᵀ` given (`qt`): a caller projecting many blocks against one `Q`
+/// transposes it once (the same products, the same values).
+pub fn project_out_t(q: &DMatrix<f64>, qt: &DMatrix<f64>, m: &DMatrix<f64>) -> DMatrix<f64> {
     if q.ncols() == 0 {
         return m.clone();
     }
-    m - q * (q.transpose() * m)
+    m - q * (qt * m)
 }
 
 /// How much of a candidate block lies outside the current model's column space: the
@@ -233,8 +239,9 @@ pub struct CvBase {
 struct CvFold {
     test: Vec<usize>,
     train: Vec<usize>,
-    /// The fold's training rows of the scaled `J` and of `r`, and their cross products.
-    jt: DMatrix<f64>,
+    /// The transpose of the fold's training rows of the scaled `J` (formed once), the
+    /// training rows of `r`, and their cross products.
+    jt_t: DMatrix<f64>,
     rt: DVector<f64>,
     jtj: DMatrix<f64>,
     jtr: DVector<f64>,
@@ -275,10 +282,11 @@ impl CvBase {
                 }
                 let jt = js.select_rows(&train);
                 let rt = r.select_rows(&train);
+                let jt_t = jt.transpose();
                 Some(CvFold {
-                    jtj: jt.transpose() * &jt,
-                    jtr: jt.transpose() * &rt,
-                    jt,
+                    jtj: &jt_t * &jt,
+                    jtr: &jt_t * &rt,
+                    jt_t,
                     rt,
                     test,
                     train,
@@ -307,12 +315,12 @@ impl CvBase {
             b.rows_mut(0, p0).copy_from(&f.jtr);
             if pk > 0 {
                 let gt = gs.select_rows(&f.train);
-                let jg = f.jt.transpose() * &gt;
+                let gt_t = gt.transpose();
+                let jg = &f.jt_t * &gt;
                 m.view_mut((0, p0), (p0, pk)).copy_from(&jg);
                 m.view_mut((p0, 0), (pk, p0)).copy_from(&jg.transpose());
-                m.view_mut((p0, p0), (pk, pk))
-                    .copy_from(&(gt.transpose() * &gt));
-                b.rows_mut(p0, pk).copy_from(&(gt.transpose() * &f.rt));
+                m.view_mut((p0, p0), (pk, pk)).copy_from(&(&gt_t * &gt));
+                b.rows_mut(p0, pk).copy_from(&(&gt_t * &f.rt));
             }
             let eig = m.symmetric_eigen();
             let lmax = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(v.abs()));

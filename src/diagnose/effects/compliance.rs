@@ -4,9 +4,12 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use super::file::{self, deg, lenient, lenient_vec, rad, EffectFileError};
-use super::{gravity_torques, mass_points, Coefs, EffectModel, Family, MassPoint, GRAVITY_DIR};
+use super::{
+    gravity_torques, gravity_torques_in, mass_points, Coefs, EffectModel, Family, MassPoint,
+    GRAVITY_DIR,
+};
 use crate::dataset::CalEffect;
-use crate::model::KinematicModel;
+use crate::model::{KinematicModel, PoseFrames};
 use crate::schema::EffectParameter;
 use crate::solve::obs::{PoseCtx, PoseObs};
 
@@ -15,6 +18,21 @@ use crate::solve::obs::{PoseCtx, PoseObs};
 pub struct Compliance {
     pub joint: usize,
     pub points: Vec<MassPoint>,
+}
+
+impl Compliance {
+    /// [`EffectModel::joint_features`] at the pose whose frames are `f` (`dof` joints).
+    pub fn features_in(&self, f: &PoseFrames, dof: usize) -> Vec<(usize, usize, f64)> {
+        let j = self.joint;
+        if j == 0 || j > dof {
+            return vec![];
+        }
+        gravity_torques_in(f, j, &self.points)
+            .into_iter()
+            .enumerate()
+            .map(|(c, tau)| (j - 1, c, tau))
+            .collect()
+    }
 }
 
 /// The calibration-file parameters (`gravity_point_masses`).
@@ -90,15 +108,10 @@ impl EffectModel for Compliance {
             .collect()
     }
     fn joint_features(&self, model: &KinematicModel, ctx: &PoseCtx) -> Vec<(usize, usize, f64)> {
-        let j = self.joint;
-        if j == 0 || j > model.dof() {
+        if self.joint == 0 || self.joint > model.dof() {
             return vec![];
         }
-        gravity_torques(model, &ctx.q, j, &self.points)
-            .into_iter()
-            .enumerate()
-            .map(|(c, tau)| (j - 1, c, tau))
-            .collect()
+        self.features_in(&model.pose_frames(&ctx.q), model.dof())
     }
     fn check_identifiable(&self, model: &KinematicModel, train: &[PoseObs]) -> Result<(), String> {
         // A vertical axis carries a constant gravity torque: absorbed by the offset.

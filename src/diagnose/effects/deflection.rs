@@ -20,7 +20,7 @@ use super::compliance::{points_in_words, read_points};
 use super::file::{self, deg, lenient_vec, rad, EffectFileError};
 use super::{mass_points, Coefs, EffectModel, Family, MassPoint, GRAVITY, GRAVITY_DIR};
 use crate::dataset::CalEffect;
-use crate::model::KinematicModel;
+use crate::model::{KinematicModel, PoseFrames};
 use crate::schema::EffectParameter;
 use crate::solve::obs::{PoseCtx, PoseObs};
 
@@ -31,6 +31,18 @@ pub struct LinkDeflection {
     pub joint: usize,
     pub points: Vec<MassPoint>,
     pub anisotropic: bool,
+}
+
+impl LinkDeflection {
+    /// [`EffectModel::columns`] at the pose whose frames are `f`.
+    pub fn columns_in(&self, f: &PoseFrames) -> Vec<Vector3<f64>> {
+        let mut cols = vec![Vector3::zeros(); self.n_params()];
+        let (rb, lever, dirs) = deflection_terms_in(f, self.joint, &self.points, self.anisotropic);
+        for (c, d) in dirs.iter().enumerate() {
+            cols[c] = rb * d.cross(&lever);
+        }
+        cols
+    }
 }
 
 /// The calibration-file parameters (`gravity_bending_point_masses`; anisotropic:
@@ -63,18 +75,27 @@ pub fn deflection_terms(
     points: &[MassPoint],
     anisotropic: bool,
 ) -> (nalgebra::Rotation3<f64>, Vector3<f64>, Vec<Vector3<f64>>) {
-    let n = model.dof();
-    let fj = model.joint_frame(q, joint.min(n));
+    deflection_terms_in(&model.pose_frames(q), joint, points, anisotropic)
+}
+
+/// [`deflection_terms`] at the pose whose frames are `f` (the same values).
+pub fn deflection_terms_in(
+    f: &PoseFrames,
+    joint: usize,
+    points: &[MassPoint],
+    anisotropic: bool,
+) -> (nalgebra::Rotation3<f64>, Vector3<f64>, Vec<Vector3<f64>>) {
+    let fj = f.joint_frame(joint);
     let z = fj.rotation * Vector3::z();
     let o = fj.translation.vector;
     let g = Vector3::from(GRAVITY_DIR) * GRAVITY;
-    let marker = model.tool_pose_in_base(q).translation.vector;
+    let marker = f.tool_origin();
     let dirs = points
         .iter()
         .map(|p| {
             let c = match p {
                 MassPoint::Marker => marker,
-                _ => p.position(model, q),
+                _ => p.position_in(f),
             };
             let m = ((c - o) * 1e-3).cross(&g);
             m - z * z.dot(&m)
@@ -89,7 +110,7 @@ pub fn deflection_terms(
             }
         })
         .collect();
-    (model.base().rotation.to_rotation_matrix(), marker - o, dirs)
+    (*f.base_rotation(), marker - o, dirs)
 }
 
 impl EffectModel for LinkDeflection {
@@ -142,13 +163,7 @@ impl EffectModel for LinkDeflection {
         _p: &Point3<f64>,
         ctx: &PoseCtx,
     ) -> Vec<Vector3<f64>> {
-        let mut cols = vec![Vector3::zeros(); self.n_params()];
-        let (rb, lever, dirs) =
-            deflection_terms(model, &ctx.q, self.joint, &self.points, self.anisotropic);
-        for (c, d) in dirs.iter().enumerate() {
-            cols[c] = rb * d.cross(&lever);
-        }
-        cols
+        self.columns_in(&model.pose_frames(&ctx.q))
     }
     fn check_identifiable(&self, model: &KinematicModel, train: &[PoseObs]) -> Result<(), String> {
         // The bending moment must vary over the poses (its direction or size).

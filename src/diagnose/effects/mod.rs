@@ -29,7 +29,7 @@ use std::borrow::Cow;
 
 use super::nonparam::Rbf;
 use crate::dataset::CalEffect;
-use crate::model::{KinematicModel, ParamGroup};
+use crate::model::{KinematicModel, ModelConsts, ParamGroup, PoseFrames};
 use crate::schema::EffectParameter;
 use crate::solve::obs::{PoseCtx, PoseObs};
 
@@ -106,17 +106,12 @@ impl MassPoint {
             MassPoint::Marker => "the marker".into(),
         }
     }
-    /// Position (robot base, mm) at `q`.
-    fn position(&self, model: &KinematicModel, q: &[f64]) -> Vector3<f64> {
+    /// Position (robot base, mm) at the pose whose frames are `f`.
+    fn position_in(&self, f: &PoseFrames) -> Vector3<f64> {
         match self {
-            MassPoint::Frame(k) => {
-                model
-                    .joint_frame(q, (*k).min(model.dof()))
-                    .translation
-                    .vector
-            }
-            MassPoint::Flange => model.flange_pose(q).translation.vector,
-            MassPoint::Marker => model.tool_pose_in_base(q).translation.vector,
+            MassPoint::Frame(k) => f.joint_frame(*k).translation.vector,
+            MassPoint::Flange => f.flange_origin(),
+            MassPoint::Marker => f.tool_origin(),
         }
     }
 }
@@ -346,8 +341,19 @@ pub fn joint_columns<E: EffectModel + ?Sized>(
     jm: &Matrix3xX<f64>,
     ctx: &PoseCtx,
 ) -> Vec<Vector3<f64>> {
-    let mut cols = vec![Vector3::zeros(); e.n_params()];
-    for (j, c, f) in e.joint_features(model, ctx) {
+    features_columns(e.n_params(), e.joint_features(model, ctx), model, jm)
+}
+
+/// The columns of `n` coefficients from their joint-angle regressors `features` (see
+/// [`EffectModel::joint_features`]) through the joint-offset columns of `jm`.
+fn features_columns(
+    n: usize,
+    features: Vec<(usize, usize, f64)>,
+    model: &KinematicModel,
+    jm: &Matrix3xX<f64>,
+) -> Vec<Vector3<f64>> {
+    let mut cols = vec![Vector3::zeros(); n];
+    for (j, c, f) in features {
         if let Some(ip) = phi_index(model, j) {
             cols[c] += jm.column(ip) * f;
         }
@@ -405,15 +411,19 @@ pub fn gravity_torques(
     joint: usize,
     points: &[MassPoint],
 ) -> Vec<f64> {
-    let n = model.dof();
-    let fj = model.joint_frame(q, joint.min(n));
+    gravity_torques_in(&model.pose_frames(q), joint, points)
+}
+
+/// [`gravity_torques`] at the pose whose frames are `f` (the same values).
+pub fn gravity_torques_in(f: &PoseFrames, joint: usize, points: &[MassPoint]) -> Vec<f64> {
+    let fj = f.joint_frame(joint);
     let z = fj.rotation * Vector3::z();
     let o = fj.translation.vector;
     let g = Vector3::from(GRAVITY_DIR) * GRAVITY;
     points
         .iter()
         .map(|p| {
-            let c = p.position(model, q);
+            let c = p.position_in(f);
             // mm → m
             z.dot(&((c - o) * 1e-3).cross(&g))
         })
@@ -639,15 +649,34 @@ fn tracker_scale(effects: &[Effect]) -> f64 {
 
 /// Predicted marker origin (mm, tracker frame) of one pose with all effects applied.
 pub fn apply_effects(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> Point3<f64> {
+    let np = effects.iter().filter_map(|e| np_correction(model, e, ctx));
+    apply_effects_np(model, effects, ctx, np)
+}
+
+/// The kernel correction of a `nonparametric` effect at one pose (`None` for other effects).
+pub fn np_correction(model: &KinematicModel, e: &Effect, ctx: &PoseCtx) -> Option<Vector3<f64>> {
+    match &e.block {
+        Block::Nonparametric(r) => Some(r.correction(model, &ctx.q)),
+        _ => None,
+    }
+}
+
+/// [`apply_effects`] with the kernel corrections of the `nonparametric` effects of
+/// `effects` given (`np`, in `effects` order, [`np_correction`]): a caller predicting the
+/// same pose under several effect lists evaluates each kernel sum once.
+pub fn apply_effects_np(
+    model: &KinematicModel,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+    np: impl IntoIterator<Item = Vector3<f64>>,
+) -> Point3<f64> {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
     let p = m.measured_point(&th).coords + point_displacement(&m, effects, ctx);
     let mut y = p * (1.0 + tracker_scale(effects));
-    for e in effects {
-        if let Block::Nonparametric(r) = &e.block {
-            y += r.correction(model, &ctx.q);
-        }
+    for c in np {
+        y += c;
     }
     Point3::from(y)
 }
@@ -662,15 +691,108 @@ pub struct PoseEval {
     pub jac_effects: Matrix3xX<f64>,
 }
 
-/// Evaluate one pose (see [`PoseEval`]).
-pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> PoseEval {
+/// What every column of one pose is computed from: the model the pose is predicted with
+/// ([`pose_model`]), the point before the tracker scale (with the point displacements), the
+/// model's parameter Jacobian at the effect-adjusted angles and the tracker scale `1 + s`.
+pub struct PoseBase<'a> {
+    pub m: Cow<'a, KinematicModel>,
+    pub p: Point3<f64>,
+    pub jm_pose: Matrix3xX<f64>,
+    pub s: f64,
+}
+
+/// The [`PoseBase`] of one pose under `effects`. Effects with all-zero coefficients change
+/// none of it (they are skipped, and add `0` to the tracker scale). `consts`: those of
+/// `model` ([`KinematicModel::consts`]) when the caller formed them for many poses; used
+/// when the pose is predicted with `model` itself (the same values either way).
+pub fn pose_base<'a>(
+    model: &'a KinematicModel,
+    consts: Option<&ModelConsts>,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+) -> PoseBase<'a> {
     let d = joint_offsets(model, effects, ctx);
     let th: Vec<f64> = ctx.q.iter().zip(d.iter()).map(|(q, d)| q + d).collect();
     let m = pose_model(model, effects, ctx);
-    let (p0, jm_pose) = m.point_param_jacobian(&th);
+    let with_consts = match (&m, consts) {
+        (Cow::Borrowed(_), Some(c)) => {
+            let mut jm = Matrix3xX::zeros(m.params().len());
+            m.point_param_jacobian_with(c, &th, &mut jm)
+                .map(|p| (p, jm))
+        }
+        _ => None,
+    };
+    let (p0, jm_pose) = with_consts.unwrap_or_else(|| m.point_param_jacobian(&th));
     // Point effects add a displacement linear in their coefficients; its dependence on
     // the geometry (a second-order cross term) is left out of the model columns.
     let p = p0 + point_displacement(&m, effects, ctx);
+    PoseBase {
+        m,
+        p,
+        jm_pose,
+        s: 1.0 + tracker_scale(effects),
+    }
+}
+
+/// The Jacobian columns of one effect (`block` with coefficients `coefs`) at one pose as
+/// [`eval_pose`] sets them, from the block's own columns `cols` ([`EffectModel::columns`]
+/// with the pose's model): the link growth's column in the ungrown lengths, every column
+/// times the tracker scale `s`, the tracker scale's own column the point `p`.
+pub fn scaled_columns(
+    block: &Block,
+    coefs: &[f64],
+    mut cols: Vec<Vector3<f64>>,
+    p: &Point3<f64>,
+    s: f64,
+    ctx: &PoseCtx,
+) -> Vec<Vector3<f64>> {
+    if block.growth_driver(ctx).is_some() {
+        // `m` holds the grown lengths a'_i = a_i·growth; the column needs a_i.
+        cols[0] /= block.growth(coefs, ctx).unwrap_or(1.0);
+    }
+    for c in cols.iter_mut() {
+        *c *= s;
+    }
+    if let Block::TrackerScale(_) = block {
+        // d/ds of (1+s)p is p itself, not scaled again
+        cols[0] = p.coords;
+    }
+    cols
+}
+
+/// [`EffectModel::columns`] of `block` at the pose whose frames (of `model` at `ctx.q`)
+/// are `f`: the gravity-driven blocks take their frames from `f` instead of walking the
+/// chain per mass point (the same values).
+pub fn block_columns_in(
+    block: &Block,
+    f: &PoseFrames,
+    model: &KinematicModel,
+    jm: &Matrix3xX<f64>,
+    p: &Point3<f64>,
+    ctx: &PoseCtx,
+) -> Vec<Vector3<f64>> {
+    match block {
+        Block::Compliance(c) => {
+            features_columns(c.n_params(), c.features_in(f, model.dof()), model, jm)
+        }
+        Block::LinkDeflection(d) => d.columns_in(f),
+        b => b.columns(model, jm, p, ctx),
+    }
+}
+
+/// Evaluate one pose (see [`PoseEval`]).
+pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> PoseEval {
+    eval_pose_with(model, None, effects, ctx)
+}
+
+/// [`eval_pose`] with the constants of `model` formed by the caller (see [`pose_base`]).
+pub fn eval_pose_with(
+    model: &KinematicModel,
+    consts: Option<&ModelConsts>,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+) -> PoseEval {
+    let PoseBase { m, p, jm_pose, s } = pose_base(model, consts, effects, ctx);
     // Link growth scales the length parameters: pred = P(a·(1 + g·x)), so
     // d pred / d a_i = (1 + g·x) ∂P/∂a'_i and d pred / d g = Σ ∂P/∂a'_i a_i x.
     let growth: f64 = effects
@@ -685,23 +807,17 @@ pub fn eval_pose(model: &KinematicModel, effects: &[Effect], ctx: &PoseCtx) -> P
             }
         }
     }
-    let s = 1.0 + tracker_scale(effects);
     let mut pred = p.coords * s;
     let ncol: usize = effects.iter().map(|e| e.block.n_params()).sum();
     let mut je = Matrix3xX::zeros(ncol);
     let mut off = 0;
     for e in effects {
-        let mut cols = e.block.columns(&m, &jm_pose, &p, ctx);
-        if e.block.growth_driver(ctx).is_some() {
-            // `m` holds the grown lengths a'_i = a_i·growth; the column needs a_i.
-            cols[0] /= e.block.growth(&e.coefs, ctx).unwrap_or(1.0);
-        }
-        for (k, c) in cols.iter().enumerate() {
-            je.set_column(off + k, &(c * s));
-        }
-        if let Block::TrackerScale(_) = e.block {
-            // d/ds of (1+s)p is p itself, not scaled again
-            je.set_column(off, &p.coords);
+        let raw = e.block.columns(&m, &jm_pose, &p, ctx);
+        for (k, c) in scaled_columns(&e.block, &e.coefs, raw, &p, s, ctx)
+            .iter()
+            .enumerate()
+        {
+            je.set_column(off + k, c);
         }
         if let Block::Nonparametric(r) = &e.block {
             pred += r.correction(model, &ctx.q);
