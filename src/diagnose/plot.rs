@@ -14,12 +14,11 @@ use super::error::PlotError;
 use super::fit::State;
 use crate::solve::obs::PoseObs;
 
+/// One scatter plot: its (x, y) pairs and the x and y axis labels.
+pub type Scatter = (Vec<(f64, f64)>, String, String);
+
 /// (x, y) pairs of the partial-residual plot of `state.effects[idx]`, and axis labels.
-pub fn partial_residual(
-    state: &State,
-    obs: &[PoseObs],
-    idx: usize,
-) -> (Vec<(f64, f64)>, String, String) {
+pub fn partial_residual(state: &State, obs: &[PoseObs], idx: usize) -> Scatter {
     partial_residuals(state, obs, &[idx])
         .pop()
         .expect("one plot per index")
@@ -28,11 +27,7 @@ pub fn partial_residual(
 /// [`partial_residual`] of each effect `idxs[i]`, one pass over the poses: each pose's
 /// prediction with every effect, its kernel corrections and its parameter Jacobian are
 /// computed once for all the plots (the same values as one plot at a time).
-pub fn partial_residuals(
-    state: &State,
-    obs: &[PoseObs],
-    idxs: &[usize],
-) -> Vec<(Vec<(f64, f64)>, String, String)> {
+pub fn partial_residuals(state: &State, obs: &[PoseObs], idxs: &[usize]) -> Vec<Scatter> {
     // Per plot: the other effects, and the joint it projects on. Effects that act on a
     // joint angle project on that joint; link deflection moves the point directly (its
     // joint is where it bends, not an angle).

@@ -29,8 +29,17 @@ pub struct ModelConsts {
     base6: Frame,
     /// `rpy_axes(I, base)`.
     base_axes: [Vector3<f64>; 3],
-    /// Flange and tool: the group's values, its frame and `Rz(rz)`, `Ry(ry)` of its axes.
-    groups: [([f64; 6], Frame, Matrix3<f64>, Matrix3<f64>); 2],
+    /// Flange, tool.
+    groups: [GroupConsts; 2],
+}
+
+/// A pose group (flange or tool): its values, its frame and the `Rz(rz)`, `Ry(ry)` its
+/// roll-pitch-yaw axes need.
+struct GroupConsts {
+    v: [f64; 6],
+    frame: Frame,
+    rz: Matrix3<f64>,
+    ry: Matrix3<f64>,
 }
 
 impl KinematicModel {
@@ -55,7 +64,12 @@ impl KinematicModel {
         let base = self.group_slice(ParamGroup::Base);
         let group = |g: ParamGroup| {
             let v = self.group_slice(g);
-            (v, pose6(&v), rot_z(v[5]), rot_y(v[4]))
+            GroupConsts {
+                v,
+                frame: pose6(&v),
+                rz: rot_z(v[5]),
+                ry: rot_y(v[4]),
+            }
         };
         ModelConsts {
             joints,
@@ -86,8 +100,8 @@ impl KinematicModel {
                 r,
             });
         }
-        let f = c.base6.mul(&t.mul(&c.flange_fixed).mul(&c.groups[0].1));
-        let tool = &c.groups[1].0;
+        let f = c.base6.mul(&t.mul(&c.flange_fixed).mul(&c.groups[0].frame));
+        let tool = &c.groups[1].v;
         Point3::from(f.p + f.r * Vector3::new(tool[0], tool[1], tool[2]))
     }
 
@@ -144,12 +158,12 @@ impl KinematicModel {
             };
         }
         t = t.mul(&c.flange_fixed);
-        for ((_, g6, gz, gy), off) in c.groups.iter().zip([self.off_flange(), self.off_tool()]) {
-            let ax = super::rpy_axes_with(&t.r, gz, gy);
+        for (g, off) in c.groups.iter().zip([self.off_flange(), self.off_tool()]) {
+            let ax = super::rpy_axes_with(&t.r, &g.rz, &g.ry);
             for k in 0..3 {
                 f(off + k, t.r.column(k).into_owned(), t.p, false);
             }
-            t = t.mul(g6);
+            t = t.mul(&g.frame);
             for (k, a) in ax.iter().enumerate() {
                 f(off + 3 + k, *a, t.p, true);
             }
