@@ -47,6 +47,20 @@ pub(crate) fn test_joints(f: f64, amp: f64, phase: f64) -> Vec<f64> {
         .collect()
 }
 
+/// Approach directions of synthetic test pose `k`: ±1 alternating over the joints and poses.
+#[cfg(test)]
+pub(crate) fn test_approach(k: u64) -> Vec<f64> {
+    (0..6)
+        .map(|i| {
+            if (k as usize + i).is_multiple_of(2) {
+                1.0
+            } else {
+                -1.0
+            }
+        })
+        .collect()
+}
+
 /// `n` synthetic poses of `model` ([`test_joints`], 300 s apart) with every context the
 /// candidates read (approach directions alternating per joint, a temperature ramp, joint
 /// velocities): the unit tests' observations of the candidate columns.
@@ -57,15 +71,7 @@ pub(crate) fn test_obs(model: &KinematicModel, n: u64) -> Vec<PoseObs> {
             let f = k as f64;
             let q = test_joints(f, 0.7, 1.3);
             let mut o = PoseObs::at(k, 300.0 * f, q.clone(), model.measured_point(&q));
-            o.ctx.approach = (0..6)
-                .map(|i| {
-                    if (k as usize + i).is_multiple_of(2) {
-                        1.0
-                    } else {
-                        -1.0
-                    }
-                })
-                .collect();
+            o.ctx.approach = test_approach(k);
             o.ctx.temp_c = Some(20.0 + 0.3 * f);
             o.ctx.qd = Some(vec![0.05; 6]);
             o
@@ -1788,15 +1794,7 @@ mod tests {
             let f = k as f64;
             let q = test_joints(f, 0.9, 1.7);
             let mut o = PoseObs::at(k, 30.0 * f, q, Point3::origin());
-            o.ctx.approach = (0..6)
-                .map(|i| {
-                    if (k as usize + i).is_multiple_of(2) {
-                        1.0
-                    } else {
-                        -1.0
-                    }
-                })
-                .collect();
+            o.ctx.approach = test_approach(k);
             o.ctx.temp_c = Some(20.0 + 0.05 * f);
             o.ctx.qd = Some(vec![0.05; 6]);
             let p = effects::apply_effects(&model, std::slice::from_ref(&truth), &o.ctx);

@@ -514,12 +514,7 @@ pub fn register_new_series(
     // The series' own effect coefficients with its setup (and offsets): every shared
     // parameter and effect held.
     let mut st = st;
-    let saved: Vec<(String, bool)> = st
-        .model
-        .params()
-        .iter()
-        .map(|p| (p.name.clone(), p.free))
-        .collect();
+    let saved = st.model.free_flags();
     let keep: Vec<(String, bool)> = st
         .model
         .params()
@@ -566,9 +561,7 @@ pub fn register_new_series(
         x0
     };
     let mut st = prob.layout.unpack(&states, &x).remove(0);
-    for (n, f) in &saved {
-        st.model.set_free(n, *f)?;
-    }
+    st.model.set_free_flags(&saved)?;
     Ok(st)
 }
 

@@ -90,12 +90,7 @@ fn refit(state: &State, obs: &[PoseObs], offsets: bool) -> Result<State, FitErro
         why: e.to_string(),
     })?;
     st.model.set_base(&b);
-    let saved: Vec<(String, bool)> = st
-        .model
-        .params()
-        .iter()
-        .map(|p| (p.name.clone(), p.free))
-        .collect();
+    let saved = st.model.free_flags();
     let setup: Vec<(String, bool)> = st
         .model
         .params()
@@ -131,9 +126,7 @@ fn refit(state: &State, obs: &[PoseObs], offsets: bool) -> Result<State, FitErro
     if rep.cost <= rep.initial_cost {
         st.model.set_free_values(&rep.x);
     }
-    for (n, f) in &saved {
-        st.model.set_free(n, *f)?;
-    }
+    st.model.set_free_flags(&saved)?;
     let r = rms3(&residuals(&st, obs));
     if !r.is_finite() {
         return Err(FitError::NotFinite(

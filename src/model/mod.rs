@@ -515,6 +515,21 @@ impl KinematicModel {
         self.params[i].free = free;
         Ok(())
     }
+    /// Every parameter's name and free flag (in `params()` order), to put back with
+    /// [`Self::set_free_flags`] after a fit that frees another subset.
+    pub fn free_flags(&self) -> Vec<(String, bool)> {
+        self.params
+            .iter()
+            .map(|p| (p.name.clone(), p.free))
+            .collect()
+    }
+    /// Mark each named parameter free or fixed (the list [`Self::free_flags`] returns).
+    pub fn set_free_flags(&mut self, flags: &[(String, bool)]) -> Result<(), ModelError> {
+        for (n, f) in flags {
+            self.set_free(n, *f)?;
+        }
+        Ok(())
+    }
     /// Index of a parameter by name.
     pub fn param_index(&self, name: &str) -> Option<usize> {
         self.params.iter().position(|p| p.name == name)
