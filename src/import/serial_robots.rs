@@ -94,21 +94,27 @@ pub fn parse_serial_robots(
 ) -> Result<Imported, ImportError> {
     let tab = Table::parse(text, file, b',', false)?;
     let dof = robot_dof(&opts.robot)?;
-    let n_joints = (1..=16)
-        .take_while(|k| tab.has(&format!("joint_{k}")).is_some())
-        .count();
-    if n_joints != dof {
-        return Err(ImportError::Usage(format!(
-            "{file}: the file has {n_joints} joint columns (joint_1…joint_{n_joints}) but robot \"{}\" has {dof} joints (give the matching --robot: ur5 for the UR5 files, a chain JSON for the WAM)",
-            opts.robot.model
-        )));
-    }
     let c_step = tab.col("step_order")?;
     let c_t: Vec<usize> = TARGET
         .iter()
         .map(|c| tab.col(c))
         .collect::<Result<_, _>>()?;
     let c_d: Vec<usize> = DIF.iter().map(|c| tab.col(c)).collect::<Result<_, _>>()?;
+    let n_joints = (1..=16)
+        .take_while(|k| tab.has(&format!("joint_{k}")).is_some())
+        .count();
+    if n_joints == 0 {
+        return Err(ImportError::Usage(format!(
+            "{file}: no joint columns (expected joint_1…joint_{dof} for robot \"{}\", in degrees)",
+            opts.robot.model
+        )));
+    }
+    if n_joints != dof {
+        return Err(ImportError::Usage(format!(
+            "{file}: the file has {n_joints} joint columns (joint_1…joint_{n_joints}) but robot \"{}\" has {dof} joints (give the matching --robot: ur5 for the UR5 files, a chain JSON for the WAM)",
+            opts.robot.model
+        )));
+    }
     let c_q: Vec<usize> = (1..=dof)
         .map(|k| tab.col(&format!("joint_{k}")))
         .collect::<Result<_, _>>()?;
@@ -389,6 +395,14 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("radians"), "{e}");
+        // No joint columns at all.
+        let e = parse_serial_robots(&ur5_rows(2).replace("joint_", "q_"), "u.csv", &o)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("no joint columns") && e.contains("joint_6"),
+            "{e}"
+        );
         // A missing column.
         let e = parse_serial_robots(&ur5_rows(2).replace("z_dif", "z_err"), "u.csv", &o)
             .unwrap_err()
