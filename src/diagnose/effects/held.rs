@@ -1,9 +1,10 @@
-//! Predictions outside the calibrated joint ranges: the physical effects are held at the
-//! edge of the training poses' joint ranges (each joint angle clamped to its range, "hold
-//! the last calibrated value" as compensation tables do), while the geometric chain uses the
-//! true angles. A fitted polynomial, ratio or kernel sum is never extrapolated beyond the
-//! data: on a real Barrett WAM one held-out pose 54° outside the training range of joint 1
-//! turned a 3.1 mm error into 12.7 mm through `transmission_ratio(j1)` (docs/findings.md).
+//! Predictions outside the calibrated joint ranges: an effect that grows without bound with
+//! a joint angle (a fitted transmission ratio) is held at the edge of the training poses'
+//! joint ranges (the angle clamped to its range, "hold the last calibrated value" as
+//! compensation tables do), while the geometric chain and the bounded effects use the true
+//! angles. On a real Barrett WAM one held-out pose 54° outside the training range of joint 1
+//! had a 12.7 mm error where geometry alone gave 3.1 mm (docs/findings.md). Every pose
+//! outside by more than [`OUTSIDE_REPORT_DEG`] is counted and reported ([`Outside`]).
 //!
 //! Inside the ranges the prediction is [`apply_effects`] itself, bit for bit.
 use std::borrow::Cow;
@@ -126,8 +127,19 @@ impl JointRange {
     }
 }
 
-/// The predicted point of one pose with the effects held at the edge of `range` (the
-/// geometric chain at the true angles); [`apply_effects`] itself without a range or inside it.
+/// Whether the effect grows without bound with a joint angle (a fitted ratio: held at the
+/// edge outside the calibrated range). The other families are bounded functions of the
+/// angles (periodic harmonics, gravity moments, backlash signs, the kernel correction, which
+/// decays away from the training poses) or do not depend on them (time, temperature, the
+/// tracker): evaluated at the true pose. Measured on IPA Series D time-blocked: holding the
+/// periodic ripples too made the held-out RMS worse, 0.3848 → 0.4249 mm (docs/findings.md).
+pub fn held_at_edge(e: &Effect) -> bool {
+    matches!(e.block, Block::Transmission(_))
+}
+
+/// The predicted point of one pose with the effects that grow with a joint angle
+/// ([`held_at_edge`]) held at the edge of `range` and everything else (the geometric chain
+/// included) at the true angles; [`apply_effects`] itself without a range or inside it.
 pub fn apply_effects_held(
     model: &KinematicModel,
     effects: &[Effect],
@@ -137,26 +149,27 @@ pub fn apply_effects_held(
     let Some(c) = range.and_then(|r| r.clamp(ctx)) else {
         return apply_effects(model, effects, ctx);
     };
-    let d = joint_offsets(model, effects, &c);
-    let th: Vec<f64> = ctx.q.iter().zip(&d).map(|(q, d)| q + d).collect();
-    let m: Cow<KinematicModel> = pose_model(model, effects, &c);
-    // A tracker-side displacement (depth scale) depends on where the marker is, not on a
-    // joint angle: evaluated at the true pose.
+    let at = |e: &Effect| if held_at_edge(e) { &c } else { ctx };
+    let mut th = ctx.q.clone();
+    for e in effects {
+        for (t, d) in th
+            .iter_mut()
+            .zip(joint_offsets(model, std::slice::from_ref(e), at(e)))
+        {
+            *t += d;
+        }
+    }
+    let m: Cow<KinematicModel> = pose_model(model, effects, ctx);
     let mut disp = Vector3::zeros();
     for e in effects.iter().filter(|e| !inert(e)) {
-        let at = if matches!(e.block, Block::TrackerDepthScale(_)) {
-            ctx
-        } else {
-            &c
-        };
-        if let Some(v) = e.block.point_displacement(&m, &e.coefs, at) {
+        if let Some(v) = e.block.point_displacement(&m, &e.coefs, at(e)) {
             disp += v;
         }
     }
     let p = m.measured_point(&th).coords + disp;
     let mut y = p * (1.0 + tracker_scale(effects));
     for e in effects {
-        if let Some(n) = np_correction(model, e, &c) {
+        if let Some(n) = np_correction(model, e, at(e)) {
             y += n;
         }
     }
