@@ -54,7 +54,7 @@ fn rms(st: &State, obs: &[PoseObs]) -> f64 {
     rms3(&residuals(st, obs))
 }
 
-/// Held-out RMS as the diagnosis scores it: the effects held at the edge of the training
+/// Held-out RMS as the diagnosis scores it: the unbounded effects held at the edge of the training
 /// poses' joint ranges ([`robocal::diagnose::effects::apply_effects_held`]).
 fn rms_held(st: &State, obs: &[PoseObs], train: &[PoseObs]) -> f64 {
     let range = robocal::diagnose::effects::JointRange::of(train);

@@ -1,6 +1,6 @@
 //! Predictions outside the calibrated joint ranges (issue 31 §4): `robocal diagnose` writes
 //! the training poses' joint ranges into `calibration.json` (`effects_joint_range`); a held-out
-//! pose outside them is predicted with the effects held at the edge, by the diagnosis and by
+//! pose outside them is predicted with the transmission ratios held at the edge, by the diagnosis and by
 //! `robocal predict` alike, and both print one warning line naming the pose, the joint and the
 //! degrees. A calibration file without the ranges (older files) still loads and predicts.
 use std::collections::HashMap;
@@ -30,6 +30,22 @@ fn move_joint2(path: &Path, deg: f64) -> u64 {
         .collect();
     std::fs::write(path, lines.join("\n") + "\n").unwrap();
     id.expect("a pose record")
+}
+
+/// `robocal predict` (the binary); asserts success and returns its stderr.
+fn predict(cal: &Path, data: &Path, out: &Path) -> String {
+    let argv = [
+        "predict",
+        "--calibration",
+        s(cal),
+        "--data",
+        s(data),
+        "--out",
+        s(out),
+    ];
+    let (code, _, err) = bin(&argv);
+    assert_eq!(code, Some(0), "{err}");
+    err
 }
 
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -65,7 +81,7 @@ fn predict_outside_the_calibrated_range_holds_the_effects_and_warns() {
     assert_eq!(code, Some(0), "{err}");
     let want = format!("pose {id}: joint 2 is 20.0° outside the calibrated range");
     assert!(
-        err.contains(&want) && err.contains("effects held at the edge"),
+        err.contains(&want) && err.contains("(transmission ratio) held at the edge"),
         "diagnose: no `{want}` in\n{err}"
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
@@ -84,16 +100,7 @@ fn predict_outside_the_calibrated_range_holds_the_effects_and_warns() {
 
     // `robocal predict` gives the diagnosis' own held-out predictions and the same warning.
     let pred = dir.join("pred.csv");
-    let (code, _, err) = bin(&[
-        "predict",
-        "--calibration",
-        s(&cal),
-        "--data",
-        s(&held),
-        "--out",
-        s(&pred),
-    ]);
-    assert_eq!(code, Some(0), "{err}");
+    let err = predict(&cal, &held, &pred);
     assert!(
         err.contains("of 60 predicted pose(s) lie outside") && err.contains(&want),
         "predict: no `{want}` in\n{err}"
@@ -112,16 +119,7 @@ fn predict_outside_the_calibrated_range_holds_the_effects_and_warns() {
     let old_cal = dir.join("old.json");
     std::fs::write(&old_cal, serde_json::to_string_pretty(&old).unwrap()).unwrap();
     let pred_old = dir.join("pred_old.csv");
-    let (code, _, err) = bin(&[
-        "predict",
-        "--calibration",
-        s(&old_cal),
-        "--data",
-        s(&held),
-        "--out",
-        s(&pred_old),
-    ]);
-    assert_eq!(code, Some(0), "{err}");
+    let err = predict(&old_cal, &held, &pred_old);
     assert!(!err.contains("outside the calibrated"), "{err}");
     let got_old: HashMap<u64, [f64; 3]> = points(&pred_old).into_iter().collect();
     assert!(

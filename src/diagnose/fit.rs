@@ -73,7 +73,7 @@ pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
     residuals_held(state, obs, None)
 }
 
-/// [`residuals`] with the effects held at the edge of `range` (see
+/// [`residuals`] with the unbounded effects held at the edge of `range` (see
 /// [`crate::diagnose::effects::apply_effects_held`]); the same values inside it.
 pub fn residuals_held(
     state: &State,

@@ -228,7 +228,7 @@ impl Outside {
     /// The one warning line.
     pub fn warning(&self) -> String {
         format!(
-            "{} of {} predicted pose(s) lie outside the calibrated joint ranges (by > {OUTSIDE_REPORT_DEG}°); worst: pose {}: joint {} is {:.1}° outside the calibrated range {:.1} … {:.1}°: effects held at the edge; expect the geometric accuracy there",
+            "{} of {} predicted pose(s) lie outside the calibrated joint ranges (by > {OUTSIDE_REPORT_DEG}°); worst: pose {}: joint {} is {:.1}° outside the calibrated range {:.1} … {:.1}°: effects that grow with the angle (transmission ratio) held at the edge; expect the geometric accuracy there",
             self.n,
             self.of,
             self.id,
@@ -249,13 +249,9 @@ mod tests {
     fn ctx(q: Vec<f64>) -> PoseCtx {
         PoseCtx {
             id: 215,
-            t: 100.0,
+            approach: vec![1.0; q.len()],
             q,
-            q_cmd: None,
-            q_prev: None,
-            approach: vec![1.0, -1.0, 1.0, -1.0, 1.0, -1.0],
-            temp_c: Some(23.0),
-            qd: Some(vec![0.2, -0.1, 0.3, 0.5, -0.4, 0.6]),
+            ..PoseCtx::default()
         }
     }
 
@@ -328,7 +324,9 @@ mod tests {
                 && w.contains(
                     "pose 215: joint 1 is 54.0° outside the calibrated range −57.3 … 85.9°"
                 )
-                && w.contains("effects held at the edge"),
+                && w.contains(
+                    "(transmission ratio) held at the edge; expect the geometric accuracy there"
+                ),
             "{w}"
         );
         // Within 0.5°: clamped, but not reported.

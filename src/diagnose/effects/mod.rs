@@ -901,7 +901,7 @@ impl crate::solve::kinematics::Effect for LibraryEffect {
 }
 
 /// Predicted marker point of one pose from calibration-file effects (for `robocal predict`),
-/// the effects held at the edge of `range` when given ([`apply_effects_held`]).
+/// the unbounded effects held at the edge of `range` when given ([`apply_effects_held`]).
 pub fn apply_cal_effects(
     model: &KinematicModel,
     effects: &[CalEffect],
