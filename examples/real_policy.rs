@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use robocal::diagnose::effects::EffectModel;
-use robocal::diagnose::fit::{residuals, rms3, State};
+use robocal::diagnose::fit::{residuals, residuals_held, rms3, State};
 use robocal::diagnose::transfer::{refit_setup, refit_setup_and_joint_offsets};
 use robocal::diagnose::{self, Options, OVERFIT_GAP};
 use robocal::model::KinematicModel;
@@ -52,6 +52,13 @@ fn load(series: &Path) -> anyhow::Result<(KinematicModel, Vec<PoseObs>, Vec<Pose
 
 fn rms(st: &State, obs: &[PoseObs]) -> f64 {
     rms3(&residuals(st, obs))
+}
+
+/// Held-out RMS as the diagnosis scores it: the unbounded effects held at the edge of the training
+/// poses' joint ranges ([`robocal::diagnose::effects::apply_effects_held`]).
+fn rms_held(st: &State, obs: &[PoseObs], train: &[PoseObs]) -> f64 {
+    let range = robocal::diagnose::effects::JointRange::of(train);
+    rms3(&residuals_held(st, obs, range.as_ref()))
 }
 
 /// One row of the table: held-out of the geometric fit and of the final model, the gap,
@@ -81,7 +88,8 @@ fn chain(d: &diagnose::Diagnosis) -> String {
 /// What the final model of `d` leaves (`--why`): the held-out error's distribution and the
 /// library candidates scored against the final physical model's training residual.
 fn explain(d: &diagnose::Diagnosis, train: &[PoseObs], held: &[PoseObs], opt: &Options) {
-    let mut e: Vec<f64> = residuals(&d.state, held)
+    let range = robocal::diagnose::effects::JointRange::of(train);
+    let mut e: Vec<f64> = residuals_held(&d.state, held, range.as_ref())
         .as_slice()
         .chunks(3)
         .map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt())
@@ -338,7 +346,10 @@ fn main() -> anyhow::Result<()> {
             let d = diagnose::diagnose(&model, &tr, &he, &opt)?;
             let secs = t0.elapsed().as_secs_f64();
             let geo = rms(&d.geometric, &he);
-            let fin = rms(&d.state, &he);
+            let fin = rms_held(&d.state, &he, &tr);
+            if let Some(o) = &d.outside {
+                println!("    {}", o.warning());
+            }
             let label = format!("{split} {}/{}", tr.len(), he.len());
             n += 1;
             n_ok += row(

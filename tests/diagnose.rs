@@ -179,9 +179,13 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
             (r[0].parse().unwrap(), [f(1), f(2), f(3)])
         })
         .collect();
+    let range = cal
+        .effects_joint_range
+        .as_ref()
+        .map(|r| effects::JointRange::from_cal(r, model.dof()).unwrap());
     let mut s = 0.0;
     for o in &c.held {
-        let p = effects::apply_cal_effects(&model, &cal.effects, &o.ctx).unwrap();
+        let p = effects::apply_cal_effects(&model, &cal.effects, range.as_ref(), &o.ctx).unwrap();
         let w = written[&o.ctx.id];
         assert!(
             (p.x - w[0]).abs() < 1e-3 && (p.y - w[1]).abs() < 1e-3 && (p.z - w[2]).abs() < 1e-3

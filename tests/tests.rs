@@ -34,6 +34,7 @@ mod perf;
 mod pivot;
 mod plan;
 mod pooled_real;
+mod predict_extrap;
 mod rcm;
 mod rcm_images;
 mod rcm_session;

@@ -32,6 +32,7 @@ impl CalibrationFile {
             robot,
             params,
             effects: Vec::new(),
+            effects_joint_range: None,
             metrics: Map::new(),
             extra: Map::new(),
         }

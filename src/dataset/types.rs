@@ -232,6 +232,13 @@ pub struct CalEffect {
     pub extra: Map<String, Value>,
 }
 
+/// Per-joint range (degrees) of the training poses of a calibration's effects.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalJointRange {
+    pub min_deg: Vec<f64>,
+    pub max_deg: Vec<f64>,
+}
+
 /// `robocal-calibration/1`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationFile {
@@ -241,6 +248,10 @@ pub struct CalibrationFile {
     pub params: Vec<CalParam>,
     #[serde(default)]
     pub effects: Vec<CalEffect>,
+    /// The training poses' joint ranges the effects were fitted on (absent in older files):
+    /// prediction holds the effects at the edge of these ranges.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub effects_joint_range: Option<CalJointRange>,
     #[serde(default)]
     pub metrics: Map<String, Value>,
     #[serde(flatten)]

@@ -70,10 +70,27 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
 
 /// Residuals only (the poses' predictions in parallel, written in order).
 pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
+    residuals_held(state, obs, None)
+}
+
+/// [`residuals`] with the unbounded effects held at the edge of `range` (see
+/// [`crate::diagnose::effects::apply_effects_held`]); the same values inside it.
+pub fn residuals_held(
+    state: &State,
+    obs: &[PoseObs],
+    range: Option<&crate::diagnose::effects::JointRange>,
+) -> DVector<f64> {
     use rayon::prelude::*;
     let pred: Vec<_> = obs
         .par_iter()
-        .map(|o| crate::diagnose::effects::apply_effects(&state.model, &state.effects, &o.ctx))
+        .map(|o| {
+            crate::diagnose::effects::apply_effects_held(
+                &state.model,
+                &state.effects,
+                &o.ctx,
+                range,
+            )
+        })
         .collect();
     let mut r = DVector::zeros(3 * obs.len());
     for (k, (o, p)) in obs.iter().zip(pred).enumerate() {

@@ -268,6 +268,9 @@ pub const OVERFIT_MIN_MM: f64 = 0.01;
 /// The result of a diagnosis.
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
+    /// Held-out poses outside the training poses' joint ranges (predicted with the effects
+    /// held at the edge).
+    pub outside: Option<effects::Outside>,
     pub nominal: State,
     pub geometric: State,
     pub state: State,
@@ -824,8 +827,12 @@ fn np_gain(state: &State, train: &[PoseObs], hp: Option<(f64, f64)>, opt: &Optio
     }
 }
 
-fn heldout_rms(state: &State, heldout: &[PoseObs]) -> Option<f64> {
-    (!heldout.is_empty()).then(|| rms3(&residuals(state, heldout)))
+/// Held-out RMS with the unbounded effects held at the edge of the training poses' joint ranges
+/// ([`effects::apply_effects_held`]): a held-out pose outside them is not predicted by
+/// extrapolating a fitted effect.
+fn heldout_rms(state: &State, heldout: &[PoseObs], train: &[PoseObs]) -> Option<f64> {
+    let range = effects::JointRange::of(train);
+    (!heldout.is_empty()).then(|| rms3(&fit::residuals_held(state, heldout, range.as_ref())))
 }
 
 /// Whether `o` is one of the ambiguous held-out poses.
@@ -985,7 +992,7 @@ fn select_chain(
             break;
         };
         let before_train = rms3(&residuals(&state, train));
-        let before_held = heldout_rms(&state, heldout);
+        let before_held = heldout_rms(&state, heldout, train);
         let before_state = state.clone();
         state.effects.push(Effect::zero(best.block.clone()));
         let t_fit = std::time::Instant::now();
@@ -1049,7 +1056,7 @@ fn select_chain(
             train_rms_before: before_train,
             train_rms_after: rms3(&residuals(&state, train)),
             heldout_rms_before: before_held,
-            heldout_rms_after: heldout_rms(&state, heldout),
+            heldout_rms_after: heldout_rms(&state, heldout, train),
             state_after: state.clone(),
         });
         // Drop the group the accepted block came from (one base shift, one per kind+joint);
@@ -1148,7 +1155,7 @@ fn fit_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs]) {
     };
     rbf.arm_frame = true;
     let before_train = rms3(&r);
-    let before_held = heldout_rms(state, heldout);
+    let before_held = heldout_rms(state, heldout, train);
     let e = Effect {
         block: Block::Nonparametric(Box::new(rbf)),
         coefs: vec![],
@@ -1174,7 +1181,7 @@ fn fit_correction(chain: &mut Chain, train: &[PoseObs], heldout: &[PoseObs]) {
         train_rms_before: before_train,
         train_rms_after: rms3(&residuals(state, train)),
         heldout_rms_before: before_held,
-        heldout_rms_after: heldout_rms(state, heldout),
+        heldout_rms_after: heldout_rms(state, heldout, train),
         state_after: state.clone(),
     });
     chain.nonparametric = Some((cv.cv_rms_before, cv.cv_rms_after));
@@ -1317,6 +1324,9 @@ pub fn diagnose(
     } = chain;
     let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
     warnings.extend(extrapolating);
+    let outside = effects::JointRange::of(train)
+        .and_then(|r| effects::Outside::count(&r, heldout.iter().map(|o| &o.ctx)));
+    warnings.extend(outside.as_ref().map(effects::Outside::warning));
     // Held-out RMS never counts an ambiguous pose: recompute every held-out figure on the
     // poses whose side of each change point is known.
     let scored: Vec<PoseObs> = heldout
@@ -1329,8 +1339,8 @@ pub fn diagnose(
     if n_heldout_excluded > 0 {
         let mut prev = &geometric;
         for st in steps.iter_mut() {
-            st.heldout_rms_before = heldout_rms(prev, heldout);
-            st.heldout_rms_after = heldout_rms(&st.state_after, heldout);
+            st.heldout_rms_before = heldout_rms(prev, heldout, train);
+            st.heldout_rms_after = heldout_rms(&st.state_after, heldout, train);
             prev = &st.state_after;
         }
     }
@@ -1344,9 +1354,10 @@ pub fn diagnose(
     Ok(Diagnosis {
         ambiguous_heldout,
         warnings,
-        heldout_rms_nominal: heldout_rms(&nominal, heldout),
-        heldout_rms_geometric: heldout_rms(&geometric, heldout),
-        heldout_rms_final: heldout_rms(&state, heldout),
+        outside,
+        heldout_rms_nominal: heldout_rms(&nominal, heldout, train),
+        heldout_rms_geometric: heldout_rms(&geometric, heldout, train),
+        heldout_rms_final: heldout_rms(&state, heldout, train),
         train_rms_nominal,
         train_rms_geometric,
         train_rms_final: rms3(&residuals(&state, train)),
@@ -1495,6 +1506,9 @@ impl Diagnosis {
                 "{} held-out pose(s) between the training poses around a base shift are left out of the held-out RMS (listed in diagnosis.json `ambiguous_heldout`).\n",
                 self.n_heldout_excluded
             );
+        }
+        if let Some(o) = &self.outside {
+            let _ = writeln!(s, "{}.\n", o.warning());
         }
         let _ = writeln!(s, "| model | train RMS | held-out RMS |\n|---|---|---|");
         let _ = writeln!(

@@ -163,11 +163,13 @@ pub fn run_loaded(
         num(d.heldout_rms_geometric),
     );
     metrics.insert("heldout_rms_mm_after".into(), num(d.heldout_rms_final));
+    let range = effects::JointRange::of(&train);
     let cal = CalibrationFile {
         format: crate::schema::CALIBRATION_FORMAT.into(),
         robot: main.dataset.header.robot.clone(),
         params: d.state.model.to_cal_params(),
         effects: d.cal_effects(),
+        effects_joint_range: range.as_ref().map(effects::JointRange::to_cal),
         metrics,
         extra: Map::new(),
     };
@@ -176,7 +178,12 @@ pub fn run_loaded(
     let rows: Vec<crate::schema::points_csv::IdPoint> = held
         .par_iter()
         .map(|o| {
-            let p = effects::apply_effects(&d.state.model, &d.state.effects, &o.ctx);
+            let p = effects::apply_effects_held(
+                &d.state.model,
+                &d.state.effects,
+                &o.ctx,
+                range.as_ref(),
+            );
             crate::schema::points_csv::IdPoint {
                 id: o.id,
                 x_mm: p.x,

@@ -217,7 +217,7 @@ fn solve_with_effects(
         }
         c.q = sol.q.clone();
         c.approach = signs(&sol.q);
-        let pred = crate::diagnose::effects::apply_cal_effects(cal, effects, &c)?;
+        let pred = crate::diagnose::effects::apply_cal_effects(cal, effects, None, &c)?;
         let miss = world.translation.vector - pred.coords;
         best = Some((sol, miss.norm()));
         if miss.norm() < 1e-4 {

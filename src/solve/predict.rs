@@ -31,6 +31,8 @@ enum Engine {
     Kinematic {
         model: Box<KinematicModel>,
         effects: Vec<CalEffect>,
+        /// The training poses' joint ranges of the effects (files since round 8).
+        range: Option<crate::diagnose::effects::JointRange>,
     },
     /// Laser beam in the flange frame; flange poses from the record, else FK of `q`.
     Laser {
@@ -75,10 +77,16 @@ impl Predictor {
                 model
                     .apply_cal_params(&cal.params)
                     .context("applying the calibration's params")?;
+                let range = cal
+                    .effects_joint_range
+                    .as_ref()
+                    .map(|r| crate::diagnose::effects::JointRange::from_cal(r, model.dof()))
+                    .transpose()?;
                 Ok(Predictor {
                     engine: Engine::Kinematic {
                         model: Box::new(model),
                         effects: cal.effects.clone(),
+                        range,
                     },
                     net: None,
                 })
@@ -110,7 +118,11 @@ impl Predictor {
     pub fn predict_record(&self, rec: &PoseRecord, ds: &Dataset) -> anyhow::Result<Point3<f64>> {
         let _ = ds; // Session context: used once effects are applied.
         match &self.engine {
-            Engine::Kinematic { model, effects } => {
+            Engine::Kinematic {
+                model,
+                effects,
+                range,
+            } => {
                 let Some(q) = &rec.q else {
                     bail!(
                         "pose {} has no measured joints `q` (a kinematic prediction needs them)",
@@ -128,7 +140,13 @@ impl Predictor {
                 let q_rad: Vec<f64> = q.iter().map(|d| d.to_radians()).collect();
                 let p = if !effects.is_empty() {
                     // Effects on top of the kinematics (owned by the diagnosis).
-                    crate::diagnose::effects::predict_record(model, effects, rec, ds)?
+                    crate::diagnose::effects::predict_record(
+                        model,
+                        effects,
+                        range.as_ref(),
+                        rec,
+                        ds,
+                    )?
                 } else {
                     model.measured_point(&q_rad)
                 };
@@ -194,7 +212,12 @@ impl Predictor {
                 .collect::<anyhow::Result<Vec<_>>>()?;
             return Ok((rows, incidence_note(effects, &recs).into_iter().collect()));
         }
-        let Engine::Kinematic { model, effects } = &self.engine else {
+        let Engine::Kinematic {
+            model,
+            effects,
+            range,
+        } = &self.engine
+        else {
             let rows = ds
                 .poses()
                 .map(|rec| {
@@ -224,6 +247,7 @@ impl Predictor {
             ));
         }
         let mut rows = Vec::with_capacity(recs.len());
+        let mut held = Vec::new();
         for rec in recs {
             self.check_joints(rec)?;
             let q_rad: Vec<f64> = rec.q.iter().flatten().map(|d| d.to_radians()).collect();
@@ -235,10 +259,15 @@ impl Predictor {
                     .ok_or_else(|| {
                         anyhow::anyhow!("pose {}: no usable time or joints for the effects", rec.id)
                     })?;
-                crate::diagnose::effects::apply_effects(model, &parsed, c)
+                held.push(*c);
+                crate::diagnose::effects::apply_effects_held(model, &parsed, c, range.as_ref())
             };
             let p = self.corrected(model, &q_rad, p);
             rows.push(PredictedPoint { id: rec.id, p });
+        }
+        if let Some(r) = range {
+            let o = crate::diagnose::effects::Outside::count(r, held);
+            warnings.extend(o.as_ref().map(crate::diagnose::effects::Outside::warning));
         }
         Ok((rows, warnings))
     }

@@ -35,6 +35,8 @@ use crate::solve::obs::{PoseCtx, PoseObs};
 
 mod file;
 pub use file::EffectFileError;
+mod held;
+pub use held::{apply_effects_held, JointRange, Outside, OUTSIDE_REPORT_DEG};
 
 mod backlash;
 mod base_shift;
@@ -898,17 +900,19 @@ impl crate::solve::kinematics::Effect for LibraryEffect {
     }
 }
 
-/// Predicted marker point of one pose from calibration-file effects (for `robocal predict`).
+/// Predicted marker point of one pose from calibration-file effects (for `robocal predict`),
+/// the unbounded effects held at the edge of `range` when given ([`apply_effects_held`]).
 pub fn apply_cal_effects(
     model: &KinematicModel,
     effects: &[CalEffect],
+    range: Option<&JointRange>,
     ctx: &PoseCtx,
 ) -> anyhow::Result<Point3<f64>> {
     let e = effects
         .iter()
         .map(Effect::from_cal)
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(apply_effects(model, &e, ctx))
+    Ok(apply_effects_held(model, &e, ctx, range))
 }
 
 /// Prediction of one pose record of `ds` with a calibration's effects (the hook of
@@ -916,6 +920,7 @@ pub fn apply_cal_effects(
 pub fn predict_record(
     model: &KinematicModel,
     effects: &[CalEffect],
+    range: Option<&JointRange>,
     rec: &crate::dataset::PoseRecord,
     ds: &crate::dataset::Dataset,
 ) -> anyhow::Result<Point3<f64>> {
@@ -925,7 +930,7 @@ pub fn predict_record(
             rec.id
         )
     })?;
-    apply_cal_effects(model, effects, &ctx)
+    apply_cal_effects(model, effects, range, &ctx)
 }
 
 impl Block {
