@@ -6,6 +6,7 @@
 //! brings the hand-eye back to the truth.
 use std::path::{Path, PathBuf};
 
+use crate::common::heldout_argv;
 use robocal::dataset::CalibrationFile;
 use robocal_mocks::Scenario;
 
@@ -285,15 +286,7 @@ fn diagnose_names_an_undeclared_board_scale() {
     }
     let out = tmp.path().join("diag");
     assert_eq!(
-        cli(&[
-            "diagnose",
-            "--data",
-            s(&train),
-            "--heldout",
-            s(&held),
-            "--out",
-            s(&out)
-        ]),
+        cli(&heldout_argv(&["diagnose"], &train, &held, &out, &[])),
         0
     );
     let d: serde_json::Value =

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 
+use crate::common::heldout_argv;
 use robocal::dataset::{CalibrationFile, TargetHeader};
 use robocal::solve::camera::charuco::{detect_charuco, CharucoSpec};
 use robocal::solve::camera::data::{target_of, Target};
@@ -26,10 +27,6 @@ fn cli(args: &[&str]) -> i32 {
     let mut v = vec!["robocal".to_string()];
     v.extend(args.iter().map(|s| s.to_string()));
     robocal::main_with_args(v)
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 fn cell() -> (CameraConfig, ChessboardConfig, CharucoSpec) {
@@ -295,17 +292,13 @@ fn calibrate_camera_on_a_charuco_dataset_of_mostly_partial_views() {
     );
     let out = tmp.path().join("cal");
     assert_eq!(
-        cli(&[
-            "calibrate",
-            "camera",
-            "--data",
-            s(&train),
-            "--heldout",
-            s(&held),
-            "--out",
-            s(&out),
-            "--quiet",
-        ]),
+        cli(&heldout_argv(
+            &["calibrate", "camera"],
+            &train,
+            &held,
+            &out,
+            &["--quiet"]
+        )),
         0
     );
     let report: serde_json::Value =

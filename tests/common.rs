@@ -26,9 +26,9 @@ pub fn diagnose_cli(data: &Path, held: &Path, out: &Path) -> i32 {
     ])
 }
 
-/// `robocal predict --calibration CAL --data DATA --out OUT` in process; its exit code.
-pub fn predict_cli(cal: &Path, data: &Path, out: &Path) -> i32 {
-    cli(&[
+/// The arguments `predict --calibration CAL --data DATA --out OUT`.
+pub fn predict_argv<'a>(cal: &'a Path, data: &'a Path, out: &'a Path) -> [&'a str; 7] {
+    [
         "predict",
         "--calibration",
         s(cal),
@@ -36,7 +36,27 @@ pub fn predict_cli(cal: &Path, data: &Path, out: &Path) -> i32 {
         s(data),
         "--out",
         s(out),
-    ])
+    ]
+}
+
+/// `cmd… --data DATA --heldout HELD --out OUT` (then `extra`): a training + held-out run's
+/// arguments.
+pub fn heldout_argv<'a>(
+    cmd: &[&'a str],
+    data: &'a Path,
+    held: &'a Path,
+    out: &'a Path,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut v = cmd.to_vec();
+    v.extend(["--data", s(data), "--heldout", s(held), "--out", s(out)]);
+    v.extend_from_slice(extra);
+    v
+}
+
+/// `robocal predict --calibration CAL --data DATA --out OUT` in process; its exit code.
+pub fn predict_cli(cal: &Path, data: &Path, out: &Path) -> i32 {
+    cli(&predict_argv(cal, data, out))
 }
 
 /// Runs the robocal binary (stdin closed, `ROBOCAL_LOG=warn`); returns its exit code, stdout

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use serde_json::Value;
 
-use crate::common::{bin, s};
+use crate::common::{bin, heldout_argv, predict_argv};
 use crate::diagnose::table;
 use crate::diagnose_predict::{points, synth_files};
 
@@ -34,16 +34,7 @@ fn move_joint2(path: &Path, deg: f64) -> u64 {
 
 /// `robocal predict` (the binary); asserts success and returns its stderr.
 fn predict(cal: &Path, data: &Path, out: &Path) -> String {
-    let argv = [
-        "predict",
-        "--calibration",
-        s(cal),
-        "--data",
-        s(data),
-        "--out",
-        s(out),
-    ];
-    let (code, _, err) = bin(&argv);
+    let (code, _, err) = bin(&predict_argv(cal, data, out));
     assert_eq!(code, Some(0), "{err}");
     err
 }
@@ -69,15 +60,7 @@ fn predict_outside_the_calibrated_range_holds_the_effects_and_warns() {
         .fold(f64::NEG_INFINITY, f64::max);
     let id = move_joint2(&held, hi + 20.0);
     let out = dir.join("diag");
-    let (code, _, err) = bin(&[
-        "diagnose",
-        "--data",
-        s(&train),
-        "--heldout",
-        s(&held),
-        "--out",
-        s(&out),
-    ]);
+    let (code, _, err) = bin(&heldout_argv(&["diagnose"], &train, &held, &out, &[]));
     assert_eq!(code, Some(0), "{err}");
     let want = format!("pose {id}: joint 2 is 20.0° outside the calibrated range");
     assert!(
