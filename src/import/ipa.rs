@@ -212,16 +212,8 @@ pub fn parse_ipa(text: &str, file: &str, opts: &IpaOptions) -> Result<Imported, 
             .iter()
             .map(|&c| tab.num(i, c))
             .collect::<Result<_, _>>()?;
-        let p = [
-            tab.num(i, c_p[0])?,
-            tab.num(i, c_p[1])?,
-            tab.num(i, c_p[2])?,
-        ];
-        let r = [
-            tab.num(i, c_r[0])?,
-            tab.num(i, c_r[1])?,
-            tab.num(i, c_r[2])?,
-        ];
+        let p = tab.num3(i, &c_p)?;
+        let r = tab.num3(i, &c_r)?;
         let quat = wxyz(&seq_meas.rotation(r.map(f64::to_radians)));
         let temp = tab.num(i, c_temp)?;
         if !(-40.0..=150.0).contains(&temp) {

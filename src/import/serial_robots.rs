@@ -132,16 +132,8 @@ pub fn parse_serial_robots(
                 format!("{step} is not a non-negative whole number (the acquisition index)"),
             ));
         }
-        let t = [
-            tab.num(i, c_t[0])?,
-            tab.num(i, c_t[1])?,
-            tab.num(i, c_t[2])?,
-        ];
-        let d = [
-            tab.num(i, c_d[0])?,
-            tab.num(i, c_d[1])?,
-            tab.num(i, c_d[2])?,
-        ];
+        let t = tab.num3(i, &c_t)?;
+        let d = tab.num3(i, &c_d)?;
         if let Some(j) = d.iter().position(|v| v.abs() > MAX_DIF_MM) {
             return Err(ImportError::bad(
                 file,

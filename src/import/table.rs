@@ -151,6 +151,14 @@ impl Table {
         self.columns.iter().position(|c| c == name)
     }
 
+    /// Three numbers of `row` (an x, y, z triple) from the columns `cols[0..3]`.
+    pub fn num3(&self, row: usize, cols: &[usize]) -> Result<[f64; 3], ImportError> {
+        Ok([
+            self.num(row, cols[0])?,
+            self.num(row, cols[1])?,
+            self.num(row, cols[2])?,
+        ])
+    }
     /// The number in row `row` (index into `rows`), column `col`: finite, else an error
     /// naming file, line and column.
     pub fn num(&self, row: usize, col: usize) -> Result<f64, ImportError> {
