@@ -132,6 +132,7 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
         no_nonparametric: false,
         physics_first: false,
         kernel_benchmark: false,
+        no_transmission_map: false,
     };
     let summary = robocal::diagnose::stage::run(&args).unwrap();
     assert!(summary.contains("joint_compliance(j2)"), "{summary}");

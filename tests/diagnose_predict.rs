@@ -96,6 +96,7 @@ fn check_world(
         no_nonparametric: false,
         physics_first: false,
         kernel_benchmark: false,
+        no_transmission_map: false,
     };
     let summary = robocal::diagnose::stage::run(&args).unwrap();
     let d: DiagnosisFile = robocal::schema::read(&out.join("diagnosis.json")).unwrap();

@@ -123,6 +123,7 @@ fn navchain_network_trains_stores_predicts_and_is_compared_with_the_diagnosis() 
         no_nonparametric: false,
         physics_first: false,
         kernel_benchmark: false,
+        no_transmission_map: false,
     };
     robocal::diagnose::stage::run(&req).unwrap();
     let (phys_rms, _) = predicted_rms(

@@ -40,6 +40,10 @@ pub struct Args {
     /// explain half of what a kernel regression on joint space explains.
     #[arg(long)]
     pub kernel_benchmark: bool,
+    /// Do not add the transmission error maps (each joint's gear error over its turn, many
+    /// harmonics with a smoothness prior) after the named effects.
+    #[arg(long)]
+    pub no_transmission_map: bool,
     /// Print `diagnosis.json` on stdout instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -72,6 +76,7 @@ impl Args {
             no_nonparametric: self.no_nonparametric,
             physics_first: self.physics_first,
             kernel_benchmark: self.kernel_benchmark,
+            no_transmission_map: self.no_transmission_map,
         }
     }
 }

@@ -36,6 +36,7 @@ pub mod plot;
 pub mod pooled;
 pub mod stage;
 pub mod transfer;
+pub mod transmap;
 pub use crate::solve::inference as stats;
 
 /// Six joint angles (rad) of synthetic test pose `f` (`amp · sin((f + 1)(i + phase))` for joint
@@ -148,6 +149,10 @@ pub struct Options {
     /// predicts at a training pose ([`extrapolation::ratio`]): its coefficients cancel on
     /// the training poses and not elsewhere. Infinite = no such check.
     pub max_extrapolation: f64,
+    /// Whether the transmission error maps may be added after the chain ([`transmap`]).
+    pub transmission_map: bool,
+    /// Minimum relative CV gain of the transmission error maps over the chain's residual.
+    pub transmission_map_min_gain: f64,
 }
 
 /// How [`diagnose`] chooses its chain of effects.
@@ -214,6 +219,8 @@ impl Default for Options {
             policy_margin: 0.05,
             correction_max_gap: 0.10,
             max_extrapolation: MAX_EXTRAPOLATION,
+            transmission_map: true,
+            transmission_map_min_gain: TRANSMISSION_MAP_MIN_GAIN,
         }
     }
 }
@@ -259,6 +266,10 @@ pub struct Step {
 /// `examples/diagnose_table` run without the check).
 pub const MAX_EXTRAPOLATION: f64 = 10.0;
 
+/// Default of [`Options::transmission_map_min_gain`]: the maps are kept when they predict the
+/// chain's residual on time-blocked folds of the training poses at least 5 % better than zero.
+pub const TRANSMISSION_MAP_MIN_GAIN: f64 = 0.05;
+
 /// Held-out RMS more than this fraction above the training RMS flags overfitting.
 pub const OVERFIT_GAP: f64 = 0.15;
 
@@ -281,6 +292,9 @@ pub struct Diagnosis {
     pub not_identifiable: Vec<Score>,
     /// Nonparametric correction, when one was needed: (CV RMS before, after).
     pub nonparametric: Option<(f64, f64)>,
+    /// The transmission error maps, when they were added: the setting and the CV RMS of
+    /// the chain's residual before them.
+    pub transmission_map: Option<(transmap::MapSetting, f64)>,
     /// Residuals of the training data before the first effect (for plots).
     pub train_rms_nominal: f64,
     pub train_rms_geometric: f64,
@@ -884,6 +898,7 @@ struct Chain {
     rounds: Vec<Vec<Score>>,
     not_identifiable: Vec<Score>,
     nonparametric: Option<(f64, f64)>,
+    transmission_map: Option<(transmap::MapSetting, f64)>,
     /// Time-blocked cross-validated RMS (per axis, mm) of the final model: the linearised
     /// refit of the physical chain on each fold's complement, times the correction's
     /// out-of-fold ratio when a correction was added ([`chain_cv`]).
@@ -1086,11 +1101,72 @@ fn select_chain(
         rounds,
         not_identifiable,
         nonparametric: None,
+        transmission_map: None,
         cv_rms,
         pending: None,
         extrapolating,
         stopped,
     }
+}
+
+/// Add the transmission error maps of what `chain` leaves ([`transmap`]), one step per
+/// mapped joint, when they predict time-blocked folds of the training poses better than
+/// zero by [`Options::transmission_map_min_gain`]. Runs on the kept chain only, after the
+/// policy's choice (which therefore compares the chains as before; measured on the real
+/// UR10 series, adding the maps to both chains before the choice was no better and cost a
+/// second kernel cross-validation). Whether the maps were added.
+fn add_transmission_map(
+    chain: &mut Chain,
+    train: &[PoseObs],
+    heldout: &[PoseObs],
+    opt: &Options,
+) -> bool {
+    if !opt.transmission_map || opt.max_effects == 0 {
+        return false;
+    }
+    let fo = folds(train, opt.n_folds);
+    let Some(m) = transmap::fit_map(&chain.state, train, &fo, opt) else {
+        return false;
+    };
+    tracing::debug!(
+        "transmission map: {} harmonics, ridge {:e}: CV {:.4} -> {:.4} mm",
+        m.chosen.harmonics,
+        m.chosen.ridge,
+        m.cv_rms_before,
+        m.chosen.cv_rms
+    );
+    let gain = 1.0 - m.chosen.cv_rms / m.cv_rms_before;
+    for e in m.effects {
+        let before_train = rms3(&residuals(&chain.state, train));
+        let before_held = heldout_rms(&chain.state, heldout, train);
+        chain.state.effects.push(e.clone());
+        let ev = Score {
+            label: e.block.label(),
+            block: e.block.clone(),
+            df: e.coefs.len(),
+            f: f64::NAN,
+            p_value: f64::NAN,
+            delta_bic: f64::NAN,
+            cv_gain: gain,
+            independence: f64::NAN,
+            tests: transmap::MAP_HARMONICS.len() * transmap::MAP_RIDGE.len(),
+            np_ratio: f64::NAN,
+        };
+        chain.steps.push(Step {
+            effect: e,
+            evidence: ev,
+            train_rms_before: before_train,
+            train_rms_after: rms3(&residuals(&chain.state, train)),
+            heldout_rms_before: before_held,
+            heldout_rms_after: heldout_rms(&chain.state, heldout, train),
+            state_after: chain.state.clone(),
+        });
+    }
+    if m.cv_rms_before > 0.0 {
+        chain.cv_rms *= m.chosen.cv_rms / m.cv_rms_before;
+    }
+    chain.transmission_map = Some((m.chosen, m.cv_rms_before));
+    true
 }
 
 /// Add the nonparametric correction of what `chain` leaves, only if it predicts held-out
@@ -1312,6 +1388,22 @@ pub fn diagnose(
             (keep, Some(choice))
         }
     };
+    // The kept chain's transmission error maps, then its correction re-validated on what
+    // the maps leave (at the setting chosen before them: one kernel system per fold instead
+    // of the whole grid).
+    if add_transmission_map(&mut chain, train, heldout, opt) {
+        if let Some(p) = chain.pending.take() {
+            let (qs, rv) = np_data(&chain.state, train);
+            let fo = folds(train, opt.n_folds);
+            let kept = nonparam::cv_fixed(&qs, &rv, &fo, opt.n_folds, p.length_scale, p.lambda)
+                .filter(|&(b, a)| a < (1.0 - opt.nonparam_min_gain) * b);
+            chain.pending = kept.map(|(b, a)| nonparam::RbfCv {
+                cv_rms_before: b,
+                cv_rms_after: a,
+                ..p
+            });
+        }
+    }
     fit_correction(&mut chain, train, heldout);
     let Chain {
         state,
@@ -1319,6 +1411,7 @@ pub fn diagnose(
         rounds,
         not_identifiable,
         nonparametric,
+        transmission_map,
         extrapolating,
         ..
     } = chain;
@@ -1371,6 +1464,7 @@ pub fn diagnose(
         rounds,
         not_identifiable,
         nonparametric,
+        transmission_map,
         untestable,
         policy_choice,
     })

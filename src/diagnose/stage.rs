@@ -35,6 +35,8 @@ pub struct DiagnoseRequest {
     pub physics_first: bool,
     /// Only the kernel-benchmark chain.
     pub kernel_benchmark: bool,
+    /// Do not add the transmission error maps after the chain.
+    pub no_transmission_map: bool,
 }
 
 /// Run the diagnosis `args` into its directory and return the short console summary. Each
@@ -127,6 +129,7 @@ pub fn run_loaded(
     };
     let opt = Options {
         allow_nonparametric: !args.no_nonparametric,
+        transmission_map: !args.no_transmission_map,
         ..base
     };
     let mut d = diagnose::diagnose(&model, &train, &held, &opt)?;

@@ -134,7 +134,7 @@ impl JointRange {
 /// tracker): evaluated at the true pose. Measured on IPA Series D time-blocked: holding the
 /// periodic ripples too made the held-out RMS worse, 0.3848 → 0.4249 mm (docs/findings.md).
 pub fn held_at_edge(e: &Effect) -> bool {
-    matches!(e.block, Block::Transmission(_))
+    matches!(e.block, Block::Transmission(_) | Block::TransmissionMap(_))
 }
 
 /// The predicted point of one pose with the effects that grow with a joint angle

@@ -51,6 +51,7 @@ mod thermal;
 mod tracker_depth;
 mod tracker_scale;
 mod transmission;
+mod transmission_map;
 mod wave_generator;
 
 pub use backlash::Backlash;
@@ -65,6 +66,7 @@ pub use thermal::{JointDrift, LengthDrift};
 pub use tracker_depth::TrackerDepthScale;
 pub use tracker_scale::TrackerScale;
 pub use transmission::{Ripple, Transmission};
+pub use transmission_map::{TransmissionMap, MAX_MAP_HARMONICS};
 pub use wave_generator::WaveGenerator;
 
 /// Standard gravity (m/s²).
@@ -833,6 +835,20 @@ pub fn eval_pose_with(
     }
 }
 
+/// `d pred / d θ_j` (tracker frame, mm/rad) of every joint `j` at one pose under `effects`
+/// (the columns a joint-angle effect's regressors multiply: [`joint_columns`] through the
+/// pose's model, times the tracker scale), `None` for a joint without an offset parameter.
+pub fn joint_angle_columns(
+    model: &KinematicModel,
+    effects: &[Effect],
+    ctx: &PoseCtx,
+) -> Vec<Option<Vector3<f64>>> {
+    let PoseBase { jm_pose, s, .. } = pose_base(model, None, effects, ctx);
+    (0..model.dof())
+        .map(|j| phi_index(model, j).map(|ip| jm_pose.column(ip) * s))
+        .collect()
+}
+
 /// Columns (d point / d coef) of one block at one pose (see [`EffectModel::columns`]).
 pub fn block_columns(
     block: &Block,
@@ -1101,6 +1117,9 @@ registry! {
     Transmission(Transmission),
     /// Transmission ripple at harmonic ≥ 3 (kind `transmission_ripple`).
     Ripple(Ripple),
+    /// A joint's transmission error over its turn, many harmonics with a smoothness prior
+    /// (kind `transmission_error_map`; fitted after the chain, never a chain candidate).
+    TransmissionMap(TransmissionMap),
     /// Link / bearing bending under the gravity moment (kind `link_deflection`).
     LinkDeflection(LinkDeflection),
     /// Joint-coupled angle error (kind `joint_coupling`).

@@ -1,0 +1,206 @@
+//! The transmission error map of one joint (kind `transmission_error_map`): the gear train's
+//! angular transmission error as a function of the joint's own angle over a whole turn, a
+//! Fourier series `δθ_j = Σ_{h=1..H} a_h cos hq + b_h sin hq` with many harmonics at once
+//! (effects.md E6: strain-wave and gear-stage errors have output-rotation harmonics and
+//! more). Where [`super::Ripple`] names one harmonic found by a test, the map takes every
+//! harmonic up to `H` with a smoothness prior (a ridge on the coefficients, chosen by
+//! time-blocked cross-validation: [`crate::diagnose::transmap`]); it is fitted after the
+//! named effects, on what they leave, and never refitted without its prior. Outside the
+//! training poses' range of its joint the map is held at the edge
+//! ([`super::held::held_at_edge`]): a Fourier series fitted on part of a turn says nothing
+//! about the rest.
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+use super::file::{self, EffectFileError};
+use super::{deg_param, joint_angle, q_at, Coefs, EffectModel, Family};
+use crate::dataset::CalEffect;
+use crate::model::KinematicModel;
+use crate::schema::EffectParameter;
+use crate::solve::obs::{PoseCtx, PoseObs};
+
+/// The most harmonics a file may declare (a map of 1,000 harmonics has 2,000 coefficients
+/// per joint: far beyond what any calibration determines).
+pub const MAX_MAP_HARMONICS: u64 = 1000;
+
+/// The map of `joint` (1-based) with `harmonics` harmonics: `2·harmonics` coefficients
+/// (rad), ordered `cos 1q, sin 1q, cos 2q, sin 2q, …`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TransmissionMap {
+    pub joint: usize,
+    pub harmonics: u32,
+}
+
+/// The parameters as `calibration.json` holds them (degrees).
+#[derive(Debug, Default, Serialize, Deserialize)]
+pub struct MapFile {
+    #[serde(deserialize_with = "file::count")]
+    harmonics: u64,
+    /// `a_h` of `cos hq`, h = 1…harmonics (deg).
+    cos_deg: Vec<f64>,
+    /// `b_h` of `sin hq` (deg).
+    sin_deg: Vec<f64>,
+    /// Standard deviations in coefficient order (`cos 1q, sin 1q, …`, deg; may be absent).
+    #[serde(default, deserialize_with = "file::lenient_vec")]
+    std_deg: Vec<f64>,
+}
+
+impl TransmissionMap {
+    /// `δθ` (rad) of the map with coefficients `c` at joint angle `q` (rad).
+    pub fn value(c: &[f64], q: f64) -> f64 {
+        c.chunks(2)
+            .enumerate()
+            .map(|(k, ab)| {
+                let (s, co) = ((k + 1) as f64 * q).sin_cos();
+                ab[0] * co + ab.get(1).copied().unwrap_or(0.0) * s
+            })
+            .sum()
+    }
+
+    /// RMS and largest |δθ| (rad) over a whole turn (720 samples).
+    fn size(c: &[f64]) -> (f64, f64) {
+        let n = 720;
+        let v: Vec<f64> = (0..n)
+            .map(|i| Self::value(c, std::f64::consts::TAU * i as f64 / n as f64))
+            .collect();
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
+        (rms, v.iter().fold(0.0f64, |m, x| m.max(x.abs())))
+    }
+}
+
+impl EffectModel for TransmissionMap {
+    fn kind(&self) -> &'static str {
+        Self::KIND
+    }
+    fn joint(&self) -> Option<usize> {
+        Some(self.joint)
+    }
+    fn n_params(&self) -> usize {
+        2 * self.harmonics as usize
+    }
+    fn param_names(&self) -> Vec<String> {
+        (1..=self.harmonics)
+            .flat_map(|h| [format!("cos {h}q [rad]"), format!("sin {h}q [rad]")])
+            .collect()
+    }
+    fn label(&self) -> String {
+        format!("{}(j{}, ×1–{})", Self::KIND, self.joint, self.harmonics)
+    }
+    fn joint_features(&self, model: &KinematicModel, ctx: &PoseCtx) -> Vec<(usize, usize, f64)> {
+        let Some(q) = joint_angle(model, ctx, self.joint) else {
+            return vec![];
+        };
+        let j = self.joint - 1;
+        (0..self.harmonics as usize)
+            .flat_map(|k| {
+                let (s, c) = ((k + 1) as f64 * q).sin_cos();
+                [(j, 2 * k, c), (j, 2 * k + 1, s)]
+            })
+            .collect()
+    }
+    fn parameters(&self, c: &Coefs) -> Vec<EffectParameter> {
+        let (rms, peak) = Self::size(c.value);
+        let mut v = vec![
+            EffectParameter::new(
+                "rms_over_a_turn",
+                "arcsec",
+                rms.to_degrees() * 3600.0,
+                f64::NAN,
+            ),
+            EffectParameter::new(
+                "peak_over_a_turn",
+                "arcsec",
+                peak.to_degrees() * 3600.0,
+                f64::NAN,
+            ),
+        ];
+        for h in 1..=self.harmonics as usize {
+            v.push(deg_param(&format!("cos{h}"), c, 2 * h - 2));
+            v.push(deg_param(&format!("sin{h}"), c, 2 * h - 1));
+        }
+        v
+    }
+    fn file_params(&self, c: &Coefs) -> Map<String, Value> {
+        let deg = |k: usize| -> Vec<f64> {
+            c.value
+                .iter()
+                .skip(k)
+                .step_by(2)
+                .map(|x| x.to_degrees())
+                .collect()
+        };
+        file::to_params(&MapFile {
+            harmonics: u64::from(self.harmonics),
+            cos_deg: deg(0),
+            sin_deg: deg(1),
+            std_deg: file::deg(c.std),
+        })
+    }
+    fn sentence(&self, c: &Coefs) -> String {
+        let (rms, peak) = Self::size(c.value);
+        format!(
+            "joint {}'s gear train has an angular transmission error that varies over its turn \
+             ({} harmonics, fitted with a smoothness prior): {} arcsec RMS, {} arcsec at its \
+             largest",
+            self.joint,
+            self.harmonics,
+            super::plain_number(rms.to_degrees() * 3600.0, 1),
+            super::plain_number(peak.to_degrees() * 3600.0, 1)
+        )
+    }
+    fn plot_driver(&self, _model: &KinematicModel, o: &PoseObs) -> (f64, String) {
+        let q = q_at(o, self.joint);
+        (q.to_degrees(), format!("q{} (deg)", self.joint))
+    }
+}
+
+impl Family for TransmissionMap {
+    const KIND: &'static str = "transmission_error_map";
+    type File = MapFile;
+    fn from_file(e: &CalEffect, f: MapFile) -> Result<(Self, Vec<f64>, Vec<f64>), EffectFileError> {
+        if !(1..=MAX_MAP_HARMONICS).contains(&f.harmonics) {
+            return Err(EffectFileError::invalid(
+                e,
+                format!("\"harmonics\" must be an integer 1…{MAX_MAP_HARMONICS}"),
+            ));
+        }
+        let h = f.harmonics as usize;
+        for (name, v) in [("cos_deg", &f.cos_deg), ("sin_deg", &f.sin_deg)] {
+            if v.len() != h {
+                return Err(EffectFileError::invalid(
+                    e,
+                    format!("\"{name}\" has {} values but \"harmonics\" is {h}", v.len()),
+                ));
+            }
+            if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                return Err(EffectFileError::invalid(
+                    e,
+                    format!("\"{name}\"[{i}] is not a finite number (degrees expected)"),
+                ));
+            }
+        }
+        let coefs: Vec<f64> = f
+            .cos_deg
+            .iter()
+            .zip(&f.sin_deg)
+            .flat_map(|(a, b)| [a.to_radians(), b.to_radians()])
+            .collect();
+        Ok((
+            TransmissionMap {
+                joint: file::joint(e)?,
+                harmonics: f.harmonics as u32,
+            },
+            coefs,
+            file::rad(&f.std_deg),
+        ))
+    }
+    fn example(_model: &KinematicModel) -> (Self, Vec<f64>) {
+        (
+            TransmissionMap {
+                joint: 2,
+                harmonics: 3,
+            },
+            vec![1.2e-4, -0.8e-4, 0.5e-4, 0.9e-4, -0.3e-4, 0.4e-4],
+        )
+    }
+}

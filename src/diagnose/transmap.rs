@@ -1,0 +1,278 @@
+//! The transmission error map stage: after the chain of named effects, every joint's angular
+//! transmission error as a Fourier series of its own angle ([`TransmissionMap`]), all joints
+//! at once, estimated on what the chain leaves by ridge regression through the joint-angle
+//! columns `∂p/∂θ_j`:
+//!
+//! `min_x ‖r − A x‖² + λ ‖x‖²`, `A[pose, (h, j, cos|sin)] = ∂p/∂θ_j · (cos hq_j | sin hq_j)`.
+//!
+//! The number of harmonics `H` and the ridge `λ` (relative to the mean diagonal of `AᵀA`)
+//! are chosen by time-blocked cross-validation on the training poses, under the rule the
+//! kernel correction follows: the best CV among the settings whose CV RMS exceeds their own
+//! in-fold training RMS by at most `correction_max_gap` (or by [`OVERFIT_MIN_MM`]), and the
+//! map is kept only when its CV RMS is at least `transmission_map_min_gain` below the
+//! residual's. Columns are ordered harmonic-major (`h`, then joint), so the settings with
+//! fewer harmonics are leading blocks of one set of normal equations per fold.
+//!
+//! Why (docs/findings.md, round 9): on the real UR10 series the named ripples leave a
+//! residual that a per-joint function of the joint's own angle explains where a kernel on
+//! the 6-D joint space has no neighbours (grid poses 11–14° apart).
+use faer::{
+    linalg::solvers::{DenseSolveCore, Solve},
+    Mat, Side,
+};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::effects::{joint_angle_columns, Block, Effect, TransmissionMap};
+use super::fit::{residuals, State};
+use super::{Options, OVERFIT_MIN_MM};
+use crate::solve::obs::PoseObs;
+
+/// Harmonic counts the cross-validation tries.
+pub const MAP_HARMONICS: [u32; 6] = [4, 8, 16, 24, 32, 48];
+/// Ridge values tried, relative to the mean diagonal of `AᵀA` (half decades).
+pub const MAP_RIDGE: [f64; 9] = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1, 1.0];
+/// A joint whose training angles spread less than this (rad, standard deviation) gets no
+/// map: its map would be a constant, which the joint's zero offset already is.
+pub const MIN_JOINT_SPREAD: f64 = 0.05;
+
+/// One setting of the cross-validation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapSetting {
+    pub harmonics: u32,
+    /// Ridge relative to the mean diagonal of `AᵀA`.
+    pub ridge: f64,
+    /// Out-of-fold RMS (3-D per pose, mm).
+    pub cv_rms: f64,
+    /// In-fold training RMS of the same fits (mm).
+    pub fit_rms: f64,
+}
+
+/// The chosen map: the setting, the residual's RMS before (the CV of predicting zero) and
+/// every setting tried.
+#[derive(Debug, Clone)]
+pub struct MapChoice {
+    pub chosen: MapSetting,
+    pub cv_rms_before: f64,
+    pub grid: Vec<MapSetting>,
+    /// The fitted maps (one per mapped joint), internal units.
+    pub effects: Vec<Effect>,
+}
+
+/// The joints (0-based) that move enough in `train` to carry a map and have a joint-angle
+/// column.
+fn mapped_joints(state: &State, train: &[PoseObs]) -> Vec<usize> {
+    let dof = state.model.dof();
+    (0..dof)
+        .filter(|&j| {
+            let v: Vec<f64> = train
+                .iter()
+                .filter_map(|o| o.ctx.q.get(j).copied())
+                .collect();
+            let n = v.len().max(1) as f64;
+            let m = v.iter().sum::<f64>() / n;
+            (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt() >= MIN_JOINT_SPREAD
+        })
+        .collect()
+}
+
+/// Normal equations of one fold: `AᵀA`, `Aᵀr`, `rᵀr`, and its pose count.
+struct FoldNormal {
+    g: Mat<f64>,
+    b: Mat<f64>,
+    c: f64,
+    n: usize,
+}
+
+/// `x` of the ridge system `(G + λI) x = b` on the leading `k` columns (`None` when not
+/// positive definite).
+fn solve(g: &Mat<f64>, b: &Mat<f64>, k: usize, lambda: f64) -> Option<Mat<f64>> {
+    let mut m = g.as_ref().submatrix(0, 0, k, k).to_owned();
+    for i in 0..k {
+        m[(i, i)] += lambda;
+    }
+    let rhs = b.as_ref().submatrix(0, 0, k, 1).to_owned();
+    Some(m.llt(Side::Lower).ok()?.solve(&rhs))
+}
+
+/// `‖r − A x‖²` of a fold from its normal equations (`x` on the leading `k` columns).
+fn sse(f: &FoldNormal, x: &Mat<f64>, k: usize) -> f64 {
+    let g = f.g.as_ref().submatrix(0, 0, k, k);
+    let b = f.b.as_ref().submatrix(0, 0, k, 1);
+    let gx = g * x.as_ref();
+    let mut xgx = 0.0;
+    let mut xb = 0.0;
+    for i in 0..k {
+        xgx += x[(i, 0)] * gx[(i, 0)];
+        xb += x[(i, 0)] * b[(i, 0)];
+    }
+    (f.c - 2.0 * xb + xgx).max(0.0)
+}
+
+/// Choose and fit the map of what `state` leaves on `train` (`fold_of`: each pose's
+/// time-blocked fold). `None` when no joint moves, too few poses, or no setting passes the
+/// gap and gain rules.
+pub fn fit_map(
+    state: &State,
+    train: &[PoseObs],
+    fold_of: &[usize],
+    opt: &Options,
+) -> Option<MapChoice> {
+    tracing::debug!("transmission map: start");
+    let joints = mapped_joints(state, train);
+    let n = train.len();
+    if joints.is_empty() || n < 40 {
+        return None;
+    }
+    let nj = joints.len();
+    let hmax = *MAP_HARMONICS.iter().max()? as usize;
+    let ncol = 2 * hmax * nj;
+    let r = residuals(state, train);
+    // One row block of A per pose (3 rows), computed in parallel.
+    let cols: Vec<Vec<Option<Vector3<f64>>>> = train
+        .par_iter()
+        .map(|o| joint_angle_columns(&state.model, &state.effects, &o.ctx))
+        .collect();
+    let col = |h: usize, ji: usize, cs: usize| (h * nj + ji) * 2 + cs;
+    let n_folds = fold_of.iter().max().map_or(1, |m| m + 1);
+    let folds: Vec<FoldNormal> = (0..n_folds)
+        .into_par_iter()
+        .map(|f| {
+            let idx: Vec<usize> = (0..n).filter(|&i| fold_of[i] == f).collect();
+            let mut a = Mat::<f64>::zeros(3 * idx.len(), ncol);
+            let mut y = Mat::<f64>::zeros(3 * idx.len(), 1);
+            for (row, &i) in idx.iter().enumerate() {
+                for ax in 0..3 {
+                    y[(3 * row + ax, 0)] = r[3 * i + ax];
+                }
+                for (ji, &j) in joints.iter().enumerate() {
+                    let (Some(c), Some(&q)) = (cols[i][j], train[i].ctx.q.get(j)) else {
+                        continue;
+                    };
+                    for h in 0..hmax {
+                        let (s, co) = ((h + 1) as f64 * q).sin_cos();
+                        for ax in 0..3 {
+                            a[(3 * row + ax, col(h, ji, 0))] = c[ax] * co;
+                            a[(3 * row + ax, col(h, ji, 1))] = c[ax] * s;
+                        }
+                    }
+                }
+            }
+            let at = a.transpose();
+            let mut c = 0.0;
+            for i in 0..y.nrows() {
+                c += y[(i, 0)] * y[(i, 0)];
+            }
+            FoldNormal {
+                g: at * &a,
+                b: at * &y,
+                c,
+                n: idx.len(),
+            }
+        })
+        .collect();
+    tracing::debug!("transmission map: normal equations of {n} poses, {ncol} columns");
+    let mut g = Mat::<f64>::zeros(ncol, ncol);
+    let mut b = Mat::<f64>::zeros(ncol, 1);
+    let mut c = 0.0;
+    for f in &folds {
+        g += &f.g;
+        b += &f.b;
+        c += f.c;
+    }
+    let cv_rms_before = (c / n as f64).sqrt();
+    let settings: Vec<(u32, f64)> = MAP_HARMONICS
+        .iter()
+        .flat_map(|&h| MAP_RIDGE.iter().map(move |&l| (h, l)))
+        .collect();
+    let grid: Vec<MapSetting> = settings
+        .par_iter()
+        .filter_map(|&(h, ridge)| {
+            let k = 2 * h as usize * nj;
+            let scale = (0..k).map(|i| g[(i, i)]).sum::<f64>() / k as f64;
+            let lambda = ridge * scale;
+            let (mut out, mut inn, mut n_in) = (0.0, 0.0, 0usize);
+            for f in &folds {
+                if f.n == 0 {
+                    continue;
+                }
+                let rest = FoldNormal {
+                    g: &g - &f.g,
+                    b: &b - &f.b,
+                    c: c - f.c,
+                    n: n - f.n,
+                };
+                let x = solve(&rest.g, &rest.b, k, lambda)?;
+                out += sse(f, &x, k);
+                inn += sse(&rest, &x, k);
+                n_in += rest.n;
+            }
+            Some(MapSetting {
+                harmonics: h,
+                ridge,
+                cv_rms: (out / n as f64).sqrt(),
+                fit_rms: (inn / n_in.max(1) as f64).sqrt(),
+            })
+        })
+        .collect();
+    tracing::debug!("transmission map: grid of {} settings done", grid.len());
+    let passes = |s: &MapSetting| {
+        s.cv_rms <= (1.0 + opt.correction_max_gap) * s.fit_rms
+            || s.cv_rms - s.fit_rms <= OVERFIT_MIN_MM
+    };
+    let chosen = *grid
+        .iter()
+        .filter(|s| passes(s))
+        .min_by(|a, b| a.cv_rms.total_cmp(&b.cv_rms))?;
+    if chosen.cv_rms >= (1.0 - opt.transmission_map_min_gain) * cv_rms_before {
+        return None;
+    }
+    // The chosen setting on every training pose, with the posterior standard deviations.
+    let k = 2 * chosen.harmonics as usize * nj;
+    let scale = (0..k).map(|i| g[(i, i)]).sum::<f64>() / k as f64;
+    let lambda = chosen.ridge * scale;
+    let x = solve(&g, &b, k, lambda)?;
+    let all = FoldNormal {
+        g: g.clone(),
+        b: b.clone(),
+        c,
+        n,
+    };
+    let sigma2 = sse(&all, &x, k) / (3 * n).saturating_sub(k).max(1) as f64;
+    let mut m = g.as_ref().submatrix(0, 0, k, k).to_owned();
+    for i in 0..k {
+        m[(i, i)] += lambda;
+    }
+    let inv = m.llt(Side::Lower).ok()?.inverse();
+    let hc = chosen.harmonics as usize;
+    let effects = joints
+        .iter()
+        .enumerate()
+        .map(|(ji, &j)| {
+            let mut coefs = Vec::with_capacity(2 * hc);
+            let mut std = Vec::with_capacity(2 * hc);
+            for h in 0..hc {
+                for cs in 0..2 {
+                    let i = col(h, ji, cs);
+                    coefs.push(x[(i, 0)]);
+                    std.push((sigma2 * inv[(i, i)]).max(0.0).sqrt());
+                }
+            }
+            Effect {
+                block: Block::TransmissionMap(TransmissionMap {
+                    joint: j + 1,
+                    harmonics: chosen.harmonics,
+                }),
+                coefs,
+                std,
+                tau_std: f64::NAN,
+            }
+        })
+        .collect();
+    Some(MapChoice {
+        chosen,
+        cv_rms_before,
+        grid,
+        effects,
+    })
+}
