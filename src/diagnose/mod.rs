@@ -292,9 +292,9 @@ pub struct Diagnosis {
     pub not_identifiable: Vec<Score>,
     /// Nonparametric correction, when one was needed: (CV RMS before, after).
     pub nonparametric: Option<(f64, f64)>,
-    /// The transmission error maps, when they were added: the setting and the CV RMS of
-    /// the chain's residual before them.
-    pub transmission_map: Option<(transmap::MapSetting, f64)>,
+    /// The transmission error maps, when they were added: the setting, the CV RMS of the
+    /// chain's residual before them, the grid and the coefficients' posterior covariance.
+    pub transmission_map: Option<transmap::MapChoice>,
     /// Residuals of the training data before the first effect (for plots).
     pub train_rms_nominal: f64,
     pub train_rms_geometric: f64,
@@ -898,7 +898,7 @@ struct Chain {
     rounds: Vec<Vec<Score>>,
     not_identifiable: Vec<Score>,
     nonparametric: Option<(f64, f64)>,
-    transmission_map: Option<(transmap::MapSetting, f64)>,
+    transmission_map: Option<transmap::MapChoice>,
     /// Time-blocked cross-validated RMS (per axis, mm) of the final model: the linearised
     /// refit of the physical chain on each fold's complement, times the correction's
     /// out-of-fold ratio when a correction was added ([`chain_cv`]).
@@ -1136,7 +1136,7 @@ fn add_transmission_map(
         m.chosen.cv_rms
     );
     let gain = 1.0 - m.chosen.cv_rms / m.cv_rms_before;
-    for e in m.effects {
+    for e in m.effects.iter().cloned() {
         let before_train = rms3(&residuals(&chain.state, train));
         let before_held = heldout_rms(&chain.state, heldout, train);
         chain.state.effects.push(e.clone());
@@ -1165,7 +1165,7 @@ fn add_transmission_map(
     if m.cv_rms_before > 0.0 {
         chain.cv_rms *= m.chosen.cv_rms / m.cv_rms_before;
     }
-    chain.transmission_map = Some((m.chosen, m.cv_rms_before));
+    chain.transmission_map = Some(m);
     true
 }
 

@@ -23,7 +23,7 @@ use faer::{
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::effects::{joint_angle_columns, Block, Effect, TransmissionMap};
+use super::effects::{joint_angle_columns, Block, Effect, EffectModel, TransmissionMap};
 use super::fit::{residuals, State};
 use super::{Options, OVERFIT_MIN_MM};
 use crate::solve::obs::PoseObs;
@@ -57,6 +57,39 @@ pub struct MapChoice {
     pub grid: Vec<MapSetting>,
     /// The fitted maps (one per mapped joint), internal units.
     pub effects: Vec<Effect>,
+    /// Posterior covariance (rad²) of all the maps' coefficients, in the effects' order
+    /// (each effect's `cos 1q, sin 1q, …` after the previous effect's):
+    /// `σ² (AᵀA + λI)⁻¹`, `σ²` the training residual variance after the maps.
+    pub cov: Mat<f64>,
+}
+
+impl MapChoice {
+    /// The map of joint `joint` (1-based) at angle `q` (rad): `δθ` and its posterior
+    /// standard deviation (rad); `None` for a joint without a map.
+    pub fn curve(&self, joint: usize, q: f64) -> Option<(f64, f64)> {
+        let mut off = 0;
+        for e in &self.effects {
+            let n = e.coefs.len();
+            if e.block.joint() == Some(joint) {
+                let phi: Vec<f64> = (0..n / 2)
+                    .flat_map(|k| {
+                        let (s, c) = ((k + 1) as f64 * q).sin_cos();
+                        [c, s]
+                    })
+                    .collect();
+                let v = TransmissionMap::value(&e.coefs, q);
+                let mut var = 0.0;
+                for a in 0..n {
+                    for b in 0..n {
+                        var += phi[a] * self.cov[(off + a, off + b)] * phi[b];
+                    }
+                }
+                return Some((v, var.max(0.0).sqrt()));
+            }
+            off += n;
+        }
+        None
+    }
 }
 
 /// The joints (0-based) that move enough in `train` to carry a map and have a joint-angle
@@ -245,6 +278,13 @@ pub fn fit_map(
     }
     let inv = m.llt(Side::Lower).ok()?.inverse();
     let hc = chosen.harmonics as usize;
+    // Covariance in the effects' order: joint-major (the system is harmonic-major).
+    let order: Vec<usize> = (0..nj)
+        .flat_map(|ji| (0..hc).flat_map(move |h| [col(h, ji, 0), col(h, ji, 1)]))
+        .collect();
+    let cov = Mat::from_fn(order.len(), order.len(), |a, b| {
+        sigma2 * inv[(order[a], order[b])]
+    });
     let effects = joints
         .iter()
         .enumerate()
@@ -274,5 +314,6 @@ pub fn fit_map(
         cv_rms_before,
         grid,
         effects,
+        cov,
     })
 }
