@@ -64,7 +64,8 @@ fn predict_outside_the_calibrated_range_holds_the_effects_and_warns() {
     assert_eq!(code, Some(0), "{err}");
     let want = format!("pose {id}: joint 2 is 20.0° outside the calibrated range");
     assert!(
-        err.contains(&want) && err.contains("(transmission ratio) held at the edge"),
+        err.contains(&want)
+            && err.contains("(transmission ratio, transmission error map) held at the edge"),
         "diagnose: no `{want}` in\n{err}"
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use super::file::{self, EffectFileError};
-use super::{deg_param, joint_angle, q_at, Coefs, EffectModel, Family};
+use super::{joint_angle, q_at, Coefs, EffectModel, Family};
 use crate::dataset::CalEffect;
 use crate::model::KinematicModel;
 use crate::schema::EffectParameter;
@@ -24,11 +24,14 @@ use crate::solve::obs::{PoseCtx, PoseObs};
 pub const MAX_MAP_HARMONICS: u64 = 1000;
 
 /// The map of `joint` (1-based) with `harmonics` harmonics: `2·harmonics` coefficients
-/// (rad), ordered `cos 1q, sin 1q, cos 2q, sin 2q, …`.
+/// (rad), ordered `cos 1q, sin 1q, cos 2q, sin 2q, …`, fitted on angles `lo … hi` (rad).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TransmissionMap {
     pub joint: usize,
     pub harmonics: u32,
+    /// The joint's angle range of the poses the map was fitted on (rad).
+    pub lo: f64,
+    pub hi: f64,
 }
 
 /// The parameters as `calibration.json` holds them (degrees).
@@ -40,6 +43,8 @@ pub struct MapFile {
     cos_deg: Vec<f64>,
     /// `b_h` of `sin hq` (deg).
     sin_deg: Vec<f64>,
+    /// The joint's angle range the map was fitted on, `[min, max]` (deg).
+    range_deg: Vec<f64>,
     /// Standard deviations in coefficient order (`cos 1q, sin 1q, …`, deg; may be absent).
     #[serde(default, deserialize_with = "file::lenient_vec")]
     std_deg: Vec<f64>,
@@ -57,11 +62,11 @@ impl TransmissionMap {
             .sum()
     }
 
-    /// RMS and largest |δθ| (rad) over a whole turn (720 samples).
-    fn size(c: &[f64]) -> (f64, f64) {
+    /// RMS and largest |δθ| (rad) over the fitted range (721 samples).
+    fn size(&self, c: &[f64]) -> (f64, f64) {
         let n = 720;
-        let v: Vec<f64> = (0..n)
-            .map(|i| Self::value(c, std::f64::consts::TAU * i as f64 / n as f64))
+        let v: Vec<f64> = (0..=n)
+            .map(|i| Self::value(c, self.lo + (self.hi - self.lo) * i as f64 / n as f64))
             .collect();
         let rms = (v.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
         (rms, v.iter().fold(0.0f64, |m, x| m.max(x.abs())))
@@ -98,27 +103,15 @@ impl EffectModel for TransmissionMap {
             })
             .collect()
     }
+    /// The map's size over its range (the coefficients themselves are in `calibration.json`:
+    /// a report listing 2·H coefficients per joint says nothing a reader can use).
     fn parameters(&self, c: &Coefs) -> Vec<EffectParameter> {
-        let (rms, peak) = Self::size(c.value);
-        let mut v = vec![
-            EffectParameter::new(
-                "rms_over_a_turn",
-                "arcsec",
-                rms.to_degrees() * 3600.0,
-                f64::NAN,
-            ),
-            EffectParameter::new(
-                "peak_over_a_turn",
-                "arcsec",
-                peak.to_degrees() * 3600.0,
-                f64::NAN,
-            ),
-        ];
-        for h in 1..=self.harmonics as usize {
-            v.push(deg_param(&format!("cos{h}"), c, 2 * h - 2));
-            v.push(deg_param(&format!("sin{h}"), c, 2 * h - 1));
-        }
-        v
+        let (rms, peak) = self.size(c.value);
+        let arcsec = |x: f64| x.to_degrees() * 3600.0;
+        vec![
+            EffectParameter::new("rms_over_range", "arcsec", arcsec(rms), f64::NAN),
+            EffectParameter::new("peak_over_range", "arcsec", arcsec(peak), f64::NAN),
+        ]
     }
     fn file_params(&self, c: &Coefs) -> Map<String, Value> {
         let deg = |k: usize| -> Vec<f64> {
@@ -133,17 +126,20 @@ impl EffectModel for TransmissionMap {
             harmonics: u64::from(self.harmonics),
             cos_deg: deg(0),
             sin_deg: deg(1),
+            range_deg: vec![self.lo.to_degrees(), self.hi.to_degrees()],
             std_deg: file::deg(c.std),
         })
     }
     fn sentence(&self, c: &Coefs) -> String {
-        let (rms, peak) = Self::size(c.value);
+        let (rms, peak) = self.size(c.value);
         format!(
-            "joint {}'s gear train has an angular transmission error that varies over its turn \
-             ({} harmonics, fitted with a smoothness prior): {} arcsec RMS, {} arcsec at its \
-             largest",
+            "joint {}'s gear train has an angular transmission error that varies with its angle \
+             ({} harmonics, fitted with a smoothness prior over {:.0} … {:.0}°): {} arcsec RMS, \
+             {} arcsec at its largest",
             self.joint,
             self.harmonics,
+            self.lo.to_degrees(),
+            self.hi.to_degrees(),
             super::plain_number(rms.to_degrees() * 3600.0, 1),
             super::plain_number(peak.to_degrees() * 3600.0, 1)
         )
@@ -179,6 +175,23 @@ impl Family for TransmissionMap {
                 ));
             }
         }
+        let [lo, hi] = f.range_deg[..] else {
+            return Err(EffectFileError::invalid(
+                e,
+                format!(
+                    "\"range_deg\" needs 2 values [min, max] (got {})",
+                    f.range_deg.len()
+                ),
+            ));
+        };
+        if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+            return Err(EffectFileError::invalid(
+                e,
+                format!(
+                    "\"range_deg\" must be finite [min, max] with min ≤ max (got [{lo}, {hi}])"
+                ),
+            ));
+        }
         let coefs: Vec<f64> = f
             .cos_deg
             .iter()
@@ -189,6 +202,8 @@ impl Family for TransmissionMap {
             TransmissionMap {
                 joint: file::joint(e)?,
                 harmonics: f.harmonics as u32,
+                lo: lo.to_radians(),
+                hi: hi.to_radians(),
             },
             coefs,
             file::rad(&f.std_deg),
@@ -199,6 +214,8 @@ impl Family for TransmissionMap {
             TransmissionMap {
                 joint: 2,
                 harmonics: 3,
+                lo: -2.5,
+                hi: 2.0,
             },
             vec![1.2e-4, -0.8e-4, 0.5e-4, 0.9e-4, -0.3e-4, 0.4e-4],
         )
