@@ -28,6 +28,19 @@ pub fn partial_residual(state: &State, obs: &[PoseObs], idx: usize) -> Scatter {
 /// prediction with every effect, its kernel corrections and its parameter Jacobian are
 /// computed once for all the plots (the same values as one plot at a time).
 pub fn partial_residuals(state: &State, obs: &[PoseObs], idxs: &[usize]) -> Vec<Scatter> {
+    partial_residuals_per_pose(state, obs, idxs)
+        .into_iter()
+        .map(|(pts, xl, yl)| (pts.into_iter().flatten().collect(), xl, yl))
+        .collect()
+}
+
+/// [`partial_residuals`] with one entry per pose of `obs` (`None` where the projection on
+/// the joint's column is degenerate), so that a caller can pair each point with its pose.
+pub fn partial_residuals_per_pose(
+    state: &State,
+    obs: &[PoseObs],
+    idxs: &[usize],
+) -> Vec<(Vec<Option<(f64, f64)>>, String, String)> {
     // Per plot: the other effects, and the joint it projects on. Effects that act on a
     // joint angle project on that joint; link deflection moves the point directly (its
     // joint is where it bends, not an angle).
@@ -110,7 +123,7 @@ pub fn partial_residuals(state: &State, obs: &[PoseObs], idxs: &[usize]) -> Vec<
         .iter()
         .enumerate()
         .map(|(k, (idx, _, joint))| {
-            let pts: Vec<(f64, f64)> = per_pose.iter().filter_map(|p| p[k]).collect();
+            let pts: Vec<Option<(f64, f64)>> = per_pose.iter().map(|p| p[k]).collect();
             let e = &state.effects[*idx];
             let (xl, yl) = match joint {
                 Some(j) => (

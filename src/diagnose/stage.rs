@@ -200,10 +200,27 @@ pub fn run_loaded(
         &crate::schema::points_csv::to_string(&rows),
     )?;
     let idxs: Vec<usize> = (0..d.state.effects.len()).collect();
-    let plots = plot::partial_residuals(&d.state, &train, &idxs);
+    let plots = plot::partial_residuals_per_pose(&d.state, &train, &idxs);
     for ((i, e), (pts, xl, yl)) in d.state.effects.iter().enumerate().zip(plots) {
         let name = format!("effect_{}_{}.svg", i + 1, e.block.kind());
-        plot::write_svg(&args.out.join(&name), &e.block.label(), &pts, &xl, &yl)?;
+        let path = args.out.join(&name);
+        if let effects::Block::TransmissionMap(m) = &e.block {
+            // A map is read against its joint's angle: the partial residual (blue) and the
+            // fitted curve (red) over the training poses' angles.
+            let tri: Vec<(f64, f64, f64)> = train
+                .iter()
+                .zip(&pts)
+                .filter_map(|(o, p)| {
+                    let (fit, y) = (*p)?;
+                    Some((o.ctx.q.get(m.joint - 1)?.to_degrees(), y, fit))
+                })
+                .collect();
+            let xl = format!("q{} (deg)", m.joint);
+            plot::write_driver_svg(&path, &e.block.label(), &tri, &xl, &yl)?;
+        } else {
+            let pts: Vec<(f64, f64)> = pts.into_iter().flatten().collect();
+            plot::write_svg(&path, &e.block.label(), &pts, &xl, &yl)?;
+        }
     }
     let f = |v: Option<f64>| v.map(|x| format!("{x:.4}")).unwrap_or_else(|| "—".into());
     let mut s = format!(

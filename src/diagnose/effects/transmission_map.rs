@@ -221,3 +221,75 @@ impl Family for TransmissionMap {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::effects::Effect;
+    use serde_json::json;
+
+    fn entry(params: Value) -> CalEffect {
+        CalEffect {
+            kind: TransmissionMap::KIND.into(),
+            joint: Some(2),
+            params: params.as_object().unwrap().clone(),
+            extra: Map::new(),
+        }
+    }
+
+    /// The file form reads back to the same map; a declared harmonic count that does not
+    /// match the arrays, a non-finite value or a reversed range is refused with the field
+    /// named.
+    #[test]
+    fn the_file_form_round_trips_and_bad_maps_are_refused() {
+        let (b, c) = TransmissionMap::example(&KinematicModel::preset("denso-vs060").unwrap());
+        let e = Effect {
+            coefs: c.clone(),
+            std: vec![1e-6; c.len()],
+            ..Effect::zero(b.clone().into())
+        };
+        let back = Effect::from_cal(&e.to_cal()).unwrap();
+        assert_eq!(back.block, e.block);
+        for (a, b) in back.coefs.iter().zip(&c) {
+            assert!((a - b).abs() < 1e-15);
+        }
+        let ok = json!({"harmonics": 2, "cos_deg": [0.01, 0.0], "sin_deg": [0.0, 0.02], "range_deg": [-90.0, 45.0]});
+        assert!(Effect::from_cal(&entry(ok.clone())).is_ok());
+        let err = |v: Value| Effect::from_cal(&entry(v)).unwrap_err().to_string();
+        let mut v = ok.clone();
+        v["harmonics"] = json!(3);
+        assert!(err(v).contains("\"cos_deg\" has 2 values but \"harmonics\" is 3"));
+        let mut v = ok.clone();
+        v["sin_deg"] = json!([0.0, null]);
+        assert!(err(v).contains("sin_deg"));
+        let mut v = ok.clone();
+        v["range_deg"] = json!([45.0, -90.0]);
+        assert!(err(v).contains("range_deg"));
+        let mut v = ok;
+        v["harmonics"] = json!(0);
+        assert!(err(v).contains("harmonics"));
+    }
+
+    /// `value` is the series the regressors describe: the joint offsets of the effect at
+    /// an angle equal the sum of its features times its coefficients.
+    #[test]
+    fn the_value_is_the_features_times_the_coefficients() {
+        let model = KinematicModel::preset("denso-vs060").unwrap();
+        let (b, c) = TransmissionMap::example(&model);
+        for q2 in [-2.0, -0.3, 0.7, 1.9] {
+            let ctx = PoseCtx {
+                q: vec![0.1, q2, 0.2, 0.0, 0.5, 0.0],
+                ..Default::default()
+            };
+            let f: f64 = b
+                .joint_features(&model, &ctx)
+                .iter()
+                .map(|(j, k, x)| {
+                    assert_eq!(*j, 1);
+                    c[*k] * x
+                })
+                .sum();
+            assert!((f - TransmissionMap::value(&c, q2)).abs() < 1e-15);
+        }
+    }
+}
