@@ -17,6 +17,9 @@ use crate::solve::obs::PoseObs;
 /// One scatter plot: its (x, y) pairs and the x and y axis labels.
 pub type Scatter = (Vec<(f64, f64)>, String, String);
 
+/// A [`Scatter`] with one entry per pose (`None` where the pose gives no point).
+pub type PoseScatter = (Vec<Option<(f64, f64)>>, String, String);
+
 /// (x, y) pairs of the partial-residual plot of `state.effects[idx]`, and axis labels.
 pub fn partial_residual(state: &State, obs: &[PoseObs], idx: usize) -> Scatter {
     partial_residuals(state, obs, &[idx])
@@ -40,7 +43,7 @@ pub fn partial_residuals_per_pose(
     state: &State,
     obs: &[PoseObs],
     idxs: &[usize],
-) -> Vec<(Vec<Option<(f64, f64)>>, String, String)> {
+) -> Vec<PoseScatter> {
     // Per plot: the other effects, and the joint it projects on. Effects that act on a
     // joint angle project on that joint; link deflection moves the point directly (its
     // joint is where it bends, not an angle).
