@@ -73,6 +73,31 @@ fn main() -> anyhow::Result<()> {
             let t_end = train.last().map_or(f64::NEG_INFINITY, |o| o.ctx.t);
             held.retain(|o| o.ctx.t <= t_end);
         }
+        let t0 = Instant::now();
+        let with = robocal::diagnose::diagnose(&model, &train, &held, &opt)?;
+        let without = robocal::diagnose::diagnose(
+            &model,
+            &train,
+            &held,
+            &Options {
+                transmission_map: false,
+                ..opt.clone()
+            },
+        )?;
+        let f = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.4}"));
+        println!(
+            "{name}, all {} training poses, {} held out: held-out RMS with the maps {} mm (H {}), without {} mm, geometric {} mm ({:.1} s)",
+            train.len(),
+            held.len(),
+            f(with.heldout_rms_final),
+            with
+                .transmission_map
+                .as_ref()
+                .map_or("—".to_string(), |m| m.chosen.harmonics.to_string()),
+            f(without.heldout_rms_final),
+            f(with.heldout_rms_geometric),
+            t0.elapsed().as_secs_f64()
+        );
         for split in [Split::Alternate(block), Split::Halves] {
             let t0 = Instant::now();
             let r = split_half(&model, &train, &held, split, &opt)?;
