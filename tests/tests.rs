@@ -43,6 +43,7 @@ mod rcm_session;
 mod rcm_trials;
 mod real_handeye;
 mod real_serial_robots;
+mod real_transmission_map;
 mod realcam_io;
 mod report;
 mod run_integrity;

@@ -102,10 +102,7 @@ impl SplitHalf {
     /// Share of all compared grid points within 2σ (every joint pooled).
     pub fn within_2sigma(joints: &[JointCompare]) -> f64 {
         let n: usize = joints.iter().map(|j| j.n).sum();
-        let k: f64 = joints
-            .iter()
-            .map(|j| j.within_2sigma * j.n as f64)
-            .sum();
+        let k: f64 = joints.iter().map(|j| j.within_2sigma * j.n as f64).sum();
         if n == 0 {
             f64::NAN
         } else {
@@ -197,8 +194,7 @@ pub fn compare(
         if m1.at(j, 0.0).is_none() || m2.at(j, 0.0).is_none() {
             continue;
         }
-        let (Some((l1, h1)), Some((l2, h2))) = (range_of(tr1, j - 1), range_of(tr2, j - 1))
-        else {
+        let (Some((l1, h1)), Some((l2, h2))) = (range_of(tr1, j - 1), range_of(tr2, j - 1)) else {
             continue;
         };
         let (lo, hi) = (l1.max(l2), h1.min(h2));
