@@ -79,13 +79,16 @@ pub struct JointCompare {
     pub ratio_max: f64,
 }
 
+/// A half's chosen map setting: harmonics and ridge.
+pub type Setting = (u32, f64);
+
 /// The result of one split.
 #[derive(Debug, Clone)]
 pub struct SplitHalf {
     pub split: Split,
     pub n: (usize, usize),
     /// Each half's chosen setting (harmonics, ridge), `None` when it added no map.
-    pub setting: (Option<(u32, f64)>, Option<(u32, f64)>),
+    pub setting: (Option<Setting>, Option<Setting>),
     /// Each half's held-out RMS (mm) on the common held-out poses, when given.
     pub heldout: (Option<f64>, Option<f64>),
     /// Each half's chain of named effects (labels, before the maps).
@@ -290,7 +293,7 @@ pub fn split_half(
 /// The result as text: one line per half, then a markdown table row per joint.
 pub fn text(name: &str, r: &SplitHalf) -> String {
     let mut s = String::new();
-    let set = |x: Option<(u32, f64)>| match x {
+    let set = |x: Option<Setting>| match x {
         Some((h, l)) => format!("H {h}, ridge {l:e}"),
         None => "no map".to_string(),
     };
