@@ -22,6 +22,9 @@ use std::time::Instant;
 use robocal::diagnose::pooled::load_series;
 use robocal::diagnose::Options;
 
+#[path = "common/map_pair.rs"]
+mod map_pair;
+use map_pair::with_and_without_maps;
 #[path = "common/split_half.rs"]
 mod split_half;
 use split_half::{split_half, text, Split};
@@ -74,16 +77,7 @@ fn main() -> anyhow::Result<()> {
             held.retain(|o| o.ctx.t <= t_end);
         }
         let t0 = Instant::now();
-        let with = robocal::diagnose::diagnose(&model, &train, &held, &opt)?;
-        let without = robocal::diagnose::diagnose(
-            &model,
-            &train,
-            &held,
-            &Options {
-                transmission_map: false,
-                ..opt.clone()
-            },
-        )?;
+        let (with, without) = with_and_without_maps(&model, &train, &held, &opt)?;
         let f = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.4}"));
         println!(
             "{name}, all {} training poses, {} held out: held-out RMS with the maps {} mm (H {}), without {} mm, geometric {} mm ({:.1} s)",

@@ -10,29 +10,18 @@
 //! 0.3840 mm geometric; 1,000-pose halves of this span add no map (no setting passes the CV
 //! rules), so the split-half check of the maps is not asserted here (it is run on Series C, B
 //! and D by the example).
-use std::path::{Path, PathBuf};
-
 use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::pooled::load_series;
-use robocal::diagnose::{diagnose, Options};
+use robocal::diagnose::Options;
 
 /// Training poses used (the first ones, in time order); fewer add no map on Series A.
 const N_TRAIN: usize = 2000;
 
 #[test]
 fn transmission_maps_predict_real_ur10_heldout_poses_better() {
-    let dir = std::env::var_os("ROBOCAL_REAL_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real-ur10-ipa-grid")
-        });
-    if !dir.join("train.jsonl").is_file() || !dir.join("heldout.jsonl").is_file() {
-        crate::common::skipped(format_args!(
-            "real UR10 data absent ({}): the transmission error maps are not measured on real data",
-            dir.display()
-        ));
+    let Some(dir) = crate::common::real_ur10_dir("the transmission error maps on real data") else {
         return;
-    }
+    };
     let (model, mut train, mut held) = load_series(&dir).expect("Series A loads");
     train.truncate(N_TRAIN);
     let t_end = train.last().expect("training poses").ctx.t;
@@ -43,18 +32,9 @@ fn transmission_maps_predict_real_ur10_heldout_poses_better() {
         held.len()
     );
 
-    let opt = Options::default();
-    let with = diagnose(&model, &train, &held, &opt).expect("default diagnosis");
-    let without = diagnose(
-        &model,
-        &train,
-        &held,
-        &Options {
-            transmission_map: false,
-            ..opt.clone()
-        },
-    )
-    .expect("diagnosis without the maps");
+    let (with, without) =
+        crate::map_pair::with_and_without_maps(&model, &train, &held, &Options::default())
+            .expect("the diagnoses with and without the maps");
     let map = with
         .transmission_map
         .as_ref()
