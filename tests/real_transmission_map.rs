@@ -65,7 +65,7 @@ fn transmission_maps_predict_real_ur10_heldout_poses_better() {
         h_with < 0.92 * h_without,
         "the maps predict the held-out poses better: {h_with:.4} vs {h_without:.4} mm"
     );
-    // The maps' own gap: held-out within 15 % of training (measured below the training RMS).
+    // The overfitting rule of the report: held-out within 15 % of the training RMS.
     assert!(
         h_with < 1.15 * with.train_rms_final,
         "held-out {h_with:.4} vs training {:.4} mm",
