@@ -6,6 +6,23 @@ pub fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The real UR10 series (IPA Series A: `train.jsonl` + `heldout.jsonl`) from
+/// `$ROBOCAL_REAL_DATA` or `../shared/data/real-ur10-ipa-grid`; `None`, after saying SKIPPED
+/// loudly that `what` is not measured, when absent.
+pub fn real_ur10_dir(what: &str) -> Option<std::path::PathBuf> {
+    let dir = std::env::var_os("ROBOCAL_REAL_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| root().join("../shared/data/real-ur10-ipa-grid"));
+    if dir.join("train.jsonl").is_file() && dir.join("heldout.jsonl").is_file() {
+        return Some(dir);
+    }
+    skipped(format_args!(
+        "real UR10 data absent ({}); not measured: {what}",
+        dir.display()
+    ));
+    None
+}
+
 /// Runs the robocal command line in process; returns its exit code.
 pub fn cli(args: &[&str]) -> i32 {
     let mut v = vec!["robocal".to_string()];

@@ -4,7 +4,6 @@
 //! pose of each. Trained on the first two, the third registered on 40 of its poses spread
 //! over it: the shared physical effects must predict it better than the shared geometry,
 //! and joint 2's ×17 ripple fitted on either training block alone has the same phase.
-use std::path::{Path, PathBuf};
 
 use robocal::diagnose::effects::{Block, Effect, Ripple};
 use robocal::diagnose::fit::fit;
@@ -16,18 +15,9 @@ use robocal::solve::obs::PoseObs;
 
 #[test]
 fn pooled_physics_carries_to_a_later_block_of_the_real_ur10() {
-    let dir = std::env::var_os("ROBOCAL_REAL_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real-ur10-ipa-grid")
-        });
-    if !dir.join("train.jsonl").is_file() || !dir.join("heldout.jsonl").is_file() {
-        crate::common::skipped(format_args!(
-            "real UR10 data absent ({}): the pooled diagnosis is not measured",
-            dir.display()
-        ));
+    let Some(dir) = crate::common::real_ur10_dir("the pooled diagnosis") else {
         return;
-    }
+    };
     let (model, train, held) = load_series(&dir).expect("Series A loads");
     let mut all: Vec<PoseObs> = train.into_iter().chain(held).collect();
     all.sort_by(|a, b| a.ctx.t.total_cmp(&b.ctx.t));

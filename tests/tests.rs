@@ -25,6 +25,9 @@ mod laser_seed;
 mod laser_session;
 mod laser_world;
 mod live_session;
+/// The diagnosis with and without the transmission error maps (shared with the examples).
+#[path = "../examples/common/map_pair.rs"]
+mod map_pair;
 mod model;
 mod navchain;
 mod navchain_cmd;
@@ -43,6 +46,7 @@ mod rcm_session;
 mod rcm_trials;
 mod real_handeye;
 mod real_serial_robots;
+mod real_transmission_map;
 mod realcam_io;
 mod report;
 mod run_integrity;
