@@ -269,6 +269,20 @@ fn ripple_j4(s: &mut Scenario) {
     }];
 }
 
+/// A gear error of joint 4 (which turns ±180° in these worlds) with twelve harmonics of
+/// equal size (3…14 cycles per turn): more than the chain names one by one; the
+/// transmission error map takes the rest.
+fn gear_error_j4(s: &mut Scenario) {
+    s.arms[0].effects.ripple = (3..=14)
+        .map(|h| Ripple {
+            joint: 4,
+            harmonic: h,
+            amplitude_deg: 0.012,
+            phase_deg: 37.0 * f64::from(h),
+        })
+        .collect();
+}
+
 fn coupling_j3_q4(s: &mut Scenario) {
     s.arms[0].effects.coupling = vec![Coupling {
         joint: 3,
@@ -341,6 +355,16 @@ fn predict_reproduces_transmission_ripple() {
     check_world(
         &world("ripple j4 ×9", ripple_j4),
         Some("transmission_ripple"),
+        false,
+        None,
+    );
+}
+
+#[test]
+fn predict_reproduces_transmission_error_map() {
+    check_world(
+        &world("gear error j4, 12 harmonics", gear_error_j4),
+        Some("transmission_error_map"),
         false,
         None,
     );

@@ -39,11 +39,15 @@ pub struct TransmissionMap {
 pub struct MapFile {
     #[serde(deserialize_with = "file::count")]
     harmonics: u64,
-    /// `a_h` of `cos hq`, h = 1…harmonics (deg).
+    /// `a_h` of `cos hq`, h = 1…harmonics (deg). Read leniently (a non-number becomes NaN,
+    /// a non-array empty) so that the checks of `from_file` name the field and the index.
+    #[serde(deserialize_with = "file::lenient_vec")]
     cos_deg: Vec<f64>,
     /// `b_h` of `sin hq` (deg).
+    #[serde(deserialize_with = "file::lenient_vec")]
     sin_deg: Vec<f64>,
     /// The joint's angle range the map was fitted on, `[min, max]` (deg).
+    #[serde(deserialize_with = "file::lenient_vec")]
     range_deg: Vec<f64>,
     /// Standard deviations in coefficient order (`cos 1q, sin 1q, …`, deg; may be absent).
     #[serde(default, deserialize_with = "file::lenient_vec")]
@@ -261,7 +265,10 @@ mod tests {
         assert!(err(v).contains("\"cos_deg\" has 2 values but \"harmonics\" is 3"));
         let mut v = ok.clone();
         v["sin_deg"] = json!([0.0, null]);
-        assert!(err(v).contains("sin_deg"));
+        assert!(err(v).contains("\"sin_deg\"[1] is not a finite number"));
+        let mut v = ok.clone();
+        v["cos_deg"] = json!("0.01");
+        assert!(err(v).contains("\"cos_deg\" has 0 values"));
         let mut v = ok.clone();
         v["range_deg"] = json!([45.0, -90.0]);
         assert!(err(v).contains("range_deg"));
