@@ -48,6 +48,17 @@ pub(crate) fn test_joints(f: f64, amp: f64, phase: f64) -> Vec<f64> {
         .collect()
 }
 
+/// Uniform noise in ±`amp` from a 64-bit LCG seeded with `seed` (reproducible test data).
+#[cfg(test)]
+pub(crate) fn lcg_noise(mut seed: u64, amp: f64) -> impl FnMut() -> f64 {
+    move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        amp * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
+    }
+}
+
 /// Approach directions of synthetic test pose `k`: ±1 alternating over the joints and poses.
 #[cfg(test)]
 pub(crate) fn test_approach(k: u64) -> Vec<f64> {
@@ -1781,16 +1792,6 @@ mod tests {
     use super::*;
     use nalgebra::Point3;
     use std::sync::Arc;
-
-    /// Uniform noise in ±`amp` from a 64-bit LCG seeded with `seed` (reproducible test data).
-    fn lcg_noise(mut seed: u64, amp: f64) -> impl FnMut() -> f64 {
-        move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            amp * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
-        }
-    }
 
     /// The columns a candidate is scored with are the problem's own Jacobian: each matches
     /// the central finite difference of the prediction in that coefficient (at zero, on top

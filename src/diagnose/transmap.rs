@@ -451,19 +451,9 @@ mod tests {
     use super::*;
     use crate::diagnose::effects::apply_effects;
     use crate::diagnose::fit::{fit, rms3};
-    use crate::diagnose::test_joints;
+    use crate::diagnose::{lcg_noise as noise, test_joints};
     use crate::model::KinematicModel;
     use nalgebra::Point3;
-
-    /// Uniform noise in ±`amp` (a 64-bit LCG: reproducible).
-    fn noise(mut seed: u64, amp: f64) -> impl FnMut() -> f64 {
-        move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            amp * (((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0)
-        }
-    }
 
     /// A gear error of joint 2 with ten harmonics (3…12, none a library ripple the test
     /// adds) in the world, `None` for a world without one.
