@@ -624,17 +624,26 @@ fn md_calibration(m: &mut String, c: &Found<CalibrationFile>) {
         let _ = writeln!(m, "\nEffects:");
         for e in &v.effects {
             let joint = e.joint.map(|j| format!(" (joint {j})"));
-            let _ = writeln!(
-                m,
-                "- {}{}: `{}`",
-                e.kind,
-                joint.unwrap_or_default(),
-                cell(&Value::Object(e.params.clone()).to_string())
-            );
+            let params = Value::Object(e.params.clone()).to_string();
+            // A long parameter list (a transmission error map's 2·H coefficients, a kernel
+            // correction's centres) says nothing a reader can use: its sentence instead.
+            let shown = match crate::diagnose::effects::Effect::from_cal(e) {
+                Ok(fx) if params.chars().count() > MAX_INLINE_PARAMS => format!(
+                    "{} ({} values in calibration.json)",
+                    fx.sentence(),
+                    fx.coefs.len().max(e.params.len())
+                ),
+                _ => format!("`{}`", cell(&params)),
+            };
+            let _ = writeln!(m, "- {}{}: {shown}", e.kind, joint.unwrap_or_default());
         }
     }
     m.push('\n');
 }
+
+/// Effect parameters longer than this (characters of JSON) are summarised in the report by
+/// the effect's sentence.
+const MAX_INLINE_PARAMS: usize = 400;
 
 fn md_diagnosis(m: &mut String, d: &Found<DiagnosisFile>) {
     let v = &d.value;
