@@ -7,7 +7,7 @@
 //! ([`MapChoice::curve`]) are compared on a 1° grid inside both halves' training range of
 //! that joint: the RMS of `δθ₁ − δθ₂`, the RMS of each curve, and the share of grid points
 //! where `|δθ₁ − δθ₂| ≤ 2·sqrt(σ₁² + σ₂²)` (honest when ≥ 90 %).
-use robocal::diagnose::effects::Block;
+use robocal::diagnose::effects::{Block, JointRange};
 use robocal::diagnose::transmap::MapChoice;
 use robocal::diagnose::{self, Diagnosis, Options};
 use robocal::model::KinematicModel;
@@ -127,14 +127,6 @@ pub fn resolved(joints: &[JointCompare]) -> Vec<JointCompare> {
         .collect()
 }
 
-fn range_of(train: &[PoseObs], j: usize) -> Option<(f64, f64)> {
-    let v = train.iter().filter_map(|o| o.ctx.q.get(j).copied());
-    let (lo, hi) = v.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), q| {
-        (l.min(q), h.max(q))
-    });
-    (lo <= hi).then_some((lo, hi))
-}
-
 /// One half's transmission error curves: its maps and its named ripples
 /// (`joint, harmonic, [sin, cos] coefficients, their standard deviations`, rad).
 pub struct Curves<'a> {
@@ -195,14 +187,17 @@ pub fn compare(
     dof: usize,
 ) -> Vec<JointCompare> {
     let mut out = Vec::new();
-    for j in 1..=dof {
+    let (Some(r1), Some(r2)) = (JointRange::of(tr1), JointRange::of(tr2)) else {
+        return out;
+    };
+    for j in 1..=dof.min(r1.lo.len()).min(r2.lo.len()) {
         if m1.at(j, 0.0).is_none() || m2.at(j, 0.0).is_none() {
             continue;
         }
-        let (Some((l1, h1)), Some((l2, h2))) = (range_of(tr1, j - 1), range_of(tr2, j - 1)) else {
-            continue;
-        };
-        let (lo, hi) = (l1.max(l2), h1.min(h2));
+        let (lo, hi) = (
+            r1.lo[j - 1].max(r2.lo[j - 1]),
+            r1.hi[j - 1].min(r2.hi[j - 1]),
+        );
         let (dlo, dhi) = (lo.to_degrees().ceil(), hi.to_degrees().floor());
         if dhi < dlo {
             continue;

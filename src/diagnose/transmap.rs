@@ -23,7 +23,9 @@ use faer::{
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::effects::{joint_angle_columns, Block, Effect, EffectModel, TransmissionMap};
+use super::effects::{
+    joint_angle_columns, spread, Block, Effect, EffectModel, JointRange, TransmissionMap,
+};
 use super::fit::{residuals, State};
 use super::{Options, OVERFIT_MIN_MM};
 use crate::solve::obs::PoseObs;
@@ -98,16 +100,9 @@ impl MapChoice {
 /// The joints (0-based) that move enough in `train` to carry a map and have a joint-angle
 /// column.
 fn mapped_joints(state: &State, train: &[PoseObs]) -> Vec<usize> {
-    let dof = state.model.dof();
-    (0..dof)
+    (0..state.model.dof())
         .filter(|&j| {
-            let v: Vec<f64> = train
-                .iter()
-                .filter_map(|o| o.ctx.q.get(j).copied())
-                .collect();
-            let n = v.len().max(1) as f64;
-            let m = v.iter().sum::<f64>() / n;
-            (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt() >= MIN_JOINT_SPREAD
+            spread(train.iter().filter_map(|o| o.ctx.q.get(j).copied())) >= MIN_JOINT_SPREAD
         })
         .collect()
 }
@@ -412,18 +407,14 @@ pub fn fit_map(
         loo.len()
     );
     let hc = chosen.harmonics as usize;
+    let range = JointRange::of(train)?;
     let effects = subset
         .iter()
         .enumerate()
         .map(|(si, &ji)| {
             let j = joints[ji];
-            let (lo, hi) = train
-                .iter()
-                .filter_map(|o| o.ctx.q.get(j).copied())
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), q| {
-                    (l.min(q), h.max(q))
-                });
-            let range = si * 2 * hc..(si + 1) * 2 * hc;
+            let (lo, hi) = (range.lo[j], range.hi[j]);
+            let own = si * 2 * hc..(si + 1) * 2 * hc;
             Effect {
                 block: Block::TransmissionMap(TransmissionMap {
                     joint: j + 1,
@@ -431,8 +422,8 @@ pub fn fit_map(
                     lo,
                     hi,
                 }),
-                coefs: range.clone().map(|i| x[(i, 0)]).collect(),
-                std: range.map(|i| cov[(i, i)].max(0.0).sqrt()).collect(),
+                coefs: own.clone().map(|i| x[(i, 0)]).collect(),
+                std: own.map(|i| cov[(i, i)].max(0.0).sqrt()).collect(),
                 tau_std: f64::NAN,
             }
         })

@@ -386,7 +386,7 @@ fn joint_angle(model: &KinematicModel, ctx: &PoseCtx, joint: usize) -> Option<f6
 }
 
 /// Standard deviation of a sample.
-fn spread(v: impl Iterator<Item = f64>) -> f64 {
+pub(crate) fn spread(v: impl Iterator<Item = f64>) -> f64 {
     let v: Vec<f64> = v.collect();
     let n = v.len().max(1) as f64;
     let m = v.iter().sum::<f64>() / n;
