@@ -5,9 +5,11 @@
 //! ```text
 //! cargo run --release --example real_policy -- [--policy default|physics-first|kernel-benchmark]
 //!     [--max-train N] [--max-gap F] [--max-extrapolation F] [--pf-max N] [--no-time-blocked]
-//!     [--why] [SERIES ...]
+//!     [--geometric-prior MM,DEG|none] [--why] [SERIES ...]
 //! ```
 //!
+//! `--geometric-prior MM,DEG|none`: the prior standard deviations of the geometric parameters
+//! about nominal (default 5 mm, 0.5°; `none`: no prior, every free parameter fitted freely).
 //! `--pf-max N`: at most `N` physical effects in the physics-first chain (default 6).
 //! `--cv-stop K` / `--cv-stop-fold K` / `--no-cv-stop`: the physics-first chain also stops
 //! when the next effect lowers the time-blocked CV error of the training poses by no more
@@ -270,6 +272,19 @@ fn main() -> anyhow::Result<()> {
             }
             "--why" => why = true,
             "--no-time-blocked" => time_blocked = false,
+            "--geometric-prior" => {
+                i += 1;
+                let v = args.get(i).map(String::as_str).unwrap_or("");
+                opt.geometric_tolerance = if v == "none" {
+                    None
+                } else {
+                    let (mm, deg) = v
+                        .split_once(',')
+                        .and_then(|(a, b)| Some((a.parse().ok()?, b.parse().ok()?)))
+                        .ok_or_else(|| anyhow::anyhow!("--geometric-prior needs MM,DEG or none"))?;
+                    Some(robocal::diagnose::determined::GeometricTolerance { mm, deg })
+                };
+            }
             a if a.starts_with("--") => {
                 anyhow::bail!("unknown argument {a:?} (see the file's header)")
             }

@@ -45,6 +45,7 @@ mod rcm_session;
 #[path = "../examples/common/rcm_trials.rs"]
 mod rcm_trials;
 mod real_handeye;
+mod real_narrow_workspace;
 mod real_serial_robots;
 mod real_transmission_map;
 mod realcam_io;

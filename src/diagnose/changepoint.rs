@@ -122,6 +122,7 @@ mod tests {
         );
         ripple.coefs = vec![0.002, -0.001];
         let state = State {
+            prior: None,
             model,
             effects: vec![ripple],
         };

@@ -94,6 +94,7 @@ mod tests {
         let mut compared = 0;
         for effects in [vec![], examples] {
             let state = State {
+                prior: None,
                 model: model.clone(),
                 effects,
             };

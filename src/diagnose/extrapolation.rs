@@ -76,6 +76,7 @@ mod tests {
     fn an_effect_that_vanishes_on_the_training_poses_is_flagged_by_default() {
         let model = KinematicModel::preset("ur5e").unwrap();
         let state = State {
+            prior: None,
             model: model.clone(),
             effects: vec![Effect {
                 block: Block::Ripple(Ripple {

@@ -14,6 +14,36 @@ use crate::solve::obs::PoseObs;
 pub struct State {
     pub model: KinematicModel,
     pub effects: Vec<Effect>,
+    /// Prior of the geometric parameters used by [`fit`] (None: none).
+    pub prior: Option<std::sync::Arc<Prior>>,
+}
+
+/// A Gaussian prior on the model parameters, centred on their nominal values: [`fit`]
+/// minimises `Σ r² + Σ wᵢ² (xᵢ − cᵢ)²` (a MAP estimate with `wᵢ` = the noise of one
+/// residual row over the parameter's prior standard deviation). A direction the poses
+/// determine well is unaffected; one they hardly see stays near nominal instead of
+/// moving far at no cost ([`super::determined`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Prior {
+    /// Centre of every model parameter (index = `KinematicModel::params()` order, internal units).
+    pub centre: Vec<f64>,
+    /// Weight of every model parameter (0 = no prior; mm per internal unit).
+    pub weight: Vec<f64>,
+}
+
+impl Prior {
+    /// The prior's rows for the free parameters `free` at their values `x` (the first
+    /// `free.len()` entries): residual `w (x − c)` and the Jacobian's diagonal `w`, for the
+    /// free parameters with a weight only (index into `free`, residual, weight).
+    fn rows(&self, free: &[usize], x: &DVector<f64>) -> Vec<(usize, f64, f64)> {
+        free.iter()
+            .enumerate()
+            .filter_map(|(c, &i)| {
+                let w = *self.weight.get(i)?;
+                (w > 0.0 && w.is_finite()).then(|| (c, w * (x[c] - self.centre[i]), w))
+            })
+            .collect()
+    }
 }
 
 /// Stacked residual (3 rows per observation, `y − pred`, mm) and Jacobian of the
@@ -68,12 +98,35 @@ pub fn stack(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
     (r, j)
 }
 
+/// [`stack`] followed by one row per prior term of `state` (residual `−w (x − c)`,
+/// Jacobian `w` in the parameter's column): the linearised problem [`fit`] solves. The rows
+/// after the first `3 · obs.len()` are the prior's.
+pub fn stack_prior(state: &State, obs: &[PoseObs]) -> (DVector<f64>, DMatrix<f64>) {
+    let (r, j) = stack(state, obs);
+    let pr = state
+        .prior
+        .as_ref()
+        .map(|p| p.rows(&state.model.free_indices(), &params_of(state)))
+        .unwrap_or_default();
+    if pr.is_empty() {
+        return (r, j);
+    }
+    let n = r.len();
+    let mut rr = r.resize_vertically(n + pr.len(), 0.0);
+    let mut jj = j.resize_vertically(n + pr.len(), 0.0);
+    for (k, &(c, e, w)) in pr.iter().enumerate() {
+        rr[n + k] = -e;
+        jj[(n + k, c)] = w;
+    }
+    (rr, jj)
+}
+
 /// Residuals only (the poses' predictions in parallel, written in order).
 pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
     residuals_held(state, obs, None)
 }
 
-/// [`residuals`] with the unbounded effects held at the edge of `range` (see
+/// [`residuals`] with every effect held at the edge of `range` (see
 /// [`crate::diagnose::effects::apply_effects_held`]); the same values inside it.
 pub fn residuals_held(
     state: &State,
@@ -149,6 +202,17 @@ pub struct DiagnoseProblem<'a> {
     pub obs: &'a [PoseObs],
 }
 
+impl DiagnoseProblem<'_> {
+    /// The prior's rows at `x` (empty without a prior).
+    fn prior_rows(&self, x: &DVector<f64>) -> Vec<(usize, f64, f64)> {
+        self.state
+            .prior
+            .as_ref()
+            .map(|p| p.rows(&self.state.model.free_indices(), x))
+            .unwrap_or_default()
+    }
+}
+
 impl LsqProblem for DiagnoseProblem<'_> {
     fn n_params(&self) -> usize {
         self.state.model.free_count()
@@ -160,11 +224,33 @@ impl LsqProblem for DiagnoseProblem<'_> {
                 .sum::<usize>()
     }
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
-        -residuals(&with_params(self.state, x), self.obs)
+        let r = -residuals(&with_params(self.state, x), self.obs);
+        let pr = self.prior_rows(x);
+        if pr.is_empty() {
+            return r;
+        }
+        let n = r.len();
+        let mut out = r.resize_vertically(n + pr.len(), 0.0);
+        for (k, &(_, e, _)) in pr.iter().enumerate() {
+            out[n + k] = e;
+        }
+        out
     }
     fn residuals_jacobian(&self, x: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>) {
         let (r, j) = stack(&with_params(self.state, x), self.obs);
-        (-r, j)
+        let pr = self.prior_rows(x);
+        if pr.is_empty() {
+            return (-r, j);
+        }
+        let (n, p) = j.shape();
+        let mut rr = (-r).resize_vertically(n + pr.len(), 0.0);
+        let mut jj = j.resize_vertically(n + pr.len(), 0.0);
+        for (k, &(c, e, w)) in pr.iter().enumerate() {
+            rr[n + k] = e;
+            jj[(n + k, c)] = w;
+        }
+        debug_assert_eq!(jj.ncols(), p);
+        (rr, jj)
     }
 }
 
@@ -207,7 +293,13 @@ pub fn fit(state: &mut State, obs: &[PoseObs], max_iter: usize) -> FitReport {
     let n = r.len();
     let p = j.ncols();
     let sigma2 = rss / (n.saturating_sub(rank).max(1)) as f64;
-    let cov = normal_inverse(&j);
+    // With a prior, the covariance is the posterior's (the prior's rows in the Jacobian).
+    let cov = if state.prior.is_some() {
+        let x = params_of(state);
+        normal_inverse(&DiagnoseProblem { state, obs }.residuals_jacobian(&x).1)
+    } else {
+        normal_inverse(&j)
+    };
     let mut off = state.model.free_count();
     for e in &mut state.effects {
         e.std = (0..e.coefs.len())
@@ -268,6 +360,7 @@ pub fn fit_nominal(
         model.set_free(n, *f)?;
     }
     let mut st = State {
+        prior: None,
         model: model.clone(),
         effects: vec![],
     };
@@ -448,6 +541,7 @@ mod tests {
         // neglected cross term); effect columns to 4e-6 (FD round-off at tiny steps).
         for (effects, model_tol) in [(exact, 1e-4), (compliance, 1e-2), (bending, 1e-2)] {
             let st = State {
+                prior: None,
                 model: model.clone(),
                 effects,
             };

@@ -226,6 +226,7 @@ mod tests {
 
     fn fitted(model: &KinematicModel, obs: &[PoseObs], blocks: &[Block]) -> State {
         let mut st = State {
+            prior: None,
             model: model.clone(),
             effects: blocks.iter().cloned().map(Effect::zero).collect(),
         };

@@ -24,6 +24,7 @@ pub mod camera;
 pub mod camera_stage;
 pub mod changepoint;
 pub mod colcache;
+pub mod determined;
 pub mod effects;
 pub mod error;
 pub mod extrapolation;
@@ -164,6 +165,9 @@ pub struct Options {
     pub transmission_map: bool,
     /// Minimum relative CV gain of the transmission error maps over the chain's residual.
     pub transmission_map_min_gain: f64,
+    /// Geometric parameters the training poses determine worse than this are kept at
+    /// their nominal values ([`determined`]); `None` fits every free parameter.
+    pub geometric_tolerance: Option<determined::GeometricTolerance>,
 }
 
 /// How [`diagnose`] chooses its chain of effects.
@@ -232,6 +236,7 @@ impl Default for Options {
             max_extrapolation: MAX_EXTRAPOLATION,
             transmission_map: true,
             transmission_map_min_gain: TRANSMISSION_MAP_MIN_GAIN,
+            geometric_tolerance: Some(determined::DEFAULT_GEOMETRIC_TOLERANCE),
         }
     }
 }
@@ -342,6 +347,18 @@ impl Diagnosis {
             .as_ref()
             .map(|s| format!("; the physics-first chain {s}"))
             .unwrap_or_default();
+        if let Some(g) = c.cv_rms_geometric {
+            return Some(format!(
+                "policy: kept the geometric fit alone: neither chain predicts the training poses' time blocks better than it (time-blocked CV RMS: geometric {g:.4} mm, kernel benchmark {:.4} mm, physics first {:.4} mm); the chains were: {}; {other}{stop}",
+                c.cv_rms_kernel_benchmark,
+                c.cv_rms_physics_first,
+                if c.dropped_chain.is_empty() {
+                    "none".to_string()
+                } else {
+                    c.dropped_chain.join(", ")
+                }
+            ));
+        }
         Some(format!(
             "policy: kept the {} chain (time-blocked CV RMS on the training poses: kernel benchmark {:.4} mm, physics first {:.4} mm; physics first is kept when ≥ {:.0} % lower); the other chain was: {other}{stop}",
             c.chosen,
@@ -367,6 +384,17 @@ fn folds(obs: &[PoseObs], k: usize) -> Vec<usize> {
 
 fn row_folds(obs_fold: &[usize]) -> Vec<usize> {
     obs_fold.iter().flat_map(|f| [*f, *f, *f]).collect()
+}
+
+/// Time-blocked CV RMS (per residual row, mm) of `state`'s model: every parameter refitted
+/// linearly on each fold's training poses (the prior's rows, when there is one, in every
+/// fold's training rows), the fold's poses predicted.
+fn model_cv_rms(state: &State, train: &[PoseObs], n_folds: usize) -> f64 {
+    let (r, j) = fit::stack_prior(state, train);
+    let mut rf = row_folds(&folds(train, n_folds));
+    // Fold `n_folds` is never a test fold: the prior's rows train every fold.
+    rf.resize(r.len(), n_folds);
+    CvBase::new(&j, &r, &rf, n_folds).rms(&j, &DMatrix::zeros(r.len(), 0), &r)
 }
 
 /// Default harmonic-drive gear ratio of the `wave_generator` candidates (see
@@ -852,7 +880,7 @@ fn np_gain(state: &State, train: &[PoseObs], hp: Option<(f64, f64)>, opt: &Optio
     }
 }
 
-/// Held-out RMS with the unbounded effects held at the edge of the training poses' joint ranges
+/// Held-out RMS with every effect held at the edge of the training poses' joint ranges
 /// ([`effects::apply_effects_held`]): a held-out pose outside them is not predicted by
 /// extrapolating a fitted effect.
 fn heldout_rms(state: &State, heldout: &[PoseObs], train: &[PoseObs]) -> Option<f64> {
@@ -1101,11 +1129,7 @@ fn select_chain(
             })
         });
     }
-    let cv_rms = {
-        let (r, j) = stack(&state, train);
-        let rf = row_folds(&folds(train, opt.n_folds));
-        CvBase::new(&j, &r, &rf, opt.n_folds).rms(&j, &DMatrix::zeros(r.len(), 0), &r)
-    };
+    let cv_rms = model_cv_rms(&state, train, opt.n_folds);
     Chain {
         state,
         steps,
@@ -1289,6 +1313,11 @@ pub struct PolicyChoice {
     pub other_chain: Vec<String>,
     /// Why the physics-first chain stopped before its cap ([`inner_cv`]), when it did.
     pub physics_first_stopped: Option<String>,
+    /// The geometric fit's own time-blocked CV RMS, when neither chain beat it and the
+    /// geometric fit was kept alone (`chosen` is then `"geometric fit alone"`).
+    pub cv_rms_geometric: Option<f64>,
+    /// Effects of the chosen chain when the geometric fit was kept in its place.
+    pub dropped_chain: Vec<String>,
 }
 
 /// Run the whole diagnosis. `model` is the nominal model (its free flags are used for the
@@ -1302,13 +1331,25 @@ pub fn diagnose(
     let mut model = model.clone();
     model.fix_point_redundancies();
     fit_nominal(&mut model, train)?;
-    let nominal = State {
+    let mut nominal = State {
+        prior: None,
         model: model.clone(),
         effects: vec![],
     };
     let train_rms_nominal = rms3(&residuals(&nominal, train));
     let mut state = nominal.clone();
-    let rep = fit(&mut state, train, 50);
+    let mut rep = fit(&mut state, train, 50);
+    // The geometry under a prior centred on the nominal values: a direction the poses
+    // hardly see stays near nominal ([`determined`]). Every later fit carries it.
+    let mut undetermined = Vec::new();
+    if let Some(tol) = opt.geometric_tolerance {
+        undetermined = determined::undetermined(&state, train, tol);
+        nominal.prior = Some(std::sync::Arc::new(determined::prior(
+            &nominal, &state, train, tol,
+        )));
+        state = nominal.clone();
+        rep = fit(&mut state, train, 50);
+    }
     if rep.rank < rep.n_params {
         tracing::warn!(
             "geometric identification Jacobian has rank {} < {} parameters",
@@ -1390,13 +1431,33 @@ pub fn diagnose(
                 margin: opt.policy_margin,
                 other_chain: Vec::new(),
                 physics_first_stopped: pf.stopped.clone(),
+                cv_rms_geometric: None,
+                dropped_chain: Vec::new(),
             };
             let (keep, other) = if use_pf { (pf, kb) } else { (kb, pf) };
             choice.other_chain = label(&other);
             if other.pending.is_some() {
                 choice.other_chain.push("nonparametric".into());
             }
-            (keep, Some(choice))
+            // Neither chain predicts the training poses' time blocks better than the
+            // geometric fit alone (e.g. poses in separate regions of the workspace, each
+            // block outside the others' ranges): keep the geometric fit, with its
+            // correction if one passes.
+            let cv_geometric = model_cv_rms(&geometric, train, opt.n_folds);
+            let beats = keep.cv_rms.partial_cmp(&cv_geometric) == Some(std::cmp::Ordering::Less);
+            if !keep.steps.is_empty() && !beats {
+                let alone = single(&Options {
+                    max_effects: 0,
+                    ..opt.clone()
+                });
+                choice.dropped_chain = label(&keep);
+                choice.other_chain = label(&other);
+                choice.chosen = "geometric fit alone";
+                choice.cv_rms_geometric = Some(cv_geometric);
+                (alone, Some(choice))
+            } else {
+                (keep, Some(choice))
+            }
         }
     };
     // The kept chain's transmission error maps, then its correction re-validated on what
@@ -1428,6 +1489,19 @@ pub fn diagnose(
     } = chain;
     let (ambiguous_heldout, mut warnings) = ambiguous(&steps, train, heldout);
     warnings.extend(extrapolating);
+    if !undetermined.is_empty() {
+        warnings.push(format!(
+            "{} geometric parameter(s) held near their nominal values by the prior (±{} mm, ±{}°): the training poses alone do not determine them ({}). Poses that move these joints independently of the others, over more of the workspace, would determine them",
+            undetermined.len(),
+            opt.geometric_tolerance.map_or(f64::NAN, |t| t.mm),
+            opt.geometric_tolerance.map_or(f64::NAN, |t| t.deg),
+            undetermined
+                .iter()
+                .map(|u| format!("{}: {}", u.name, u.reason))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ));
+    }
     let outside = effects::JointRange::of(train)
         .and_then(|r| effects::Outside::count(&r, heldout.iter().map(|o| &o.ctx)));
     warnings.extend(outside.as_ref().map(effects::Outside::warning));
@@ -1823,6 +1897,7 @@ mod tests {
                 .collect()
         };
         let state = State {
+            prior: None,
             model: model.clone(),
             effects: vec![],
         };
@@ -1865,6 +1940,7 @@ mod tests {
         let mut fitted = Effect::zero(Block::Backlash(effects::Backlash { joint: 3 }));
         fitted.coefs = vec![2e-4];
         let state = State {
+            prior: None,
             model: model.clone(),
             effects: vec![fitted],
         };

@@ -236,6 +236,7 @@ pub fn start_states(model: &KinematicModel, series: &[&[PoseObs]]) -> Result<Vec
             let mut m = model.clone();
             fit_nominal(&mut m, obs)?;
             Ok(State {
+                prior: None,
                 model: m,
                 effects: vec![],
             })
@@ -733,7 +734,11 @@ mod tests {
         let phi3 = m.param("phi3").unwrap();
         m.set_param("phi3", phi3 + (0.02 * k as f64).to_radians())
             .unwrap();
-        let st = State { model: m, effects };
+        let st = State {
+            model: m,
+            effects,
+            prior: None,
+        };
         let seed = 0.37 * k as f64;
         (0..n)
             .map(|i| {

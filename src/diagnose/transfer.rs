@@ -170,6 +170,7 @@ mod tests {
             })
             .collect();
         let state = State {
+            prior: None,
             model: truth.clone(),
             effects: vec![],
         };

@@ -486,6 +486,7 @@ mod tests {
 
     fn geometric(model: &KinematicModel, train: &[PoseObs]) -> State {
         let mut st = State {
+            prior: None,
             model: model.clone(),
             effects: vec![],
         };

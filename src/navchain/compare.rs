@@ -95,6 +95,7 @@ pub fn geometric_fit(model: &KinematicModel, train: &[PoseObs]) -> anyhow::Resul
     model.fix_point_redundancies();
     fit_nominal(&mut model, train)?;
     let nominal = State {
+        prior: None,
         model,
         effects: vec![],
     };

@@ -80,6 +80,35 @@ pub fn analyse(
     priority: &[usize],
     tol: f64,
 ) -> Identifiability {
+    analyse_with_floor(j, names, priority, tol, None)
+}
+
+/// A column's least independent norm, below which the parameter is not determined.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Floor {
+    /// Noise of one residual row (the residual's unit, e.g. mm).
+    pub noise: f64,
+    /// Tolerance of the parameter (its unit): the parameter is determined when the poses
+    /// give it a standard deviation at most this large.
+    pub tol: f64,
+    /// The parameter's unit as printed (`mm`, `°`) and the factor from the column's unit to it.
+    pub unit: &'static str,
+    pub scale: f64,
+}
+
+/// [`analyse`] that also drops a column whose part independent of the kept columns is too
+/// small for the noise: with `floors[k] = Some(f)`, column `k` is dropped when the standard
+/// deviation the poses give its parameter, `f.noise / (‖c_k‖ · sine_k)` (the least-squares
+/// standard deviation of the last column of a fit on the columns kept so far), exceeds
+/// `f.tol`. Such a parameter stays where it was (the caller's nominal) instead of moving
+/// along a direction the poses hardly see.
+pub fn analyse_with_floor(
+    j: &DMatrix<f64>,
+    names: &[String],
+    priority: &[usize],
+    tol: f64,
+    floors: Option<&[Option<Floor>]>,
+) -> Identifiability {
     let m = j.nrows();
     let mut q: Vec<DVector<f64>> = Vec::new();
     let mut kept: Vec<(usize, f64)> = Vec::new();
@@ -107,7 +136,12 @@ pub fn analyse(
             }
         }
         let s = r.norm();
-        if s < tol {
+        // Standard deviation the poses give this parameter (its unit), against its floor.
+        let undetermined = floors
+            .and_then(|f| f.get(k).copied().flatten())
+            .map(|f| (f, f.noise / (j.column(k).norm() * s)))
+            .filter(|(f, sd)| sd.is_nan() || *sd > f.tol);
+        if s < tol || undetermined.is_some() {
             // Coefficients of c on the kept (scaled) columns.
             let mut a = DMatrix::zeros(m, kept.len());
             for (c_i, &(kk, _)) in kept.iter().enumerate() {
@@ -132,6 +166,19 @@ pub fn analyse(
                 .join(", ");
             let reason = if s < 1e-8 {
                 format!("redundant: its effect is exactly a combination of {list}")
+            } else if let (true, Some((f, sd))) = (s >= tol, undetermined) {
+                let near = if list.is_empty() {
+                    String::new()
+                } else {
+                    format!(", within sin={s:.1e} of a combination of {list}")
+                };
+                format!(
+                    "not determined by these poses: ±{:.2}{} from them (more than the ±{:.2}{} a geometric calibration must reach){near}",
+                    sd * f.scale,
+                    f.unit,
+                    f.tol * f.scale,
+                    f.unit
+                )
             } else {
                 format!(
                     "not identifiable from these poses: within sin={s:.1e} of a combination of {list}"

@@ -917,7 +917,7 @@ impl crate::solve::kinematics::Effect for LibraryEffect {
 }
 
 /// Predicted marker point of one pose from calibration-file effects (for `robocal predict`),
-/// the unbounded effects held at the edge of `range` when given ([`apply_effects_held`]).
+/// every effect held at the edge of `range` when given ([`apply_effects_held`]).
 pub fn apply_cal_effects(
     model: &KinematicModel,
     effects: &[CalEffect],

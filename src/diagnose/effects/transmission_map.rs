@@ -7,7 +7,7 @@
 //! time-blocked cross-validation: [`crate::diagnose::transmap`]); it is fitted after the
 //! named effects, on what they leave, and never refitted without its prior. Outside the
 //! training poses' range of its joint the map is held at the edge
-//! ([`super::held::held_at_edge`]): a Fourier series fitted on part of a turn says nothing
+//! ([`super::held`], as every effect): a Fourier series fitted on part of a turn says nothing
 //! about the rest.
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
