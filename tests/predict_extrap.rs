@@ -1,6 +1,6 @@
 //! Predictions outside the calibrated joint ranges (issue 31 §4): `robocal diagnose` writes
 //! the training poses' joint ranges into `calibration.json` (`effects_joint_range`); a held-out
-//! pose outside them is predicted with every effect held at the edge, by the diagnosis and by
+//! pose outside them is predicted with every effect of the joint angles held at the edge, by the diagnosis and by
 //! `robocal predict` alike, and both print one warning line naming the pose, the joint and the
 //! degrees. A calibration file without the ranges (older files) still loads and predicts.
 use std::collections::HashMap;
@@ -65,7 +65,7 @@ fn predict_outside_the_calibrated_range_holds_the_effects_and_warns() {
     let want = format!("pose {id}: joint 2 is 20.0° outside the calibrated range");
     assert!(
         err.contains(&want)
-            && err.contains("every effect is held at its value at the edge of the range"),
+            && err.contains("every effect of the joint angles is held at its value at the edge"),
         "diagnose: no `{want}` in\n{err}"
     );
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();

@@ -8,8 +8,8 @@
 //! the free geometric fit moved `phi5` and `alpha6` by degrees along directions those poses
 //! hardly see and predicted the held-out poses at 5.40 mm (nominal chain: 0.62 mm); a
 //! joint-2 eccentricity evaluated at the true angles outside its range then took the final
-//! model to 26.1 mm. With the geometric prior (±5 mm, ±0.5°) and every effect held at the
-//! edge of the training ranges: geometric 1.05 mm, final 1.62 mm.
+//! model to 26.1 mm. With the geometric prior (±5 mm, ±0.5°) and the effects of the joint
+//! angles held at the edge of the training ranges: geometric 1.05 mm, final 1.62 mm.
 use robocal::diagnose::pooled::load_series;
 use robocal::diagnose::{diagnose, Options};
 

@@ -126,7 +126,7 @@ pub fn residuals(state: &State, obs: &[PoseObs]) -> DVector<f64> {
     residuals_held(state, obs, None)
 }
 
-/// [`residuals`] with every effect held at the edge of `range` (see
+/// [`residuals`] with the effects of the joint angles held at the edge of `range` (see
 /// [`crate::diagnose::effects::apply_effects_held`]); the same values inside it.
 pub fn residuals_held(
     state: &State,

@@ -880,7 +880,7 @@ fn np_gain(state: &State, train: &[PoseObs], hp: Option<(f64, f64)>, opt: &Optio
     }
 }
 
-/// Held-out RMS with every effect held at the edge of the training poses' joint ranges
+/// Held-out RMS with the effects of the joint angles held at the edge of the training poses' joint ranges
 /// ([`effects::apply_effects_held`]): a held-out pose outside them is not predicted by
 /// extrapolating a fitted effect.
 fn heldout_rms(state: &State, heldout: &[PoseObs], train: &[PoseObs]) -> Option<f64> {

@@ -1,7 +1,8 @@
-//! Predictions outside the calibrated joint ranges: every effect is held at the edge of the
-//! training poses' joint ranges (its angles clamped to the range, "hold the last calibrated
-//! value" as compensation tables do), while the geometric chain uses the true angles. An
-//! effect is known only where the training poses put it: one that grows with an angle (a
+//! Predictions outside the calibrated joint ranges: every effect of the joint angles is held
+//! at the edge of the training poses' joint ranges (its angles clamped to the range, "hold
+//! the last calibrated value" as compensation tables do; [`held_at_edge`]), while the
+//! geometric chain uses the true angles. An effect is known only where the training poses
+//! put it: one that grows with an angle (a
 //! fitted ratio), a transmission error map fitted on part of a turn, or a bounded effect
 //! whose coefficients trade with the geometry over a narrow range, each predicts anything
 //! outside it. Measured on real arms (docs/findings.md): a Barrett WAM pose 54° outside
@@ -18,7 +19,7 @@ use std::borrow::Cow;
 use nalgebra::{Point3, Vector3};
 
 use super::{
-    apply_effects, inert, joint_offsets, np_correction, pose_model, tracker_scale, Effect,
+    apply_effects, inert, joint_offsets, np_correction, pose_model, tracker_scale, Block, Effect,
     EffectModel,
 };
 use crate::dataset::CalJointRange;
@@ -133,9 +134,38 @@ impl JointRange {
     }
 }
 
-/// The predicted point of one pose with every effect held at the edge of `range` (evaluated
-/// at the angles clamped to the range) and the geometric chain at the true angles;
-/// [`apply_effects`] itself without a range or inside it.
+/// Whether the effect is held at the edge outside the calibrated range: every family that
+/// is a function of the joint angles (gravity, backlash, eccentricity, transmission ratio,
+/// ripple and map, link bending, coupling, wave generator). Not held, because the angles
+/// are not what they are fitted over: the tracker's scale and depth scale and the base
+/// shift (functions of where the point is), time and temperature drifts and latency, and
+/// the kernel correction (which decays away from the training poses by itself).
+pub fn held_at_edge(e: &Effect) -> bool {
+    match e.block {
+        Block::Compliance(_)
+        | Block::Backlash(_)
+        | Block::Eccentricity(_)
+        | Block::Transmission(_)
+        | Block::Ripple(_)
+        | Block::TransmissionMap(_)
+        | Block::LinkDeflection(_)
+        | Block::Coupling(_)
+        | Block::WaveGenerator(_) => true,
+        Block::TempDrift(_)
+        | Block::JointDrift(_)
+        | Block::LengthDrift(_)
+        | Block::TrackerScale(_)
+        | Block::TrackerDepthScale(_)
+        | Block::BaseShift(_)
+        | Block::Latency(_)
+        | Block::Nonparametric(_) => false,
+    }
+}
+
+/// The predicted point of one pose with the effects of the joint angles ([`held_at_edge`])
+/// held at the edge of `range` (evaluated at the angles clamped to the range) and the
+/// geometric chain and the other effects at the true angles; [`apply_effects`] itself
+/// without a range or inside it.
 pub fn apply_effects_held(
     model: &KinematicModel,
     effects: &[Effect],
@@ -145,7 +175,7 @@ pub fn apply_effects_held(
     let Some(c) = range.and_then(|r| r.clamp(ctx)) else {
         return apply_effects(model, effects, ctx);
     };
-    let at = |_: &Effect| &c;
+    let at = |e: &Effect| if held_at_edge(e) { &c } else { ctx };
     let mut th = ctx.q.clone();
     for e in effects {
         for (t, d) in th
@@ -224,7 +254,7 @@ impl Outside {
     /// The one warning line.
     pub fn warning(&self) -> String {
         format!(
-            "{} of {} predicted pose(s) lie outside the calibrated joint ranges (by > {OUTSIDE_REPORT_DEG}°); worst: pose {}: joint {} is {:.1}° outside the calibrated range {:.1} … {:.1}°: every effect is held at its value at the edge of the range and only the geometric model follows the angle there; expect at best the geometric accuracy there",
+            "{} of {} predicted pose(s) lie outside the calibrated joint ranges (by > {OUTSIDE_REPORT_DEG}°); worst: pose {}: joint {} is {:.1}° outside the calibrated range {:.1} … {:.1}°: every effect of the joint angles is held at its value at the edge of the range and only the geometric model follows the angle there; expect at best the geometric accuracy there",
             self.n,
             self.of,
             self.id,
@@ -239,7 +269,7 @@ impl Outside {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{registry_examples, Block, Ripple, Transmission};
+    use super::super::{registry_examples, Ripple, Transmission};
     use super::*;
 
     fn ctx(q: Vec<f64>) -> PoseCtx {
@@ -321,7 +351,7 @@ mod tests {
                     "pose 215: joint 1 is 54.0° outside the calibrated range −57.3 … 85.9°"
                 )
                 && w.contains(
-                    "(transmission ratio, transmission error map) held at the edge; expect the geometric accuracy there"
+                    "every effect of the joint angles is held at its value at the edge of the range and only the geometric model follows the angle there; expect at best the geometric accuracy there"
                 ),
             "{w}"
         );
