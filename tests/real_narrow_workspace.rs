@@ -64,4 +64,10 @@ fn a_narrow_real_workspace_does_not_predict_the_rest_far_off() {
         "{w}"
     );
     assert!(w.contains("outside the calibrated joint ranges"), "{w}");
+    // The report a hospital keeps lists them too.
+    let md = d.report_md();
+    assert!(
+        md.contains("held near their nominal values by the prior") && md.contains("- phi5: "),
+        "{md}"
+    );
 }

@@ -295,6 +295,9 @@ pub const OVERFIT_MIN_MM: f64 = 0.01;
 /// The result of a diagnosis.
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
+    /// Geometric parameters the training poses do not determine to the prior's tolerance
+    /// (held near nominal by the prior; [`determined`]).
+    pub undetermined: Vec<determined::Undetermined>,
     /// Held-out poses outside the training poses' joint ranges (predicted with the effects
     /// held at the edge).
     pub outside: Option<effects::Outside>,
@@ -1533,6 +1536,7 @@ pub fn diagnose(
         ambiguous_heldout,
         warnings,
         outside,
+        undetermined,
         heldout_rms_nominal: heldout_rms(&nominal, heldout, train),
         heldout_rms_geometric: heldout_rms(&geometric, heldout, train),
         heldout_rms_final: heldout_rms(&state, heldout, train),
@@ -1688,6 +1692,16 @@ impl Diagnosis {
         }
         if let Some(o) = &self.outside {
             let _ = writeln!(s, "{}.\n", o.warning());
+        }
+        if !self.undetermined.is_empty() {
+            let _ = writeln!(
+                s,
+                "Geometric parameters the training poses do not determine, held near their nominal values by the prior (add poses that move these joints independently, over more of the workspace):\n"
+            );
+            for u in &self.undetermined {
+                let _ = writeln!(s, "- {}: {}", u.name, u.reason);
+            }
+            let _ = writeln!(s);
         }
         let _ = writeln!(s, "| model | train RMS | held-out RMS |\n|---|---|---|");
         let _ = writeln!(
