@@ -195,8 +195,8 @@ pub fn with_params(state: &State, x: &DVector<f64>) -> State {
 }
 
 /// The joint fit of geometry and effects as a problem of the one LM solver
-/// ([`crate::solve::lm`]): residual `pred − y` (3 rows per observation, mm), Jacobian the
-/// analytic one of [`stack`].
+/// ([`crate::solve::lm`]): residual `pred − y` (3 rows per observation, mm) followed by the
+/// prior's rows, Jacobian the analytic one of [`stack_prior`].
 pub struct DiagnoseProblem<'a> {
     pub state: &'a State,
     pub obs: &'a [PoseObs],
@@ -237,20 +237,8 @@ impl LsqProblem for DiagnoseProblem<'_> {
         out
     }
     fn residuals_jacobian(&self, x: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>) {
-        let (r, j) = stack(&with_params(self.state, x), self.obs);
-        let pr = self.prior_rows(x);
-        if pr.is_empty() {
-            return (-r, j);
-        }
-        let (n, p) = j.shape();
-        let mut rr = (-r).resize_vertically(n + pr.len(), 0.0);
-        let mut jj = j.resize_vertically(n + pr.len(), 0.0);
-        for (k, &(c, e, w)) in pr.iter().enumerate() {
-            rr[n + k] = e;
-            jj[(n + k, c)] = w;
-        }
-        debug_assert_eq!(jj.ncols(), p);
-        (rr, jj)
+        let (r, j) = stack_prior(&with_params(self.state, x), self.obs);
+        (-r, j)
     }
 }
 
@@ -295,8 +283,7 @@ pub fn fit(state: &mut State, obs: &[PoseObs], max_iter: usize) -> FitReport {
     let sigma2 = rss / (n.saturating_sub(rank).max(1)) as f64;
     // With a prior, the covariance is the posterior's (the prior's rows in the Jacobian).
     let cov = if state.prior.is_some() {
-        let x = params_of(state);
-        normal_inverse(&DiagnoseProblem { state, obs }.residuals_jacobian(&x).1)
+        normal_inverse(&stack_prior(state, obs).1)
     } else {
         normal_inverse(&j)
     };
