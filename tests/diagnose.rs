@@ -133,6 +133,8 @@ fn cli_writes_a_calibration_that_predict_side_reproduces() {
         physics_first: false,
         kernel_benchmark: false,
         no_transmission_map: false,
+        geometric_prior: None,
+        no_geometric_prior: false,
     };
     let summary = robocal::diagnose::stage::run(&args).unwrap();
     assert!(summary.contains("joint_compliance(j2)"), "{summary}");
@@ -391,4 +393,64 @@ fn heldout_file_with_overlapping_ids_is_scored_on_its_own_poses() {
         before < 2.0 && after < 0.1,
         "held-out {before} -> {after} mm"
     );
+}
+
+/// `robocal diagnose --geometric-prior MM,DEG` takes two positive, finite numbers; anything
+/// else is refused with the flag, the value and the expected form named, and it cannot be
+/// given with `--no-geometric-prior`. A valid width is used: the undetermined parameters'
+/// warning states it.
+#[test]
+fn the_geometric_prior_flag_is_validated_and_used() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = case_dir("kin-compliance-j2").join("train.jsonl");
+    let data = data.to_str().unwrap();
+    let out = dir.path().join("d");
+    let out = out.to_str().unwrap();
+    for bad in ["5", "5,0", "-1,0.5", "5,nan", "mm,deg", "5,inf"] {
+        let (code, _, err) = crate::common::bin(&[
+            "diagnose",
+            "--data",
+            data,
+            "--out",
+            out,
+            "--geometric-prior",
+            bad,
+        ]);
+        assert_eq!(code, Some(2), "{bad}: {err}");
+        assert!(
+            err.contains("--geometric-prior") && err.contains("is not MM,DEG"),
+            "{bad}: {err}"
+        );
+    }
+    let (code, _, err) = crate::common::bin(&[
+        "diagnose",
+        "--data",
+        data,
+        "--out",
+        out,
+        "--geometric-prior",
+        "5,0.5",
+        "--no-geometric-prior",
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("cannot be used with"), "{err}");
+    // A valid width reaches the diagnosis (the request carries it).
+    let req = robocal::cli::diagnose::Args {
+        data: PathBuf::from(data),
+        out: PathBuf::from(out),
+        calibration: None,
+        heldout: None,
+        no_nonparametric: false,
+        physics_first: false,
+        kernel_benchmark: false,
+        no_transmission_map: false,
+        geometric_prior: Some(robocal::diagnose::determined::GeometricTolerance {
+            mm: 2.0,
+            deg: 0.2,
+        }),
+        no_geometric_prior: false,
+        json: false,
+    }
+    .request();
+    assert_eq!(req.geometric_prior.map(|t| (t.mm, t.deg)), Some((2.0, 0.2)));
 }

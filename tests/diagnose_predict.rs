@@ -97,6 +97,8 @@ fn check_world(
         physics_first: false,
         kernel_benchmark: false,
         no_transmission_map: false,
+        geometric_prior: None,
+        no_geometric_prior: false,
     };
     let summary = robocal::diagnose::stage::run(&args).unwrap();
     let d: DiagnosisFile = robocal::schema::read(&out.join("diagnosis.json")).unwrap();

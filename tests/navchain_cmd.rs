@@ -124,6 +124,8 @@ fn navchain_network_trains_stores_predicts_and_is_compared_with_the_diagnosis() 
         physics_first: false,
         kernel_benchmark: false,
         no_transmission_map: false,
+        geometric_prior: None,
+        no_geometric_prior: false,
     };
     robocal::diagnose::stage::run(&req).unwrap();
     let (phys_rms, _) = predicted_rms(

@@ -8,6 +8,7 @@
 //! one `DIR/effect_<n>_<kind>.svg` partial-residual plot per accepted effect.
 use std::path::PathBuf;
 
+use crate::diagnose::determined::GeometricTolerance;
 use crate::diagnose::stage::{self, DiagnoseRequest};
 
 /// Arguments of `robocal diagnose`.
@@ -44,6 +45,17 @@ pub struct Args {
     /// harmonics with a smoothness prior) after the named effects.
     #[arg(long)]
     pub no_transmission_map: bool,
+    /// Standard deviations of the prior that holds the geometric parameters near their
+    /// nominal values, as `MM,DEG` (default 5,0.5): a parameter the poses determine is
+    /// unaffected; one they hardly see (a narrow workspace, joints that always move together)
+    /// stays near nominal and is named. Widen it for an arm whose nominal model is known to be
+    /// far off.
+    #[arg(long, value_name = "MM,DEG", value_parser = parse_geometric_prior, conflicts_with = "no_geometric_prior")]
+    pub geometric_prior: Option<GeometricTolerance>,
+    /// Fit every free geometric parameter without a prior (a narrow workspace may then move
+    /// parameters the poses hardly see by degrees).
+    #[arg(long)]
+    pub no_geometric_prior: bool,
     /// Print `diagnosis.json` on stdout instead of the text summary.
     #[arg(long)]
     pub json: bool,
@@ -77,6 +89,29 @@ impl Args {
             physics_first: self.physics_first,
             kernel_benchmark: self.kernel_benchmark,
             no_transmission_map: self.no_transmission_map,
+            geometric_prior: self.geometric_prior,
+            no_geometric_prior: self.no_geometric_prior,
         }
     }
+}
+
+/// `--geometric-prior MM,DEG`: two positive, finite numbers.
+fn parse_geometric_prior(s: &str) -> Result<GeometricTolerance, String> {
+    let bad = || {
+        format!(
+            "{s:?} is not MM,DEG: give the prior's standard deviations of lengths (mm) and angles (degrees), two positive numbers, e.g. 5,0.5"
+        )
+    };
+    let (mm, deg) = s.split_once(',').ok_or_else(bad)?;
+    let num = |v: &str| -> Result<f64, String> {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite() && *x > 0.0)
+            .ok_or_else(bad)
+    };
+    Ok(GeometricTolerance {
+        mm: num(mm)?,
+        deg: num(deg)?,
+    })
 }

@@ -37,6 +37,11 @@ pub struct DiagnoseRequest {
     pub kernel_benchmark: bool,
     /// Do not add the transmission error maps after the chain.
     pub no_transmission_map: bool,
+    /// Standard deviations of the geometric parameters' prior about nominal (None: the
+    /// default, [`crate::diagnose::determined::DEFAULT_GEOMETRIC_TOLERANCE`]).
+    pub geometric_prior: Option<crate::diagnose::determined::GeometricTolerance>,
+    /// Fit every free geometric parameter without a prior.
+    pub no_geometric_prior: bool,
 }
 
 /// Run the diagnosis `args` into its directory and return the short console summary. Each
@@ -130,6 +135,10 @@ pub fn run_loaded(
     let opt = Options {
         allow_nonparametric: !args.no_nonparametric,
         transmission_map: !args.no_transmission_map,
+        geometric_tolerance: (!args.no_geometric_prior).then(|| {
+            args.geometric_prior
+                .unwrap_or(crate::diagnose::determined::DEFAULT_GEOMETRIC_TOLERANCE)
+        }),
         ..base
     };
     let mut d = diagnose::diagnose(&model, &train, &held, &opt)?;
