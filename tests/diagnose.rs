@@ -396,7 +396,8 @@ fn heldout_file_with_overlapping_ids_is_scored_on_its_own_poses() {
 }
 
 /// `robocal diagnose --geometric-prior MM,DEG` takes two positive, finite numbers; anything
-/// else is refused with the flag, the value and the expected form named, and it cannot be
+/// else is refused (usage error, exit 64) with the flag, the value and the expected form
+/// named, and it cannot be
 /// given with `--no-geometric-prior`. A valid width reaches the diagnosis request (the
 /// warning on a narrow real workspace states the width: measured with `robocal diagnose
 /// --geometric-prior 2,0.2` on Series D's first half, "by the prior (±2 mm, ±0.2°)").
@@ -414,14 +415,14 @@ fn the_geometric_prior_flag_is_validated_and_used() {
     };
     for bad in ["5", "5,0", "-1,0.5", "5,nan", "mm,deg", "5,inf"] {
         let (code, _, err) = run(&["--geometric-prior", bad]);
-        assert_eq!(code, Some(2), "{bad}: {err}");
+        assert_eq!(code, Some(64), "{bad}: {err}");
         assert!(
             err.contains("--geometric-prior") && err.contains("is not MM,DEG"),
             "{bad}: {err}"
         );
     }
     let (code, _, err) = run(&["--geometric-prior", "5,0.5", "--no-geometric-prior"]);
-    assert_eq!(code, Some(2), "{err}");
+    assert_eq!(code, Some(64), "{err}");
     assert!(err.contains("cannot be used with"), "{err}");
     // A valid width reaches the diagnosis (the request carries it).
     let req = robocal::cli::diagnose::Args {
