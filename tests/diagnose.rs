@@ -414,7 +414,8 @@ fn the_geometric_prior_flag_is_validated_and_used() {
         crate::common::bin(&a)
     };
     for bad in ["5", "5,0", "-1,0.5", "5,nan", "mm,deg", "5,inf"] {
-        let (code, _, err) = run(&["--geometric-prior", bad]);
+        // `=` so that a value starting with `-` is the flag's value.
+        let (code, _, err) = run(&[&format!("--geometric-prior={bad}")]);
         assert_eq!(code, Some(64), "{bad}: {err}");
         assert!(
             err.contains("--geometric-prior") && err.contains("is not MM,DEG"),
