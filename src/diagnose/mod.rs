@@ -165,8 +165,9 @@ pub struct Options {
     pub transmission_map: bool,
     /// Minimum relative CV gain of the transmission error maps over the chain's residual.
     pub transmission_map_min_gain: f64,
-    /// Geometric parameters the training poses determine worse than this are kept at
-    /// their nominal values ([`determined`]); `None` fits every free parameter.
+    /// Standard deviations of the prior that holds the geometric parameters near their
+    /// nominal values in every fit ([`determined`]; the parameters the training poses
+    /// determine worse than this are named); `None` fits every free parameter without one.
     pub geometric_tolerance: Option<determined::GeometricTolerance>,
 }
 
@@ -883,9 +884,9 @@ fn np_gain(state: &State, train: &[PoseObs], hp: Option<(f64, f64)>, opt: &Optio
     }
 }
 
-/// Held-out RMS with the effects of the joint angles held at the edge of the training poses' joint ranges
-/// ([`effects::apply_effects_held`]): a held-out pose outside them is not predicted by
-/// extrapolating a fitted effect.
+/// Held-out RMS with the effects of the joint angles held at the edge of the training poses'
+/// joint ranges ([`effects::apply_effects_held`]): a held-out pose outside them is not
+/// predicted by extrapolating a fitted effect.
 fn heldout_rms(state: &State, heldout: &[PoseObs], train: &[PoseObs]) -> Option<f64> {
     let range = effects::JointRange::of(train);
     (!heldout.is_empty()).then(|| rms3(&fit::residuals_held(state, heldout, range.as_ref())))
