@@ -135,6 +135,10 @@ fn main() {
                 r.floor_free_px / b.heldout_px
             );
         }
+        println!(
+            "park-martin's X held, camera + target refitted by ML: held-out {:.3} px",
+            r.park_refit_px
+        );
         let s = &r.split;
         println!(
             "split half: written X ({} / {}) differs {:.2} mm / {:.3} deg; OpenCV Park {}",
@@ -145,6 +149,9 @@ fn main() {
             s.opencv_park
                 .map_or("-".into(), |(t, d)| format!("{t:.2} mm / {d:.3} deg"))
         );
+        for (m, t, d) in &s.per_method {
+            println!("  split half of {m:<50} {t:6.2} mm / {d:.3} deg");
+        }
         let ok = s.ratios.iter().filter(|q| **q <= 2.0).count();
         println!(
             "  |ΔX| / combined σ (x y z mm, rx ry rz deg): {:?} -> {ok}/6 ≤ 2",

@@ -33,13 +33,15 @@
 //! with several series, `cross-series` (the first series' final model carried to every
 //! other series with only the setup re-registered, [`robocal::diagnose::transfer`]; two
 //! more cross-series rows, not counted, carry its physical effects alone and its geometric
-//! fit alone; each is printed again with the joint zero offsets re-fitted as well).
+//! fit alone; each is printed again with the joint zero offsets re-fitted as well; two last
+//! rows hold its effects, then its transmission maps alone, with every geometric parameter
+//! re-fitted on the series: what its effects add to the series' own geometric calibration).
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use robocal::diagnose::effects::EffectModel;
 use robocal::diagnose::fit::{residuals, residuals_held, rms3, State};
-use robocal::diagnose::transfer::{refit_setup, refit_setup_and_joint_offsets};
+use robocal::diagnose::transfer::{refit_geometry, refit_setup, refit_setup_and_joint_offsets};
 use robocal::diagnose::{self, Options, OVERFIT_GAP};
 use robocal::model::KinematicModel;
 use robocal::solve::obs::PoseObs;
@@ -416,6 +418,27 @@ fn main() -> anyhow::Result<()> {
                             let (t, h) = (rms(&carried, &train), rms(&carried, &held));
                             let what = format!("{what}; joint zero offsets re-fitted too");
                             row(&name, "cross-series", geo, h, t, 0.0, &what);
+                        }
+                        // What the effects carry on top of this series' own geometry: the
+                        // first series' effects held, every geometric parameter re-fitted here
+                        // (all of them; then the transmission maps alone, the ripples out).
+                        let mut maps = models[0].0.clone();
+                        maps.effects.retain(|e| {
+                            matches!(e.block, diagnose::effects::Block::TransmissionMap(_))
+                        });
+                        for (st, what) in [
+                            (
+                                &models[0].0,
+                                "its effects held, this series' geometry re-fitted",
+                            ),
+                            (
+                                &maps,
+                                "its transmission maps held, this series' geometry re-fitted",
+                            ),
+                        ] {
+                            let carried = refit_geometry(st, &train)?;
+                            let (t, h) = (rms(&carried, &train), rms(&carried, &held));
+                            row(&name, "cross-series", geo, h, t, 0.0, what);
                         }
                     }
                 }

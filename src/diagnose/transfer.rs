@@ -57,17 +57,31 @@ impl LsqProblem for SetupProblem<'_> {
 /// poses); everything else as identified. The free flags of the returned model are those of
 /// `state`.
 pub fn refit_setup(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
-    refit(state, obs, false)
+    refit(state, obs, Refit::Setup)
 }
 
 /// [`refit_setup`] with the joint zero offsets (`phi*`, those free in `state`) re-fitted
 /// too: what carries over when the arm was re-homed between the two setups (every other
 /// joint parameter and every effect as identified).
 pub fn refit_setup_and_joint_offsets(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
-    refit(state, obs, true)
+    refit(state, obs, Refit::SetupAndOffsets)
 }
 
-fn refit(state: &State, obs: &[PoseObs], offsets: bool) -> Result<State, FitError> {
+/// Every geometric parameter free in `state` re-fitted on `obs`, the effects (and any
+/// correction) held as identified: whether the effects found on one series carry physics
+/// that another series' own geometric calibration lacks.
+pub fn refit_geometry(state: &State, obs: &[PoseObs]) -> Result<State, FitError> {
+    refit(state, obs, Refit::Geometry)
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Refit {
+    Setup,
+    SetupAndOffsets,
+    Geometry,
+}
+
+fn refit(state: &State, obs: &[PoseObs], what: Refit) -> Result<State, FitError> {
     if obs.len() < 6 {
         return Err(FitError::TooFewPoses {
             what: "re-registering a setup needs",
@@ -96,7 +110,10 @@ fn refit(state: &State, obs: &[PoseObs], offsets: bool) -> Result<State, FitErro
         .params()
         .iter()
         .map(|p| {
-            let offset = offsets
+            if what == Refit::Geometry {
+                return (p.name.clone(), p.free || is_setup(p.group, &p.name));
+            }
+            let offset = what == Refit::SetupAndOffsets
                 && p.free
                 && matches!(p.group, ParamGroup::Joint(_))
                 && p.name.starts_with("phi");
@@ -211,5 +228,40 @@ mod tests {
             "phi3 moved {dphi3} rad"
         );
         assert_eq!(st.model.param("a3"), truth.param("a3"));
+    }
+
+    /// The same robot with a link 0.3 mm longer (another session's geometric fit): the setup
+    /// and the offsets cannot absorb it, the whole geometry re-fitted does, to the link.
+    #[test]
+    fn refit_geometry_takes_up_a_changed_link() {
+        let model = KinematicModel::preset("ur10e").expect("ur10e preset");
+        let mut other = model.clone();
+        let a3 = model.param("a3").unwrap();
+        other.set_param("a3", a3 + 0.3).unwrap();
+        let obs: Vec<PoseObs> = (0..40)
+            .map(|k| {
+                let f = k as f64;
+                let q = crate::diagnose::test_joints(f, 0.8, 1.7);
+                let mut o = PoseObs::at(k, f, q.clone(), other.measured_point(&q));
+                o.ctx.approach = vec![1.0; 6];
+                o
+            })
+            .collect();
+        let state = State {
+            prior: None,
+            model: model.clone(),
+            effects: vec![],
+        };
+        let offsets = rms3(&residuals(
+            &refit_setup_and_joint_offsets(&state, &obs).unwrap(),
+            &obs,
+        ));
+        let st = refit_geometry(&state, &obs).unwrap();
+        let geometry = rms3(&residuals(&st, &obs));
+        assert!(offsets > 0.01, "setup and offsets: {offsets} mm");
+        assert!(geometry < 1e-4, "geometry re-fitted: {geometry} mm");
+        let da3 = st.model.param("a3").unwrap() - a3;
+        assert!((da3 - 0.3).abs() < 1e-3, "a3 moved {da3} mm");
+        assert_eq!(st.model.free_flags(), state.model.free_flags());
     }
 }

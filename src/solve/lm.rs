@@ -260,6 +260,61 @@ pub fn minimize<P: LsqProblem + ?Sized>(p: &P, x0: DVector<f64>, o: &LmOptions) 
     }
 }
 
+/// `inner` with the parameters at `held` (indices into its parameter vector) fixed at their
+/// values in `at`: the free parameters are the others, in order.
+pub struct Held<'a, P: LsqProblem + ?Sized> {
+    pub inner: &'a P,
+    pub at: DVector<f64>,
+    pub held: Vec<bool>,
+}
+
+impl<'a, P: LsqProblem + ?Sized> Held<'a, P> {
+    /// Hold the parameters `idx` of `inner` at their values in `at`.
+    pub fn new(inner: &'a P, at: DVector<f64>, idx: impl IntoIterator<Item = usize>) -> Self {
+        let mut held = vec![false; at.len()];
+        for i in idx {
+            held[i] = true;
+        }
+        Held { inner, at, held }
+    }
+    /// The free parameters of `full`.
+    pub fn free_of(&self, full: &DVector<f64>) -> DVector<f64> {
+        DVector::from_iterator(
+            self.held.iter().filter(|h| !**h).count(),
+            full.iter()
+                .zip(&self.held)
+                .filter(|(_, h)| !**h)
+                .map(|(v, _)| *v),
+        )
+    }
+    /// The full parameter vector with the free parameters `x`.
+    pub fn full(&self, x: &DVector<f64>) -> DVector<f64> {
+        let mut v = self.at.clone();
+        let mut k = 0;
+        for (i, h) in self.held.iter().enumerate() {
+            if !h {
+                v[i] = x[k];
+                k += 1;
+            }
+        }
+        v
+    }
+}
+
+impl<P: LsqProblem + ?Sized> LsqProblem for Held<'_, P> {
+    fn n_params(&self) -> usize {
+        self.held.iter().filter(|h| !**h).count()
+    }
+    fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
+        self.inner.residuals(&self.full(x))
+    }
+    fn residuals_jacobian(&self, x: &DVector<f64>) -> (DVector<f64>, DMatrix<f64>) {
+        let (r, j) = self.inner.residuals_jacobian(&self.full(x));
+        let cols: Vec<usize> = (0..self.held.len()).filter(|i| !self.held[*i]).collect();
+        (r, j.select_columns(&cols))
+    }
+}
+
 /// Forward-difference Jacobian of a residual function (for tests of analytic Jacobians).
 pub fn numeric_jacobian<F: Fn(&DVector<f64>) -> DVector<f64>>(
     f: F,
@@ -282,6 +337,23 @@ pub fn numeric_jacobian<F: Fn(&DVector<f64>) -> DVector<f64>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Holding a parameter: the other is fitted, the held one keeps its value, and the
+    /// Jacobian is the inner one's free columns.
+    #[test]
+    fn held_parameters_stay_and_the_rest_are_fitted() {
+        // Rosenbrock with x1 held at 0.5: the minimum over x2 is x2 = 0.25.
+        let h = Held::new(&Rosen, DVector::from_vec(vec![0.5, 3.0]), [0]);
+        assert_eq!(h.n_params(), 1);
+        let rep = minimize(&h, h.free_of(&h.at), &LmOptions::default());
+        let full = h.full(&rep.x);
+        assert!((full[0] - 0.5).abs() == 0.0);
+        assert!((full[1] - 0.25).abs() < 1e-9, "{full}");
+        let x = DVector::from_vec(vec![1.7]);
+        let (_, j) = h.residuals_jacobian(&x);
+        let jn = numeric_jacobian(|x| h.residuals(x), &x, 1e-6);
+        assert!((j - jn).abs().max() < 1e-6);
+    }
 
     /// Rosenbrock as least squares: r = (10(x2 − x1²), 1 − x1).
     struct Rosen;

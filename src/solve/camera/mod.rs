@@ -538,6 +538,39 @@ fn ml_fit(
     )
 }
 
+/// The intrinsics (those free in `mask`) and the target fitted to `data` with the hand-eye
+/// `x` held: `(intrinsics, target, RMS px)`. An X from the motions' consistency (a closed
+/// form) with the camera and target that best predict the corners under it: how much of the
+/// joint ML's predictive edge its X, rather than its camera, carries.
+pub fn fit_with_x_held(
+    data: &CameraData,
+    k: &Intrinsics,
+    mask: [bool; N_INTR],
+    x: &Isometry3<f64>,
+    b0: &Isometry3<f64>,
+) -> (Intrinsics, Isometry3<f64>, f64) {
+    let obs = obs_of(&data.views, &data.board);
+    let g = motion_poses(&data.views, data.mount);
+    let p = Reproj {
+        obs: &obs,
+        flange: &g,
+        layout: Layout::HandEye,
+        intr_free: mask,
+        intr_fixed: *k,
+        board: BoardModel::default(),
+        arm: None,
+    };
+    let o = p.pose_offset(0);
+    let h = crate::solve::lm::Held::new(&p, p.pack(k, &[*x, *b0], 1.0, [0.0; 2]), o..o + 6);
+    let opts = LmOptions {
+        max_iter: 200,
+        ..LmOptions::default()
+    };
+    let rep = minimize(&h, h.free_of(&h.at), &opts);
+    let full = h.full(&rep.x);
+    (p.intrinsics(&full), p.pose(&full, 1), rms(&rep.residuals))
+}
+
 /// X and target fitted to `data` with the intrinsics `k` held, from `x0`, `b0`:
 /// `(X, target, RMS px)` (the held-out floor: what the views' own robot-pose error leaves).
 pub fn fit_fixed_intrinsics(

@@ -20,6 +20,7 @@ use rayon::prelude::*;
 
 use super::detect::{detect_chessboard, BoardSpec};
 use super::geom::{mean_pose, Intrinsics};
+use super::handeye::Method;
 use super::{CameraData, Mount, View};
 
 /// One real set: images, flange poses (base ← flange, mm) and the board.
@@ -359,6 +360,9 @@ pub struct SplitHalf {
     pub opencv_park: Option<(f64, f64)>,
     /// The estimate written on each half (the selection's choice).
     pub methods: [String; 2],
+    /// Every estimator's own split-half difference: `(method, mm, deg)` — which estimators are
+    /// stable on this set, whichever the selection wrote.
+    pub per_method: Vec<(String, f64, f64)>,
 }
 
 /// Everything measured on one real set.
@@ -378,6 +382,10 @@ pub struct SetReport {
     /// The same with the intrinsics free as well (the lowest held-out RMS any pinhole-and-
     /// distortion camera on the stated flange poses can reach on these views).
     pub floor_free_px: f64,
+    /// Held-out RMS (px) with Park–Martin's X held and the intrinsics and target refitted to
+    /// the training corners by ML: what an X from the motions alone predicts once the camera
+    /// fits it (its split half is Park–Martin's, in [`SplitHalf::per_method`]).
+    pub park_refit_px: f64,
     pub split: SplitHalf,
     /// Stated 1σ of X translation (mm) and the bootstrap's, when run.
     pub sigma_mm: [f64; 3],
@@ -430,6 +438,17 @@ pub fn evaluate(
         }
         version = p.version;
     }
+    // Park–Martin's X held, the camera and target refitted by ML under it.
+    let park_refit_px = res
+        .closed_form
+        .iter()
+        .find(|e| e.method == Method::ParkMartin.name())
+        .map(|e| {
+            let mask = res.distortion.mask();
+            let (k, t, _) = super::fit_with_x_held(&train, &e.intrinsics, mask, &e.x, &e.target);
+            super::heldout_rms(&held, &k, &e.x, &t, 1.0, [0.0; 2])
+        })
+        .unwrap_or(f64::NAN);
     let floor_px =
         super::fit_fixed_intrinsics(&held, &res.intrinsics_only, &res.ml.x, &res.ml.target).2;
     let floor_free_px = {
@@ -475,6 +494,17 @@ pub fn evaluate(
         },
         _ => None,
     };
+    let all = |r: &super::CameraResult| -> Vec<super::Estimate> {
+        r.closed_form.iter().chain(&r.candidates).cloned().collect()
+    };
+    let per_method = all(&ra)
+        .iter()
+        .filter_map(|ea| {
+            let eb = all(&rb).into_iter().find(|e| e.method == ea.method)?;
+            let (t, d) = super::geom::pose_error(&ea.x, &eb.x);
+            Some((ea.method.clone(), t, d))
+        })
+        .collect();
     let u = &res.uncertainty;
     Ok(SetReport {
         n_train: train.views.len(),
@@ -486,12 +516,14 @@ pub fn evaluate(
         opencv_version: version,
         floor_px,
         floor_free_px,
+        park_refit_px,
         split: SplitHalf {
             dx_mm,
             dr_deg,
             ratios,
             opencv_park,
             methods: [ra.ml.method.clone(), rb.ml.method.clone()],
+            per_method,
         },
         sigma_mm: u.x_mm,
         sigma_deg: u.x_deg,
