@@ -10,6 +10,8 @@
 //!     cargo run --release --example real_handeye -- ur3e    # one set
 //!
 //! `ROBOCAL_SHARED_DATA` overrides `../shared/data`. A set that is absent is reported SKIPPED.
+//! `ROBOCAL_RANDOM_HALVES=N` (default 10, 0 to skip): the split half is also measured on `N`
+//! seeded random halvings of the views, robocal beside OpenCV Park on the same halves.
 //! RWHE-Calib `kuka_2`, the set kept for evaluation (never tuned on, not in `../shared/data`),
 //! is read from `ROBOCAL_REAL_KUKA2` (the repository `ihtishamaliktk/RWHE-Calib`'s
 //! `Datasets/kuka_2` folder, unpacked anywhere outside the project):
@@ -152,6 +154,43 @@ fn main() {
         for (m, t, d) in &s.per_method {
             println!("  split half of {m:<50} {t:6.2} mm / {d:.3} deg");
         }
+        let n_random: usize = std::env::var("ROBOCAL_RANDOM_HALVES")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(10);
+        let mut random = (f64::NAN, f64::NAN, 0, 0, f64::NAN);
+        if n_random > 0 {
+            match realeval::random_halves(&cam, peer, n_random, 7) {
+                Ok(h) => {
+                    let (r, p, le) = h.summary();
+                    let each: Vec<String> = h
+                        .dx_mm
+                        .iter()
+                        .map(|d| format!("{:.2}/{:.2}", d.0, d.1))
+                        .collect();
+                    println!(
+                        "  {n_random} random halvings, ΔX robocal / OpenCV Park (mm): {}; mean {r:.2} / {p:.2}; robocal ≤ Park in {le} of {n_random}",
+                        each.join(" ")
+                    );
+                    println!(
+                        "  the same halvings, |ΔX| / combined stated σ ≤ 2: {:.0} % of {} coordinates",
+                        100.0 * h.within_2sigma(),
+                        6 * h.ratios.len()
+                    );
+                    for ((m, q), d) in h.methods.iter().zip(&h.ratios).zip(&h.dx_mm) {
+                        println!(
+                            "    {:.2} mm, |ΔX|/σ {:?}: {} / {}",
+                            d.0,
+                            q.map(|v| (v * 10.0).round() / 10.0),
+                            m[0],
+                            m[1]
+                        );
+                    }
+                    random = (r, p, le, n_random, 100.0 * h.within_2sigma());
+                }
+                Err(e) => println!("  random halvings failed: {e}"),
+            }
+        }
         let ok = s.ratios.iter().filter(|q| **q <= 2.0).count();
         println!(
             "  |ΔX| / combined σ (x y z mm, rx ry rz deg): {:?} -> {ok}/6 ≤ 2",
@@ -181,14 +220,15 @@ fn main() {
             r.floor_px,
             s.dx_mm,
             s.opencv_park.map_or(f64::NAN, |p| p.0),
+            random,
             ok,
         ));
     }
-    println!("\n| set | written held-out px | best OpenCV px | ratio | floor px | split-half X mm (robocal / Park) | σ ratios ≤ 2 |");
-    println!("|---|---|---|---|---|---|---|");
-    for (n, w, o, f, dx, dp, ok) in summary {
+    println!("\n| set | written held-out px | best OpenCV px | ratio | floor px | split-half X mm (robocal / Park) | random halvings: mean ΔX mm (robocal / Park), robocal ≤ Park, |ΔX|/σ ≤ 2 | σ ratios ≤ 2 |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (n, w, o, f, dx, dp, (rr, rp, le, nr, w2), ok) in summary {
         println!(
-            "| {n} | {w:.3} | {o:.3} | {:.3} | {f:.3} | {dx:.2} / {dp:.2} | {ok}/6 |",
+            "| {n} | {w:.3} | {o:.3} | {:.3} | {f:.3} | {dx:.2} / {dp:.2} | {rr:.2} / {rp:.2}, {le} of {nr}, {w2:.0} % | {ok}/6 |",
             w / o
         );
     }

@@ -378,6 +378,11 @@ fn main() -> anyhow::Result<()> {
                 secs,
                 &chain(&d),
             ) as usize;
+            let geo_train = rms(&d.geometric, &tr);
+            println!(
+                "    the geometric fit on the same split: train {geo_train:.4}, held-out {geo:.4} mm, gap {:.1} % (what the split itself costs, before any effect)",
+                100.0 * (geo / geo_train - 1.0)
+            );
             if let Some(s) = d
                 .policy_choice
                 .as_ref()

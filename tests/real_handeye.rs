@@ -152,6 +152,37 @@ fn real_ur3e_hand_eye() {
     );
 }
 
+/// Issue 31 §3, honest 1σ beyond one split: on random halvings of the UR3e views the principal
+/// point moves up to 15 px with the views (a 6×5 board in 640×480 images) and X's rotation
+/// 1.2° with it. The stated 1σ of an estimate that holds the board-only intrinsics now carries
+/// their uncertainty (view jackknife of the board-only fit, propagated through a refit of X):
+/// measured on these six halvings 89 % of the coordinates within 2 combined σ and the worst at
+/// 4.7σ; with the intrinsics held exact they were 69 % and 14.8σ.
+#[test]
+fn real_ur3e_random_halvings_are_within_the_stated_sigma() {
+    let dir = root().join("../shared/data/real-handeye-ur3e");
+    if !dir.exists() {
+        crate::common::skipped(format_args!("real set ur3e absent ({})", dir.display()));
+        return;
+    }
+    let set = realeval::load_ur3e(&dir, 12.5).unwrap();
+    let (cam, _) = realeval::detect_set(&set);
+    if cam.views.len() + 10 < set.images.len() {
+        eprintln!("ur3e: only {} views detected", cam.views.len());
+        return;
+    }
+    let h = realeval::random_halves(&cam, None, 6, 7).unwrap();
+    let worst = h.ratios.iter().flatten().copied().fold(0.0, f64::max);
+    eprintln!(
+        "ur3e random halvings: ΔX {:?} mm, within 2σ {:.0} %, worst {worst:.1}σ, ratios {:?}",
+        h.dx_mm.iter().map(|d| d.0).collect::<Vec<_>>(),
+        100.0 * h.within_2sigma(),
+        h.ratios
+    );
+    assert!(h.within_2sigma() >= 0.8, "{:.2}", h.within_2sigma());
+    assert!(worst <= 7.0, "worst |ΔX|/σ {worst:.1}");
+}
+
 /// Issue 31 §3: on the UR3e set's `cam0_079.jpg` OpenCV's detectors label the grid wrongly
 /// (the shared README: shifted one square, 88° from what the robot says; measured here with
 /// OpenCV 4.14: both `findChessboardCorners` and `...SB` put the board ≈180° and 64–80 mm from

@@ -601,7 +601,7 @@ pub fn diagnose_from(
         };
         rejected.retain(|r| r.kind != c.kind());
         let (dmm, ddeg) = crate::solve::camera::geom::pose_error(&st.x, &s1.x);
-        let std = stds(&r1);
+        let std = stds(&r1, &s1.mask);
         let params = effect_params(c, &s1, &std, &ctx, r1.jacobian.ncols());
         let summary = params
             .iter()
@@ -657,7 +657,7 @@ pub fn diagnose_from(
     let uncertainty = if effects.is_empty() {
         base.uncertainty.clone()
     } else {
-        uncertainty_of(&stds(&rep), &st.mask, base.uncertainty.bootstrap)
+        uncertainty_of(&stds(&rep, &st.mask), &st.mask, base.uncertainty.bootstrap)
     };
     Ok(CameraDiagnosis {
         uncertainty,
@@ -673,7 +673,7 @@ pub fn diagnose_from(
         bend_mm: st.bend,
         arm: match (st.on.contains(&Cand::Arm), ctx.model) {
             (true, Some(m)) => {
-                let std = stds(&rep);
+                let std = stds(&rep, &st.mask);
                 let i_arm = arm_index(&st);
                 Some(ArmFit {
                     model: changed_model(m, &ctx.arm_params, &st.deltas),
@@ -890,11 +890,23 @@ fn uncertainty_of(
     camera::Uncertainty::from_std(|i| std.get(i).copied().unwrap_or(f64::NAN), mask, bootstrap)
 }
 
-fn stds(r: &LmReport) -> Vec<f64> {
+/// Standard deviations of the fit's parameters (`mask`: the free intrinsics, which come first;
+/// then X and the target, whose rotations are stated about their own axes,
+/// [`crate::solve::camera::geom::cov_rotations_local`]).
+fn stds(r: &LmReport, mask: &[bool; N_INTR]) -> Vec<f64> {
     let (m, n) = (r.jacobian.nrows(), r.jacobian.ncols());
     let s2 = 2.0 * r.cost / (m.saturating_sub(n)).max(1) as f64;
     let jtj = r.jacobian.transpose() * &r.jacobian;
+    let ni = mask.iter().filter(|f| **f).count();
+    let w = |o: usize| nalgebra::Vector3::new(r.x[o], r.x[o + 1], r.x[o + 2]);
     match jtj.try_inverse() {
+        Some(inv) if n >= ni + 12 => {
+            let cov = crate::solve::camera::geom::cov_rotations_local(
+                &(inv * s2),
+                &[(ni, w(ni)), (ni + 6, w(ni + 6))],
+            );
+            (0..n).map(|i| cov[(i, i)].max(0.0).sqrt()).collect()
+        }
         Some(inv) => (0..n).map(|i| (s2 * inv[(i, i)]).max(0.0).sqrt()).collect(),
         None => vec![f64::NAN; n],
     }

@@ -178,7 +178,9 @@ pub struct Incremental {
 pub struct Uncertainty {
     /// Of `[fx, fy, cx, cy, k1, k2, p1, p2, k3]` (0 for fixed ones).
     pub intrinsics: [f64; N_INTR],
-    /// Of X: translation mm (x, y, z), rotation deg (about x, y, z).
+    /// Of X: translation mm (x, y, z of the parent frame), rotation deg (small rotations about
+    /// X's own x, y, z axes: the camera's, eye-in-hand; the same frame as the jackknife's and
+    /// the bootstrap's spread).
     pub x_mm: [f64; 3],
     pub x_deg: [f64; 3],
     pub target_mm: [f64; 3],
@@ -701,7 +703,7 @@ pub fn calibrate(
         None => DistModel::ALL.to_vec(),
     };
     // One distortion model per core (collected in the models' order).
-    let fits: Vec<(DistModel, Intrinsics, f64, f64)> = models
+    let fits: Vec<(DistModel, Intrinsics, f64, f64, DMatrix<f64>)> = models
         .into_par_iter()
         .map(|m| {
             let p = Reproj {
@@ -734,7 +736,7 @@ pub fn calibrate(
                 }
             }
             let vr = (se / nc.max(1) as f64).sqrt();
-            (m, k, train_rms, vr)
+            (m, k, train_rms, vr, intrinsics_cov(&rep, m.mask()))
         })
         .collect();
     let best_val = fits.iter().map(|f| f.3).fold(f64::INFINITY, f64::min);
@@ -744,7 +746,18 @@ pub fn calibrate(
         .find(|f| f.3 <= best_val * 1.02)
         .cloned()
         .ok_or_else(|| CameraError::Intrinsics("no distortion model converged".into()))?;
-    let (model, k1, k1_rms, _) = chosen;
+    let (model, k1, k1_rms, _, k1_cov_model) = chosen;
+    // The intrinsics' covariance for what holds them (closed forms, the robot-noise fits): the
+    // view jackknife of the board-only fit when it is larger (one view's corners share its
+    // errors — focus, the board's flatness there — which the model covariance, every corner
+    // independent, does not see), else the model covariance.
+    let k1_cov = {
+        let jack = intrinsics_jackknife(&sub_obs, nsub, &init_poses, &k1, model.mask());
+        match jack {
+            Some(j) if j.trace() > k1_cov_model.trace() => j,
+            _ => k1_cov_model,
+        }
+    };
     let model_scores = fits.iter().map(|f| (f.0, f.3)).collect();
     // 3. Every view's board pose with k1; reject views / corners by residual.
     let mut t_views = vec![];
@@ -986,6 +999,21 @@ pub fn calibrate(
             unc.x_deg[a] = unc.x_deg[a].max(jr[a]);
         }
     }
+    // A candidate that holds the board-only intrinsics: their own uncertainty moves X too
+    // (the jackknife and the model covariance hold them), added in quadrature.
+    let kept_obs: Vec<Vec<Obs>> = views
+        .iter()
+        .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
+        .collect();
+    let kept_obs: Vec<&[Obs]> = kept_obs.iter().map(Vec::as_slice).collect();
+    if chosen != select::Candidate::Ml {
+        if let Some((pt, pr)) = intrinsics_propagation(&ctx, chosen, &k1_cov, &kept_obs, &all) {
+            for a in 0..3 {
+                unc.x_mm[a] = unc.x_mm[a].hypot(pt[a]);
+                unc.x_deg[a] = unc.x_deg[a].hypot(pr[a]);
+            }
+        }
+    }
     if opts.bootstrap > 0 {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
         // The resamples are drawn in order (the same ones as one fit after the other), the
@@ -1006,7 +1034,18 @@ pub fn calibrate(
                     let bg = motion_poses(&bv, train.mount);
                     Some(ml_fit(&bo, &bg, &kf, model.mask(), &xf, &tf, bc, sf, cf).1)
                 }
-                c => ctx.fit(c, pick).map(|f| f.x),
+                // The board-only intrinsics re-estimated on the resample too (up to 20 of its
+                // distinct views, as the calibration does), every view's board pose re-solved
+                // under them: the bootstrap then sees what the intrinsics' uncertainty does to X.
+                c => {
+                    let k = refit_intrinsics(&kept_obs, ctx.t_list, &k1, model.mask(), pick)?;
+                    let t_list: Vec<Isometry3<f64>> = kept_obs
+                        .iter()
+                        .zip(ctx.t_list)
+                        .map(|(ob, t0)| pnp(&k, ob, *t0).0)
+                        .collect();
+                    ctx.with_intrinsics(k, &t_list).fit(c, pick).map(|f| f.x)
+                }
             })
             .collect();
         let (st, sr) = select::spread(&xs, &ml.x);
@@ -1059,6 +1098,177 @@ fn estimate(
     }
 }
 
+/// Covariance of the free intrinsics (`mask`, the leading parameters of `rep`): the
+/// board-only fit's `σ² (JᵀJ)⁻¹` block (empty when it cannot be formed).
+fn intrinsics_cov(rep: &crate::solve::lm::LmReport, mask: [bool; N_INTR]) -> DMatrix<f64> {
+    let m = mask.iter().filter(|f| **f).count();
+    let (r, n) = (rep.jacobian.nrows(), rep.jacobian.ncols());
+    if r <= n || n < m {
+        return DMatrix::zeros(0, 0);
+    }
+    let s2 = 2.0 * rep.cost / (r - n) as f64;
+    match (rep.jacobian.transpose() * &rep.jacobian).try_inverse() {
+        Some(inv) => inv.view((0, 0), (m, m)) * s2,
+        None => DMatrix::zeros(0, 0),
+    }
+}
+
+/// The board-only intrinsics (`mask` free, from `k`) refitted on up to 20 spread distinct views
+/// of `pick` (`per_view`: each view's corners, `poses`: their board poses to start from).
+fn refit_intrinsics(
+    per_view: &[&[Obs]],
+    poses: &[Isometry3<f64>],
+    k: &Intrinsics,
+    mask: [bool; N_INTR],
+    pick: &[usize],
+) -> Option<Intrinsics> {
+    let mut distinct: Vec<usize> = pick.to_vec();
+    distinct.sort_unstable();
+    distinct.dedup();
+    let n = distinct.len();
+    if n < 4 {
+        return None;
+    }
+    let nsub = n.min(20);
+    let sub: Vec<usize> = (0..nsub).map(|i| distinct[i * n / nsub]).collect();
+    let obs: Vec<Obs> = sub
+        .iter()
+        .enumerate()
+        .flat_map(|(s, &v)| per_view[v].iter().map(move |o| Obs { view: s, ..*o }))
+        .collect();
+    let ps: Vec<Isometry3<f64>> = sub.iter().map(|&v| poses[v]).collect();
+    let p = Reproj {
+        obs: &obs,
+        flange: &[],
+        layout: Layout::Views(nsub),
+        intr_free: mask,
+        intr_fixed: *k,
+        board: BoardModel::default(),
+        arm: None,
+    };
+    let rep = minimize(&p, p.pack(k, &ps, 1.0, [0.0; 2]), &LmOptions::default());
+    let k = p.intrinsics(&rep.x);
+    k.to_vec().iter().all(|v| v.is_finite()).then_some(k)
+}
+
+/// Delete-one-view jackknife covariance of the free intrinsics (`mask`) of the board-only fit on
+/// `obs` (`n` views, poses `poses`), started from `k`.
+fn intrinsics_jackknife(
+    obs: &[Obs],
+    n: usize,
+    poses: &[Isometry3<f64>],
+    k: &Intrinsics,
+    mask: [bool; N_INTR],
+) -> Option<DMatrix<f64>> {
+    if n < 5 || poses.len() != n {
+        return None;
+    }
+    let free: Vec<usize> = (0..N_INTR).filter(|i| mask[*i]).collect();
+    let ks: Vec<Vec<f64>> = (0..n)
+        .into_par_iter()
+        .filter_map(|drop| {
+            let o: Vec<Obs> = obs
+                .iter()
+                .filter(|o| o.view != drop)
+                .map(|o| Obs {
+                    view: if o.view > drop { o.view - 1 } else { o.view },
+                    ..*o
+                })
+                .collect();
+            let ps: Vec<Isometry3<f64>> = (0..n).filter(|&v| v != drop).map(|v| poses[v]).collect();
+            let p = Reproj {
+                obs: &o,
+                flange: &[],
+                layout: Layout::Views(n - 1),
+                intr_free: mask,
+                intr_fixed: *k,
+                board: BoardModel::default(),
+                arm: None,
+            };
+            let rep = minimize(&p, p.pack(k, &ps, 1.0, [0.0; 2]), &LmOptions::default());
+            let kv = p.intrinsics(&rep.x).to_vec();
+            let v: Vec<f64> = free.iter().map(|&i| kv[i]).collect();
+            v.iter().all(|x| x.is_finite()).then_some(v)
+        })
+        .collect();
+    if ks.len() + 1 < n {
+        return None;
+    }
+    let m = free.len();
+    let nk = ks.len() as f64;
+    let mean: Vec<f64> = (0..m)
+        .map(|a| ks.iter().map(|v| v[a]).sum::<f64>() / nk)
+        .collect();
+    let mut c = DMatrix::zeros(m, m);
+    for v in &ks {
+        for a in 0..m {
+            for b in 0..m {
+                c[(a, b)] += (v[a] - mean[a]) * (v[b] - mean[b]);
+            }
+        }
+    }
+    Some(c * ((nk - 1.0) / nk))
+}
+
+/// 1σ of X (translation mm, rotation deg about X's own axes) that the board-only intrinsics'
+/// uncertainty `k_cov` (free intrinsics of `ctx.mask`) causes in the candidate `c`: along each
+/// principal direction of `k_cov` the intrinsics are moved by ±1σ, every view's board pose
+/// re-solved under them (`per_view`: each kept view's corners) and `c` refitted on `idx`; the
+/// half-differences of X add in quadrature. On a real UR3e (640×480, a 6×5 board) the principal
+/// point moves 15 px between random halves of the views and X's rotation 1.2° with it, which
+/// the view jackknife (intrinsics held) puts at 0.1°.
+fn intrinsics_propagation(
+    ctx: &select::Ctx,
+    c: select::Candidate,
+    k_cov: &DMatrix<f64>,
+    per_view: &[&[Obs]],
+    idx: &[usize],
+) -> Option<([f64; 3], [f64; 3])> {
+    let m = k_cov.nrows();
+    if m == 0 || per_view.len() != ctx.t_list.len() {
+        return None;
+    }
+    let free: Vec<usize> = (0..N_INTR).filter(|i| ctx.mask[*i]).collect();
+    if free.len() != m {
+        return None;
+    }
+    let eig = nalgebra::SymmetricEigen::new(k_cov.clone());
+    let dirs: Vec<(usize, f64)> = (0..m)
+        .filter(|&i| eig.eigenvalues[i] > 0.0 && eig.eigenvalues[i].is_finite())
+        .flat_map(|i| [(i, 1.0), (i, -1.0)])
+        .collect();
+    let xs: Vec<Option<Isometry3<f64>>> = dirs
+        .par_iter()
+        .map(|&(i, sign)| {
+            let step = eig.eigenvectors.column(i) * (sign * eig.eigenvalues[i].sqrt());
+            let mut v = ctx.k1.to_vec();
+            for (k, &f) in free.iter().enumerate() {
+                v[f] += step[k];
+            }
+            let k = Intrinsics::from_slice(&v);
+            let t_list: Vec<Isometry3<f64>> = per_view
+                .iter()
+                .zip(ctx.t_list)
+                .map(|(ob, t0)| pnp(&k, ob, *t0).0)
+                .collect();
+            ctx.with_intrinsics(k, &t_list).fit(c, idx).map(|f| f.x)
+        })
+        .collect();
+    let (mut st, mut sr) = ([0.0; 3], [0.0; 3]);
+    for pair in xs.chunks(2) {
+        let (Some(a), Some(b)) = (pair[0], pair[1]) else {
+            return None;
+        };
+        let dt = (a.translation.vector - b.translation.vector) / 2.0;
+        let dr = (b.inverse() * a).rotation.scaled_axis() / 2.0;
+        for k in 0..3 {
+            st[k] += dt[k] * dt[k];
+            sr[k] += dr[k].to_degrees().powi(2);
+        }
+    }
+    Some((st.map(f64::sqrt), sr.map(f64::sqrt)))
+}
+
 fn covariance(
     rep: &crate::solve::lm::LmReport,
     mask: &[bool; N_INTR],
@@ -1076,7 +1286,15 @@ fn covariance(
         return u;
     };
     let _ = b;
-    Uncertainty::from_std(|i| (s2 * inv[(i, i)]).max(0.0).sqrt(), mask, None)
+    // X and the target (after the free intrinsics): rotations about their own axes.
+    let k = mask.iter().filter(|f| **f).count();
+    let w = |o: usize| Vector3::new(rep.x[o], rep.x[o + 1], rep.x[o + 2]);
+    let cov = if n >= k + 12 {
+        geom::cov_rotations_local(&(inv * s2), &[(k, w(k)), (k + 6, w(k + 6))])
+    } else {
+        inv * s2
+    };
+    Uncertainty::from_std(|i| cov[(i, i)].max(0.0).sqrt(), mask, None)
 }
 
 impl Uncertainty {

@@ -144,7 +144,24 @@ pub(super) struct Fit {
     pub pose_noise: Option<(f64, f64)>,
 }
 
-impl Ctx<'_> {
+impl<'a> Ctx<'a> {
+    /// The same context with other board-only intrinsics and the board poses under them.
+    pub fn with_intrinsics<'b>(&'b self, k1: Intrinsics, t_list: &'b [Isometry3<f64>]) -> Ctx<'b>
+    where
+        'a: 'b,
+    {
+        Ctx {
+            data: self.data,
+            t_list,
+            g: self.g,
+            k1,
+            mask: self.mask,
+            sigma_px: self.sigma_px,
+            x0: self.x0,
+            b0: self.b0,
+        }
+    }
+
     fn views(&self, idx: &[usize]) -> Vec<View> {
         idx.iter().map(|&i| self.data.views[i].clone()).collect()
     }
@@ -223,7 +240,15 @@ impl Ctx<'_> {
                 } else {
                     posenoise::fit_full(&g, &t, &self.x0, &self.b0)?
                 };
-                let sd = |i: usize| f.cov[(i, i)].max(0.0).sqrt();
+                // Rotations about X's and the target's own axes.
+                let cov = super::geom::cov_rotations_local(
+                    &f.cov,
+                    &[
+                        (0, f.x.rotation.scaled_axis()),
+                        (6, f.target.rotation.scaled_axis()),
+                    ],
+                );
+                let sd = |i: usize| cov[(i, i)].max(0.0).sqrt();
                 Some(Fit {
                     sd_mm: [sd(3), sd(4), sd(5)],
                     sd_deg: [sd(0), sd(1), sd(2)].map(f64::to_degrees),
@@ -262,7 +287,15 @@ impl Ctx<'_> {
                         self.sigma_px,
                     )?,
                 };
-                let sd = |i: usize| f.cov[(i, i)].max(0.0).sqrt();
+                // Rotations about X's and the target's own axes.
+                let cov = super::geom::cov_rotations_local(
+                    &f.cov,
+                    &[
+                        (0, f.x.rotation.scaled_axis()),
+                        (6, f.target.rotation.scaled_axis()),
+                    ],
+                );
+                let sd = |i: usize| cov[(i, i)].max(0.0).sqrt();
                 Some(Fit {
                     sd_mm: [sd(3), sd(4), sd(5)],
                     sd_deg: [sd(0), sd(1), sd(2)].map(f64::to_degrees),
