@@ -601,6 +601,7 @@ pub fn random_halves(
         let rb = super::calibrate(&b, None, &opts).map_err(|e| e.to_string())?;
         let dx = super::geom::pose_error(&ra.ml.x, &rb.ml.x).0;
         ratios.push(coordinate_ratios(&ra, &rb));
+        methods.push([ra.ml.method.clone(), rb.ml.method.clone()]);
         let park = |d: &CameraData| -> Result<Option<Isometry3<f64>>, String> {
             let Some((py, sc)) = peer else {
                 return Ok(None);
