@@ -747,17 +747,6 @@ pub fn calibrate(
         .cloned()
         .ok_or_else(|| CameraError::Intrinsics("no distortion model converged".into()))?;
     let (model, k1, k1_rms, _, k1_cov_model) = chosen;
-    // The intrinsics' covariance for what holds them (closed forms, the robot-noise fits): the
-    // view jackknife of the board-only fit when it is larger (one view's corners share its
-    // errors — focus, the board's flatness there — which the model covariance, every corner
-    // independent, does not see), else the model covariance.
-    let k1_cov = {
-        let jack = intrinsics_jackknife(&sub_obs, nsub, &init_poses, &k1, model.mask());
-        match jack {
-            Some(j) if j.trace() > k1_cov_model.trace() => j,
-            _ => k1_cov_model,
-        }
-    };
     let model_scores = fits.iter().map(|f| (f.0, f.3)).collect();
     // 3. Every view's board pose with k1; reject views / corners by residual.
     let mut t_views = vec![];
@@ -1007,6 +996,13 @@ pub fn calibrate(
         .collect();
     let kept_obs: Vec<&[Obs]> = kept_obs.iter().map(Vec::as_slice).collect();
     if chosen != select::Candidate::Ml {
+        // The intrinsics' covariance: the view jackknife of the board-only fit when it is
+        // larger (one view's corners share errors — focus, the board's flatness there — that
+        // the model covariance, every corner independent, does not see).
+        let k1_cov = match intrinsics_jackknife(&sub_obs, nsub, &init_poses, &k1, model.mask()) {
+            Some(j) if j.trace() > k1_cov_model.trace() => j,
+            _ => k1_cov_model,
+        };
         if let Some((pt, pr)) = intrinsics_propagation(&ctx, chosen, &k1_cov, &kept_obs, &all) {
             for a in 0..3 {
                 unc.x_mm[a] = unc.x_mm[a].hypot(pt[a]);
