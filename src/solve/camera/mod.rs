@@ -1035,12 +1035,7 @@ pub fn calibrate(
                 // under them: the bootstrap then sees what the intrinsics' uncertainty does to X.
                 c => {
                     let k = refit_intrinsics(&kept_obs, ctx.t_list, &k1, model.mask(), pick)?;
-                    let t_list: Vec<Isometry3<f64>> = kept_obs
-                        .iter()
-                        .zip(ctx.t_list)
-                        .map(|(ob, t0)| pnp(&k, ob, *t0).0)
-                        .collect();
-                    ctx.with_intrinsics(k, &t_list).fit(c, pick).map(|f| f.x)
+                    fit_under_intrinsics(&ctx, &kept_obs, k, c, pick)
                 }
             })
             .collect();
@@ -1206,6 +1201,23 @@ fn intrinsics_jackknife(
     Some(c * ((nk - 1.0) / nk))
 }
 
+/// X of candidate `c` on the views `idx` with the board-only intrinsics replaced by `k`: every
+/// view's board pose (`per_view`: each view's corners) re-solved under `k` first.
+fn fit_under_intrinsics(
+    ctx: &select::Ctx,
+    per_view: &[&[Obs]],
+    k: Intrinsics,
+    c: select::Candidate,
+    idx: &[usize],
+) -> Option<Isometry3<f64>> {
+    let t_list: Vec<Isometry3<f64>> = per_view
+        .iter()
+        .zip(ctx.t_list)
+        .map(|(ob, t0)| pnp(&k, ob, *t0).0)
+        .collect();
+    ctx.with_intrinsics(k, &t_list).fit(c, idx).map(|f| f.x)
+}
+
 /// 1σ of X (translation mm, rotation deg about X's own axes) that the board-only intrinsics'
 /// uncertainty `k_cov` (free intrinsics of `ctx.mask`) causes in the candidate `c`: along each
 /// principal direction of `k_cov` the intrinsics are moved by ±1σ, every view's board pose
@@ -1241,13 +1253,7 @@ fn intrinsics_propagation(
             for (k, &f) in free.iter().enumerate() {
                 v[f] += step[k];
             }
-            let k = Intrinsics::from_slice(&v);
-            let t_list: Vec<Isometry3<f64>> = per_view
-                .iter()
-                .zip(ctx.t_list)
-                .map(|(ob, t0)| pnp(&k, ob, *t0).0)
-                .collect();
-            ctx.with_intrinsics(k, &t_list).fit(c, idx).map(|f| f.x)
+            fit_under_intrinsics(ctx, per_view, Intrinsics::from_slice(&v), c, idx)
         })
         .collect();
     let (mut st, mut sr) = ([0.0; 3], [0.0; 3]);
