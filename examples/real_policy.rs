@@ -28,6 +28,9 @@
 //! `$ROBOCAL_REAL_DATA` or `../shared/data/real-ur10-ipa-grid` and says SKIPPED when absent.
 //! Real data is never copied into the repository.
 //!
+//! Under every split's row, the geometric fit's own train / held-out gap on that split: what the
+//! split itself costs before any effect.
+//!
 //! Splits printed for every series: `interleaved` (the file's own split), `time-blocked`
 //! (the first 75 % of the training poses train, the held-out poses after them score), and,
 //! with several series, `cross-series` (the first series' final model carried to every
