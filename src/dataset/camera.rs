@@ -48,7 +48,8 @@ pub struct PoseWithStd {
     pub xyz_mm: [f64; 3],
     /// `[w, x, y, z]`.
     pub quat: [f64; 4],
-    /// 1σ of the translation (mm) and of the rotation about x, y, z (deg).
+    /// 1σ of the translation (mm, along the parent frame's x, y, z) and of the rotation (deg,
+    /// small rotations about the pose's own x, y, z axes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub std_mm: Option<[f64; 3]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -491,7 +491,7 @@ code{{background:#f4f4f4;padding:1px 4px}}figure{{margin:1em 0}}</style></head><
 /// their 95 % intervals (the deployed, diagnosed values and the calibration stage's), every
 /// method side by side, held-out pixels before / after the diagnosis.
 /// A pose with its 1σ: xyz (mm), quaternion `[w, x, y, z]`, σ translation (mm), σ rotation
-/// (deg about x, y, z).
+/// (deg, small rotations about the pose's own x, y, z axes).
 type PoseSd = ([f64; 3], [f64; 4], Option<[f64; 3]>, Option<[f64; 3]>);
 
 fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
@@ -569,7 +569,7 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
             q[2],
             q[3],
             sdeg.map_or("—".into(), |s| format!(
-                "± {:.4}°, {:.4}°, {:.4}° (about x, y, z)",
+                "± {:.4}°, {:.4}°, {:.4}° (about its own x, y, z axes)",
                 1.96 * s[0],
                 1.96 * s[1],
                 1.96 * s[2]
