@@ -897,17 +897,8 @@ fn stds(r: &LmReport, mask: &[bool; N_INTR]) -> Vec<f64> {
     let (m, n) = (r.jacobian.nrows(), r.jacobian.ncols());
     let s2 = 2.0 * r.cost / (m.saturating_sub(n)).max(1) as f64;
     let jtj = r.jacobian.transpose() * &r.jacobian;
-    let ni = mask.iter().filter(|f| **f).count();
-    let w = |o: usize| nalgebra::Vector3::new(r.x[o], r.x[o + 1], r.x[o + 2]);
     match jtj.try_inverse() {
-        Some(inv) if n >= ni + 12 => {
-            let cov = crate::solve::camera::geom::cov_rotations_local(
-                &(inv * s2),
-                &[(ni, w(ni)), (ni + 6, w(ni + 6))],
-            );
-            (0..n).map(|i| cov[(i, i)].max(0.0).sqrt()).collect()
-        }
-        Some(inv) => (0..n).map(|i| (s2 * inv[(i, i)]).max(0.0).sqrt()).collect(),
+        Some(inv) => crate::solve::camera::std_local(&(inv * s2), &r.x, mask),
         None => vec![f64::NAN; n],
     }
 }

@@ -1271,6 +1271,21 @@ fn intrinsics_propagation(
     Some((st.map(f64::sqrt), sr.map(f64::sqrt)))
 }
 
+/// Standard deviations from the covariance `cov` of the parameters `x` of a hand-eye fit laid
+/// out as the free intrinsics (`mask`), X, the target, then any extras: X's and the target's
+/// rotations stated about their own axes ([`geom::cov_rotations_local`]).
+pub fn std_local(cov: &DMatrix<f64>, x: &DVector<f64>, mask: &[bool; N_INTR]) -> Vec<f64> {
+    let k = mask.iter().filter(|f| **f).count();
+    let n = cov.nrows();
+    let w = |o: usize| Vector3::new(x[o], x[o + 1], x[o + 2]);
+    let cov = if n >= k + 12 && x.len() >= k + 12 {
+        geom::cov_rotations_local(cov, &[(k, w(k)), (k + 6, w(k + 6))])
+    } else {
+        cov.clone()
+    };
+    (0..n).map(|i| cov[(i, i)].max(0.0).sqrt()).collect()
+}
+
 fn covariance(
     rep: &crate::solve::lm::LmReport,
     mask: &[bool; N_INTR],
@@ -1288,15 +1303,8 @@ fn covariance(
         return u;
     };
     let _ = b;
-    // X and the target (after the free intrinsics): rotations about their own axes.
-    let k = mask.iter().filter(|f| **f).count();
-    let w = |o: usize| Vector3::new(rep.x[o], rep.x[o + 1], rep.x[o + 2]);
-    let cov = if n >= k + 12 {
-        geom::cov_rotations_local(&(inv * s2), &[(k, w(k)), (k + 6, w(k + 6))])
-    } else {
-        inv * s2
-    };
-    Uncertainty::from_std(|i| cov[(i, i)].max(0.0).sqrt(), mask, None)
+    let sd = std_local(&(inv * s2), &rep.x, mask);
+    Uncertainty::from_std(|i| sd[i], mask, None)
 }
 
 impl Uncertainty {
