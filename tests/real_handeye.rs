@@ -130,7 +130,7 @@ fn check(
 
 #[test]
 fn real_kuka1_hand_eye() {
-    // Measured: held-out 0.989x OpenCV's best, split half 1.65 / 1.23 mm = 1.34x Park's.
+    // Measured: held-out 0.990x OpenCV's best, split half 1.65 / 1.23 mm = 1.34x Park's.
     check(
         "kuka_1",
         "real-handeye-kuka1",
@@ -142,7 +142,7 @@ fn real_kuka1_hand_eye() {
 
 #[test]
 fn real_ur3e_hand_eye() {
-    // Measured: held-out 0.834x OpenCV's best, split half 0.86 / 1.80 mm = 0.48x Park's.
+    // Measured: held-out 0.834x OpenCV's best, split half 1.65 / 1.80 mm = 0.92x Park's.
     check(
         "ur3e",
         "real-handeye-ur3e",
@@ -155,9 +155,12 @@ fn real_ur3e_hand_eye() {
 /// Issue 31 §3, honest 1σ beyond one split: on random halvings of the UR3e views the principal
 /// point moves up to 15 px with the views (a 6×5 board in 640×480 images) and X's rotation
 /// 1.2° with it. The stated 1σ of an estimate that holds the board-only intrinsics now carries
-/// their uncertainty (view jackknife of the board-only fit, propagated through a refit of X):
-/// measured on these six halvings 89 % of the coordinates within 2 combined σ and the worst at
-/// 4.7σ; with the intrinsics held exact they were 69 % and 14.8σ.
+/// their uncertainty (view jackknife of the board-only fit, propagated through a refit of X)
+/// and X's spread over the distortion models as plausible as the chosen one (halves that choose
+/// tangential terms or not differ by 16 px in the principal point and 1.2–1.4° in X's
+/// rotation). The intrinsics come from every view (they came from 20). Measured on these six
+/// halvings: 97 % of the coordinates within 2 combined σ, the worst at 2.3σ; intrinsics from 20
+/// views without the model term 89 % and 4.7σ; with the intrinsics held exact 69 % and 14.8σ.
 #[test]
 fn real_ur3e_random_halvings_are_within_the_stated_sigma() {
     let dir = root().join("../shared/data/real-handeye-ur3e");
@@ -179,8 +182,8 @@ fn real_ur3e_random_halvings_are_within_the_stated_sigma() {
         100.0 * h.within_2sigma(),
         h.ratios
     );
-    assert!(h.within_2sigma() >= 0.8, "{:.2}", h.within_2sigma());
-    assert!(worst <= 7.0, "worst |ΔX|/σ {worst:.1}");
+    assert!(h.within_2sigma() >= 0.9, "{:.2}", h.within_2sigma());
+    assert!(worst <= 3.5, "worst |ΔX|/σ {worst:.1}");
 }
 
 /// Issue 31 §3: on the UR3e set's `cam0_079.jpg` OpenCV's detectors label the grid wrongly

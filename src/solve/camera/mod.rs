@@ -9,14 +9,19 @@
 //!    model is chosen by the reprojection error of the *other* views (their board poses fitted
 //!    with the intrinsics held).
 //! 3. Every view's board pose with those intrinsics; views and corners whose residual is far
-//!    beyond the robust spread of the rest are rejected automatically.
+//!    beyond the robust spread of the rest are rejected automatically; the chosen model is then
+//!    refitted on every kept view ([`boardonly`], a Schur-complement solver).
 //! 4. Tsai–Lenz, Park–Martin, Horaud, Andreff, Daniilidis ([`handeye`]).
 //! 5. One LM over intrinsics, `X` and the target pose on every raw corner with the robot poses
 //!    as inputs ([`problem::Layout::HandEye`]), started from the best closed form.
-//! 6. Covariance at the optimum and a view bootstrap; seed 004's incremental Tsai–Lenz.
+//! 6. The written candidate chosen by cross-validation ([`select`]); X's 1σ from the model
+//!    covariance or the view jackknife, plus what the board-only intrinsics' uncertainty and
+//!    the choice among equally plausible distortion models do to X; a view bootstrap that
+//!    re-estimates the intrinsics and re-chooses the model; seed 004's incremental Tsai–Lenz.
 //!
 //! Eye-to-hand (camera fixed, board on the flange) runs the same code with the inverse flange
 //! poses: then `X` is the camera in the base and the "target" pose is the board in the flange.
+pub mod boardonly;
 pub mod calfile;
 pub mod charuco;
 pub mod data;
@@ -639,6 +644,14 @@ thread_local! {
     static CALIBRATIONS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
 }
 
+/// The distortion model chosen is the simplest whose validation error is within this factor of
+/// the best ([`calibrate`] step 2).
+pub const DIST_MODEL_SIMPLER: f64 = 1.02;
+
+/// A distortion model whose validation error is within this factor of the best is as
+/// plausible as the chosen one: X's move under it enters X's stated 1σ ([`calibrate`]).
+pub const DIST_MODEL_PLAUSIBLE: f64 = 1.05;
+
 /// How many camera calibrations ([`calibrate`]) this thread has run: a test counts the fits
 /// of a pipeline.
 pub fn calibrations_on_this_thread() -> usize {
@@ -743,11 +756,18 @@ pub fn calibrate(
     // Simplest model within 2 % of the best validation error.
     let chosen = fits
         .iter()
-        .find(|f| f.3 <= best_val * 1.02)
+        .find(|f| f.3 <= best_val * DIST_MODEL_SIMPLER)
         .cloned()
         .ok_or_else(|| CameraError::Intrinsics("no distortion model converged".into()))?;
-    let (model, k1, k1_rms, _, k1_cov_model) = chosen;
+    let (model, mut k1, mut k1_rms, _, mut k1_cov_model) = chosen;
     let model_scores = fits.iter().map(|f| (f.0, f.3)).collect();
+    // The models as plausible as the chosen one (it included), simplest first, with their
+    // intrinsics from the selection: the stated 1σ and the bootstrap see the choice too.
+    let plausible_models: Vec<(DistModel, Intrinsics)> = fits
+        .iter()
+        .filter(|f| f.3 <= best_val * DIST_MODEL_PLAUSIBLE)
+        .map(|f| (f.0, f.1))
+        .collect();
     // 3. Every view's board pose with k1; reject views / corners by residual.
     let mut t_views = vec![];
     let mut view_rms = vec![];
@@ -798,12 +818,28 @@ pub fn calibrate(
         keep_views.push(i);
     }
     let views: Vec<View> = keep_views.iter().map(|&i| views[i].clone()).collect();
-    let t_list: Vec<Isometry3<f64>> = keep_views.iter().map(|&i| t_views[i].0).collect();
+    let mut t_list: Vec<Isometry3<f64>> = keep_views.iter().map(|&i| t_views[i].0).collect();
     if views.len() < 4 {
         return Err(CameraError::TooFewViews {
             got: views.len(),
             need: 4,
         });
+    }
+    // Every kept view's corners (after the corner rejection), one slice per view.
+    let kept_obs: Vec<Vec<Obs>> = views
+        .iter()
+        .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
+        .collect();
+    let kept_obs: Vec<&[Obs]> = kept_obs.iter().map(Vec::as_slice).collect();
+    // The chosen model's intrinsics refitted on every kept view (the model was chosen on up to
+    // 20 of them): on a real UR3e set (66 views of a 6×5 board) the principal point from 20
+    // views moved 15 px between halves of the set, and X's rotation with it.
+    let k1_fit = boardonly::fit(&kept_obs, &t_list, &k1, model.mask(), &LmOptions::default());
+    if let Some(f) = &k1_fit {
+        k1 = f.k;
+        k1_rms = f.rms;
+        k1_cov_model = f.cov.clone();
+        t_list = f.poses.clone();
     }
     let kept = CameraData {
         views: views.clone(),
@@ -990,16 +1026,14 @@ pub fn calibrate(
     }
     // A candidate that holds the board-only intrinsics: their own uncertainty moves X too
     // (the jackknife and the model covariance hold them), added in quadrature.
-    let kept_obs: Vec<Vec<Obs>> = views
-        .iter()
-        .map(|v| single_view(&obs_of(std::slice::from_ref(v), &board)))
-        .collect();
-    let kept_obs: Vec<&[Obs]> = kept_obs.iter().map(Vec::as_slice).collect();
     if chosen != select::Candidate::Ml {
         // The intrinsics' covariance: the view jackknife of the board-only fit when it is
         // larger (one view's corners share errors — focus, the board's flatness there — that
         // the model covariance, every corner independent, does not see).
-        let k1_cov = match intrinsics_jackknife(&sub_obs, nsub, &init_poses, &k1, model.mask()) {
+        let jk = k1_fit
+            .as_ref()
+            .and_then(|f| boardonly::jackknife(&kept_obs, f, model.mask()));
+        let k1_cov = match jk {
             Some(j) if j.trace() > k1_cov_model.trace() => j,
             _ => k1_cov_model,
         };
@@ -1007,6 +1041,24 @@ pub fn calibrate(
             for a in 0..3 {
                 unc.x_mm[a] = unc.x_mm[a].hypot(pt[a]);
                 unc.x_deg[a] = unc.x_deg[a].hypot(pr[a]);
+            }
+        }
+        // The distortion model itself: another model whose validation error is within
+        // `DIST_MODEL_PLAUSIBLE` of the best fits the views as well, and can move X (on a real
+        // UR3e set the tangential terms move the principal point 16 px and X's rotation
+        // 1.2–1.4°, and halves of the set choose differently). X's spread over the plausible
+        // models ([`model_spread`]) is added in quadrature.
+        let plausible: Vec<Intrinsics> = plausible_models
+            .iter()
+            .filter(|(m, _)| *m != model)
+            .filter_map(|(m, k)| {
+                boardonly::fit(&kept_obs, &t_list, k, m.mask(), &LmOptions::default()).map(|b| b.k)
+            })
+            .collect();
+        if let Some((mt, mr)) = model_spread(&ctx, chosen, &ml.x, &plausible, &kept_obs, &all) {
+            for a in 0..3 {
+                unc.x_mm[a] = unc.x_mm[a].hypot(mt[a]);
+                unc.x_deg[a] = unc.x_deg[a].hypot(mr[a]);
             }
         }
     }
@@ -1034,7 +1086,8 @@ pub fn calibrate(
                 // distinct views, as the calibration does), every view's board pose re-solved
                 // under them: the bootstrap then sees what the intrinsics' uncertainty does to X.
                 c => {
-                    let k = refit_intrinsics(&kept_obs, ctx.t_list, &k1, model.mask(), pick)?;
+                    let k =
+                        refit_intrinsics(&kept_obs, ctx.t_list, &plausible_models, model, pick)?;
                     fit_under_intrinsics(&ctx, &kept_obs, k, c, pick)
                 }
             })
@@ -1104,101 +1157,53 @@ fn intrinsics_cov(rep: &crate::solve::lm::LmReport, mask: [bool; N_INTR]) -> DMa
     }
 }
 
-/// The board-only intrinsics (`mask` free, from `k`) refitted on up to 20 spread distinct views
-/// of `pick` (`per_view`: each view's corners, `poses`: their board poses to start from).
+/// The board-only intrinsics refitted on the distinct views of `pick` (`per_view`: each view's
+/// corners, `poses`: their board poses to start from) under each of the distortion models
+/// `models` (simplest first, with intrinsics to start from), the model chosen as the
+/// calibration chooses it: the simplest within [`DIST_MODEL_SIMPLER`] of the best error on the
+/// views `pick` left out (the `chosen` model when fewer than 3 are left out).
 fn refit_intrinsics(
     per_view: &[&[Obs]],
     poses: &[Isometry3<f64>],
-    k: &Intrinsics,
-    mask: [bool; N_INTR],
+    models: &[(DistModel, Intrinsics)],
+    chosen: DistModel,
     pick: &[usize],
 ) -> Option<Intrinsics> {
     let mut distinct: Vec<usize> = pick.to_vec();
     distinct.sort_unstable();
     distinct.dedup();
-    let n = distinct.len();
-    if n < 4 {
+    if distinct.len() < 4 {
         return None;
     }
-    let nsub = n.min(20);
-    let sub: Vec<usize> = (0..nsub).map(|i| distinct[i * n / nsub]).collect();
-    let obs: Vec<Obs> = sub
-        .iter()
-        .enumerate()
-        .flat_map(|(s, &v)| per_view[v].iter().map(move |o| Obs { view: s, ..*o }))
+    let out: Vec<usize> = (0..per_view.len())
+        .filter(|v| distinct.binary_search(v).is_err())
         .collect();
-    let ps: Vec<Isometry3<f64>> = sub.iter().map(|&v| poses[v]).collect();
-    let p = Reproj {
-        obs: &obs,
-        flange: &[],
-        layout: Layout::Views(nsub),
-        intr_free: mask,
-        intr_fixed: *k,
-        board: BoardModel::default(),
-        arm: None,
+    let ob: Vec<&[Obs]> = distinct.iter().map(|&v| per_view[v]).collect();
+    let ps: Vec<Isometry3<f64>> = distinct.iter().map(|&v| poses[v]).collect();
+    let models: Vec<&(DistModel, Intrinsics)> = if out.len() >= 3 {
+        models.iter().collect()
+    } else {
+        models.iter().filter(|(m, _)| *m == chosen).collect()
     };
-    let rep = minimize(&p, p.pack(k, &ps, 1.0, [0.0; 2]), &LmOptions::default());
-    let k = p.intrinsics(&rep.x);
-    k.to_vec().iter().all(|v| v.is_finite()).then_some(k)
-}
-
-/// Delete-one-view jackknife covariance of the free intrinsics (`mask`) of the board-only fit on
-/// `obs` (`n` views, poses `poses`), started from `k`.
-fn intrinsics_jackknife(
-    obs: &[Obs],
-    n: usize,
-    poses: &[Isometry3<f64>],
-    k: &Intrinsics,
-    mask: [bool; N_INTR],
-) -> Option<DMatrix<f64>> {
-    if n < 5 || poses.len() != n {
-        return None;
-    }
-    let free: Vec<usize> = (0..N_INTR).filter(|i| mask[*i]).collect();
-    let ks: Vec<Vec<f64>> = (0..n)
-        .into_par_iter()
-        .filter_map(|drop| {
-            let o: Vec<Obs> = obs
-                .iter()
-                .filter(|o| o.view != drop)
-                .map(|o| Obs {
-                    view: if o.view > drop { o.view - 1 } else { o.view },
-                    ..*o
-                })
-                .collect();
-            let ps: Vec<Isometry3<f64>> = (0..n).filter(|&v| v != drop).map(|v| poses[v]).collect();
-            let p = Reproj {
-                obs: &o,
-                flange: &[],
-                layout: Layout::Views(n - 1),
-                intr_free: mask,
-                intr_fixed: *k,
-                board: BoardModel::default(),
-                arm: None,
-            };
-            let rep = minimize(&p, p.pack(k, &ps, 1.0, [0.0; 2]), &LmOptions::default());
-            let kv = p.intrinsics(&rep.x).to_vec();
-            let v: Vec<f64> = free.iter().map(|&i| kv[i]).collect();
-            v.iter().all(|x| x.is_finite()).then_some(v)
+    let fits: Vec<(Intrinsics, f64)> = models
+        .iter()
+        .filter_map(|(m, k)| {
+            let f = boardonly::fit(&ob, &ps, k, m.mask(), &LmOptions::default())?;
+            let (mut se, mut nc) = (0.0, 0usize);
+            for &v in &out {
+                let (_, r, res) = pnp(&f.k, per_view[v], poses[v]);
+                if r.is_finite() {
+                    se += res.norm_squared();
+                    nc += res.len() / 2;
+                }
+            }
+            Some((f.k, (se / nc.max(1) as f64).sqrt()))
         })
         .collect();
-    if ks.len() + 1 < n {
-        return None;
-    }
-    let m = free.len();
-    let nk = ks.len() as f64;
-    let mean: Vec<f64> = (0..m)
-        .map(|a| ks.iter().map(|v| v[a]).sum::<f64>() / nk)
-        .collect();
-    let mut c = DMatrix::zeros(m, m);
-    for v in &ks {
-        for a in 0..m {
-            for b in 0..m {
-                c[(a, b)] += (v[a] - mean[a]) * (v[b] - mean[b]);
-            }
-        }
-    }
-    Some(c * ((nk - 1.0) / nk))
+    let best = fits.iter().map(|f| f.1).fold(f64::INFINITY, f64::min);
+    fits.iter()
+        .find(|f| f.1 <= best * DIST_MODEL_SIMPLER)
+        .map(|f| f.0)
 }
 
 /// X of candidate `c` on the views `idx` with the board-only intrinsics replaced by `k`: every
@@ -1266,6 +1271,41 @@ fn intrinsics_propagation(
         for k in 0..3 {
             st[k] += dt[k] * dt[k];
             sr[k] += dr[k].to_degrees().powi(2);
+        }
+    }
+    Some((st.map(f64::sqrt), sr.map(f64::sqrt)))
+}
+
+/// How far X may be from `x` (`ctx`'s fit of the candidate `c`) because the distortion model
+/// was chosen among equally plausible ones: `c` is refitted on `idx` under each of the
+/// intrinsics `alternatives` (every view's board pose re-solved under them), and per coordinate
+/// (translation mm, rotation deg about X's own axes) the root-mean-square distance from `x` to
+/// the X of a model drawn evenly from the chosen one and the alternatives is returned
+/// (`|Δ|/√2` with one alternative). `None` without alternatives or when a refit fails.
+fn model_spread(
+    ctx: &select::Ctx,
+    c: select::Candidate,
+    x: &Isometry3<f64>,
+    alternatives: &[Intrinsics],
+    per_view: &[&[Obs]],
+    idx: &[usize],
+) -> Option<([f64; 3], [f64; 3])> {
+    if alternatives.is_empty() {
+        return None;
+    }
+    let xs: Vec<Option<Isometry3<f64>>> = alternatives
+        .par_iter()
+        .map(|k| fit_under_intrinsics(ctx, per_view, *k, c, idx))
+        .collect();
+    let (mut st, mut sr) = ([0.0f64; 3], [0.0f64; 3]);
+    let n = (xs.len() + 1) as f64;
+    for xm in xs {
+        let xm = xm?;
+        let dt = xm.translation.vector - x.translation.vector;
+        let dr = (x.inverse() * xm).rotation.scaled_axis();
+        for a in 0..3 {
+            st[a] += dt[a] * dt[a] / n;
+            sr[a] += dr[a].to_degrees().powi(2) / n;
         }
     }
     Some((st.map(f64::sqrt), sr.map(f64::sqrt)))
