@@ -266,8 +266,60 @@ pub fn report_json(
         "rejected_corners": res.rejected_corners,
         "methods": methods,
         "intrinsics_std": res.uncertainty.intrinsics,
+        "hand_eye_std": hand_eye_std_json(&res.uncertainty),
         "timing_s": {"detection": t_detect, "total": t_total},
     })
+}
+
+/// X's stated 1σ and, when known, its parts (they add in quadrature): the estimate's own fit,
+/// the board-only intrinsics, the choice among equally plausible distortion models.
+fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
+    let mut v = json!({"xyz_mm": u.x_mm, "rot_deg_about_own_axes": u.x_deg});
+    if let Some(p) = &u.x_parts {
+        v["parts"] = json!({
+            "fit": {"xyz_mm": p.fit_mm, "rot_deg": p.fit_deg},
+            "intrinsics": {"xyz_mm": p.intrinsics_mm, "rot_deg": p.intrinsics_deg},
+            "distortion_model": {"xyz_mm": p.distortion_model_mm, "rot_deg": p.distortion_model_deg,
+                                 "plausible_models": p.plausible_models.iter().map(|m| dist_name(*m)).collect::<Vec<_>>()},
+        });
+    }
+    if let Some((n, mm, deg)) = u.bootstrap {
+        v["bootstrap"] = json!({"resamples": n, "xyz_mm": mm, "rot_deg": deg});
+    }
+    v
+}
+
+/// The lines under the console table that say what X's 1σ is made of and, when the lens model
+/// dominates it, what would decide the model (empty without parts).
+pub fn sigma_parts_lines(res: &CameraResult) -> String {
+    let Some(p) = &res.uncertainty.x_parts else {
+        return String::new();
+    };
+    let f3 = |v: [f64; 3], d: usize| format!("{:.d$} {:.d$} {:.d$}", v[0], v[1], v[2]);
+    let mut s = format!(
+        "  of which: fit {} mm, {} deg; intrinsics {} mm, {} deg; distortion model {} mm, {} deg\n",
+        f3(p.fit_mm, 3),
+        f3(p.fit_deg, 4),
+        f3(p.intrinsics_mm, 3),
+        f3(p.intrinsics_deg, 4),
+        f3(p.distortion_model_mm, 3),
+        f3(p.distortion_model_deg, 4),
+    );
+    let (what, axis, deg) = p.dominant_rotation();
+    if what == "distortion model" && !p.plausible_models.is_empty() {
+        let others: Vec<String> = p.plausible_models.iter().map(|m| dist_name(*m)).collect();
+        s += &format!(
+            "  note: these views do not decide the lens model: {} fit them as well as the chosen {} \
+             (validation error within {:.0} %), and X's rotation about the camera's {} axis \
+             depends on it (1σ {deg:.2} deg from that alone). Views with the board near the \
+             image corners and edges, tilted, decide it.\n",
+            others.join(", "),
+            dist_name(res.distortion),
+            (camera::DIST_MODEL_PLAUSIBLE - 1.0) * 100.0,
+            ["x", "y", "z"][axis],
+        );
+    }
+    s
 }
 
 /// Every image / record of `l` that gave no view: `[{"id", "reason"}]`.
@@ -344,8 +396,8 @@ pub fn table(train: &Loaded, held: Option<&Loaded>, res: &CameraResult) -> Strin
     }
     let u = &res.uncertainty;
     s += &format!(
-        "ML hand-eye 1σ: {:.4} {:.4} {:.4} mm, {:.5} {:.5} {:.5} deg",
-        u.x_mm[0], u.x_mm[1], u.x_mm[2], u.x_deg[0], u.x_deg[1], u.x_deg[2]
+        "hand-eye 1σ ({}): {:.4} {:.4} {:.4} mm, {:.5} {:.5} {:.5} deg",
+        res.ml.method, u.x_mm[0], u.x_mm[1], u.x_mm[2], u.x_deg[0], u.x_deg[1], u.x_deg[2]
     );
     if let Some((n, mm, deg)) = u.bootstrap {
         s += &format!(
@@ -354,5 +406,6 @@ pub fn table(train: &Loaded, held: Option<&Loaded>, res: &CameraResult) -> Strin
         );
     }
     s += "\n";
+    s += &sigma_parts_lines(res);
     s
 }

@@ -192,6 +192,46 @@ pub struct Uncertainty {
     pub target_deg: [f64; 3],
     /// Bootstrap: std of X translation (mm) and rotation (deg) magnitudes, when run.
     pub bootstrap: Option<(usize, [f64; 3], [f64; 3])>,
+    /// What X's 1σ is made of, when the written estimate holds the board-only intrinsics.
+    pub x_parts: Option<SigmaParts>,
+}
+
+/// The parts of X's stated 1σ (translation mm, rotation deg, as [`Uncertainty::x_mm`] /
+/// [`Uncertainty::x_deg`]); they add in quadrature.
+#[derive(Debug, Clone, Default)]
+pub struct SigmaParts {
+    /// The estimate's own: the larger of its model covariance and its view jackknife, with
+    /// the intrinsics held.
+    pub fit_mm: [f64; 3],
+    pub fit_deg: [f64; 3],
+    /// What the board-only intrinsics' uncertainty does to X.
+    pub intrinsics_mm: [f64; 3],
+    pub intrinsics_deg: [f64; 3],
+    /// X's spread over the distortion models as plausible as the chosen one.
+    pub distortion_model_mm: [f64; 3],
+    pub distortion_model_deg: [f64; 3],
+    /// Those other models (validation error within [`DIST_MODEL_PLAUSIBLE`] of the best).
+    pub plausible_models: Vec<DistModel>,
+}
+
+impl SigmaParts {
+    /// The part that dominates the largest rotation 1σ: `"fit"`, `"intrinsics"` or
+    /// `"distortion model"`, with that axis (0–2) and value (deg).
+    pub fn dominant_rotation(&self) -> (&'static str, usize, f64) {
+        let mut best = ("fit", 0, 0.0);
+        for (name, v) in [
+            ("fit", self.fit_deg),
+            ("intrinsics", self.intrinsics_deg),
+            ("distortion model", self.distortion_model_deg),
+        ] {
+            for (a, x) in v.iter().enumerate() {
+                if *x > best.2 {
+                    best = (name, a, *x);
+                }
+            }
+        }
+        best
+    }
 }
 
 /// What [`calibrate`] returns.
@@ -1027,6 +1067,11 @@ pub fn calibrate(
     // A candidate that holds the board-only intrinsics: their own uncertainty moves X too
     // (the jackknife and the model covariance hold them), added in quadrature.
     if chosen != select::Candidate::Ml {
+        let mut parts = SigmaParts {
+            fit_mm: unc.x_mm,
+            fit_deg: unc.x_deg,
+            ..Default::default()
+        };
         // The intrinsics' covariance: the view jackknife of the board-only fit when it is
         // larger (one view's corners share errors — focus, the board's flatness there — that
         // the model covariance, every corner independent, does not see).
@@ -1042,25 +1087,31 @@ pub fn calibrate(
                 unc.x_mm[a] = unc.x_mm[a].hypot(pt[a]);
                 unc.x_deg[a] = unc.x_deg[a].hypot(pr[a]);
             }
+            (parts.intrinsics_mm, parts.intrinsics_deg) = (pt, pr);
         }
         // The distortion model itself: another model whose validation error is within
         // `DIST_MODEL_PLAUSIBLE` of the best fits the views as well, and can move X (on a real
         // UR3e set the tangential terms move the principal point 16 px and X's rotation
         // 1.2–1.4°, and halves of the set choose differently). X's spread over the plausible
         // models ([`model_spread`]) is added in quadrature.
-        let plausible: Vec<Intrinsics> = plausible_models
+        let plausible: Vec<(DistModel, Intrinsics)> = plausible_models
             .iter()
             .filter(|(m, _)| *m != model)
             .filter_map(|(m, k)| {
-                boardonly::fit(&kept_obs, &t_list, k, m.mask(), &LmOptions::default()).map(|b| b.k)
+                boardonly::fit(&kept_obs, &t_list, k, m.mask(), &LmOptions::default())
+                    .map(|b| (*m, b.k))
             })
             .collect();
-        if let Some((mt, mr)) = model_spread(&ctx, chosen, &ml.x, &plausible, &kept_obs, &all) {
+        let ks: Vec<Intrinsics> = plausible.iter().map(|p| p.1).collect();
+        if let Some((mt, mr)) = model_spread(&ctx, chosen, &ml.x, &ks, &kept_obs, &all) {
             for a in 0..3 {
                 unc.x_mm[a] = unc.x_mm[a].hypot(mt[a]);
                 unc.x_deg[a] = unc.x_deg[a].hypot(mr[a]);
             }
+            (parts.distortion_model_mm, parts.distortion_model_deg) = (mt, mr);
+            parts.plausible_models = plausible.iter().map(|p| p.0).collect();
         }
+        unc.x_parts = Some(parts);
     }
     if opts.bootstrap > 0 {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
