@@ -1133,9 +1133,10 @@ pub fn calibrate(
                     let bg = motion_poses(&bv, train.mount);
                     Some(ml_fit(&bo, &bg, &kf, model.mask(), &xf, &tf, bc, sf, cf).1)
                 }
-                // The board-only intrinsics re-estimated on the resample too (up to 20 of its
-                // distinct views, as the calibration does), every view's board pose re-solved
-                // under them: the bootstrap then sees what the intrinsics' uncertainty does to X.
+                // The board-only intrinsics re-estimated on the resample too (its distinct
+                // views; the distortion model re-chosen among the plausible ones by the views
+                // the resample left out), every view's board pose re-solved under them: the
+                // bootstrap then sees what the intrinsics and the model choice do to X.
                 c => {
                     let k =
                         refit_intrinsics(&kept_obs, ctx.t_list, &plausible_models, model, pick)?;
