@@ -228,6 +228,9 @@ pub fn calibrate_stage(
         s.warnings
             .push(format!("view {id}: no usable board ({why})"));
     }
+    if let Some(n) = crate::solve::camera::calfile::lens_model_note(&res) {
+        s.warnings.push(format!("camera: {n}"));
+    }
     work.camera.calibrated = Some(res);
     Ok(())
 }

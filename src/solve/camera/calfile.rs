@@ -289,6 +289,28 @@ fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
     v
 }
 
+/// When the choice among equally plausible distortion models dominates X's rotation 1σ: which
+/// models, how much, and what would decide it (one sentence; the console and the session's
+/// warnings).
+pub fn lens_model_note(res: &CameraResult) -> Option<String> {
+    let p = res.uncertainty.x_parts.as_ref()?;
+    let (what, axis, deg) = p.dominant_rotation();
+    if what != "distortion model" || p.plausible_models.is_empty() {
+        return None;
+    }
+    let others: Vec<String> = p.plausible_models.iter().map(|m| dist_name(*m)).collect();
+    Some(format!(
+        "these views do not decide the lens model: {} fit them as well as the chosen {} \
+         (validation error within {:.0} %), and X's rotation about the camera's {} axis depends \
+         on it (1σ {deg:.2} deg from that alone). Views with the board near the image corners \
+         and edges, tilted, decide it.",
+        others.join(", "),
+        dist_name(res.distortion),
+        (camera::DIST_MODEL_PLAUSIBLE - 1.0) * 100.0,
+        ["x", "y", "z"][axis],
+    ))
+}
+
 /// The lines under the console table that say what X's 1σ is made of and, when the lens model
 /// dominates it, what would decide the model (empty without parts).
 pub fn sigma_parts_lines(res: &CameraResult) -> String {
@@ -305,19 +327,8 @@ pub fn sigma_parts_lines(res: &CameraResult) -> String {
         f3(p.distortion_model_mm, 3),
         f3(p.distortion_model_deg, 4),
     );
-    let (what, axis, deg) = p.dominant_rotation();
-    if what == "distortion model" && !p.plausible_models.is_empty() {
-        let others: Vec<String> = p.plausible_models.iter().map(|m| dist_name(*m)).collect();
-        s += &format!(
-            "  note: these views do not decide the lens model: {} fit them as well as the chosen {} \
-             (validation error within {:.0} %), and X's rotation about the camera's {} axis \
-             depends on it (1σ {deg:.2} deg from that alone). Views with the board near the \
-             image corners and edges, tilted, decide it.\n",
-            others.join(", "),
-            dist_name(res.distortion),
-            (camera::DIST_MODEL_PLAUSIBLE - 1.0) * 100.0,
-            ["x", "y", "z"][axis],
-        );
+    if let Some(n) = lens_model_note(res) {
+        s += &format!("  note: {n}\n");
     }
     s
 }

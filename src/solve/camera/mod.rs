@@ -803,7 +803,7 @@ pub fn calibrate(
     let model_scores = fits.iter().map(|f| (f.0, f.3)).collect();
     // The models as plausible as the chosen one (it included), simplest first, with their
     // intrinsics from the selection: the stated 1σ and the bootstrap see the choice too.
-    let plausible_models: Vec<(DistModel, Intrinsics)> = fits
+    let mut plausible_models: Vec<(DistModel, Intrinsics)> = fits
         .iter()
         .filter(|f| f.3 <= best_val * DIST_MODEL_PLAUSIBLE)
         .map(|f| (f.0, f.1))
@@ -1094,16 +1094,24 @@ pub fn calibrate(
         // UR3e set the tangential terms move the principal point 16 px and X's rotation
         // 1.2–1.4°, and halves of the set choose differently). X's spread over the plausible
         // models ([`model_spread`]) is added in quadrature.
-        let plausible: Vec<(DistModel, Intrinsics)> = plausible_models
-            .iter()
+        // Plausible on the board alone is not enough: under the other model's intrinsics the
+        // written candidate must also predict the training corners through the robot's poses
+        // about as well (within `DIST_MODEL_PLAUSIBLE`). On a simulated cell whose views barely
+        // tilt, the tangential model's board-only fit on every view went to a focal length 3 %
+        // off, which the board alone could not refuse but the robot's motion does.
+        let plausible: Vec<(DistModel, Intrinsics, Isometry3<f64>)> = plausible_models
+            .par_iter()
             .filter(|(m, _)| *m != model)
             .filter_map(|(m, k)| {
-                boardonly::fit(&kept_obs, &t_list, k, m.mask(), &LmOptions::default())
-                    .map(|b| (*m, b.k))
+                let b = boardonly::fit(&kept_obs, &t_list, k, m.mask(), &LmOptions::default())?;
+                let f = fit_under_intrinsics_full(&ctx, &kept_obs, b.k, chosen, &all)?;
+                let rms = heldout_rms(&kept, &f.k, &f.x, &f.target, 1.0, [0.0; 2]);
+                (rms <= ml.train_rms_px * DIST_MODEL_PLAUSIBLE).then_some((*m, b.k, f.x))
             })
             .collect();
-        let ks: Vec<Intrinsics> = plausible.iter().map(|p| p.1).collect();
-        if let Some((mt, mr)) = model_spread(&ctx, chosen, &ml.x, &ks, &kept_obs, &all) {
+        plausible_models.retain(|(m, _)| *m == model || plausible.iter().any(|p| p.0 == *m));
+        let xs: Vec<Isometry3<f64>> = plausible.iter().map(|p| p.2).collect();
+        if let Some((mt, mr)) = model_spread(&ml.x, &xs) {
             for a in 0..3 {
                 unc.x_mm[a] = unc.x_mm[a].hypot(mt[a]);
                 unc.x_deg[a] = unc.x_deg[a].hypot(mr[a]);
@@ -1267,12 +1275,23 @@ fn fit_under_intrinsics(
     c: select::Candidate,
     idx: &[usize],
 ) -> Option<Isometry3<f64>> {
+    fit_under_intrinsics_full(ctx, per_view, k, c, idx).map(|f| f.x)
+}
+
+/// [`fit_under_intrinsics`] with the whole fit (X, target, intrinsics).
+fn fit_under_intrinsics_full(
+    ctx: &select::Ctx,
+    per_view: &[&[Obs]],
+    k: Intrinsics,
+    c: select::Candidate,
+    idx: &[usize],
+) -> Option<select::Fit> {
     let t_list: Vec<Isometry3<f64>> = per_view
         .iter()
         .zip(ctx.t_list)
         .map(|(ob, t0)| pnp(&k, ob, *t0).0)
         .collect();
-    ctx.with_intrinsics(k, &t_list).fit(c, idx).map(|f| f.x)
+    ctx.with_intrinsics(k, &t_list).fit(c, idx)
 }
 
 /// 1σ of X (translation mm, rotation deg about X's own axes) that the board-only intrinsics'
@@ -1328,31 +1347,22 @@ fn intrinsics_propagation(
     Some((st.map(f64::sqrt), sr.map(f64::sqrt)))
 }
 
-/// How far X may be from `x` (`ctx`'s fit of the candidate `c`) because the distortion model
-/// was chosen among equally plausible ones: `c` is refitted on `idx` under each of the
-/// intrinsics `alternatives` (every view's board pose re-solved under them), and per coordinate
-/// (translation mm, rotation deg about X's own axes) the root-mean-square distance from `x` to
-/// the X of a model drawn evenly from the chosen one and the alternatives is returned
-/// (`|Δ|/√2` with one alternative). `None` without alternatives or when a refit fails.
+/// How far X may be from `x` (the written fit) because the distortion model was chosen among
+/// equally plausible ones, whose fits of the same candidate (every view's board pose re-solved
+/// under their intrinsics) are `alternatives`: per coordinate (translation mm, rotation deg
+/// about X's own axes) the root-mean-square distance from `x` to the X of a model drawn evenly
+/// from the chosen one and the alternatives (`|Δ|/√2` with one alternative). `None` without
+/// alternatives.
 fn model_spread(
-    ctx: &select::Ctx,
-    c: select::Candidate,
     x: &Isometry3<f64>,
-    alternatives: &[Intrinsics],
-    per_view: &[&[Obs]],
-    idx: &[usize],
+    alternatives: &[Isometry3<f64>],
 ) -> Option<([f64; 3], [f64; 3])> {
     if alternatives.is_empty() {
         return None;
     }
-    let xs: Vec<Option<Isometry3<f64>>> = alternatives
-        .par_iter()
-        .map(|k| fit_under_intrinsics(ctx, per_view, *k, c, idx))
-        .collect();
     let (mut st, mut sr) = ([0.0f64; 3], [0.0f64; 3]);
-    let n = (xs.len() + 1) as f64;
-    for xm in xs {
-        let xm = xm?;
+    let n = (alternatives.len() + 1) as f64;
+    for xm in alternatives {
         let dt = xm.translation.vector - x.translation.vector;
         let dr = (x.inverse() * xm).rotation.scaled_axis();
         for a in 0..3 {
