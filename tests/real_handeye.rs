@@ -152,6 +152,23 @@ fn real_ur3e_hand_eye() {
     );
 }
 
+/// The UR3e set's detected views (`None`, said loudly, when the set is absent or this build
+/// detects too few of its images).
+fn ur3e_views() -> Option<robocal::solve::camera::CameraData> {
+    let dir = root().join("../shared/data/real-handeye-ur3e");
+    if !dir.exists() {
+        crate::common::skipped(format_args!("real set ur3e absent ({})", dir.display()));
+        return None;
+    }
+    let set = realeval::load_ur3e(&dir, 12.5).unwrap();
+    let (cam, _) = realeval::detect_set(&set);
+    if cam.views.len() + 10 < set.images.len() {
+        eprintln!("ur3e: only {} views detected", cam.views.len());
+        return None;
+    }
+    Some(cam)
+}
+
 /// Issue 31 §3, honest 1σ beyond one split: on random halvings of the UR3e views the principal
 /// point moves up to 15 px with the views (a 6×5 board in 640×480 images) and X's rotation
 /// 1.2° with it. The stated 1σ of an estimate that holds the board-only intrinsics now carries
@@ -163,17 +180,9 @@ fn real_ur3e_hand_eye() {
 /// views without the model term 89 % and 4.7σ; with the intrinsics held exact 69 % and 14.8σ.
 #[test]
 fn real_ur3e_random_halvings_are_within_the_stated_sigma() {
-    let dir = root().join("../shared/data/real-handeye-ur3e");
-    if !dir.exists() {
-        crate::common::skipped(format_args!("real set ur3e absent ({})", dir.display()));
+    let Some(cam) = ur3e_views() else {
         return;
-    }
-    let set = realeval::load_ur3e(&dir, 12.5).unwrap();
-    let (cam, _) = realeval::detect_set(&set);
-    if cam.views.len() + 10 < set.images.len() {
-        eprintln!("ur3e: only {} views detected", cam.views.len());
-        return;
-    }
+    };
     let h = realeval::random_halves(&cam, None, 6, 7).unwrap();
     let worst = h.ratios.iter().flatten().copied().fold(0.0, f64::max);
     eprintln!(
@@ -194,17 +203,9 @@ fn real_ur3e_random_halvings_are_within_the_stated_sigma() {
 #[test]
 fn real_ur3e_sigma_names_the_undecided_lens_model() {
     use robocal::solve::camera::{calfile, calibrate, Options};
-    let dir = root().join("../shared/data/real-handeye-ur3e");
-    if !dir.exists() {
-        crate::common::skipped(format_args!("real set ur3e absent ({})", dir.display()));
+    let Some(cam) = ur3e_views() else {
         return;
-    }
-    let set = realeval::load_ur3e(&dir, 12.5).unwrap();
-    let (cam, _) = realeval::detect_set(&set);
-    if cam.views.len() + 10 < set.images.len() {
-        eprintln!("ur3e: only {} views detected", cam.views.len());
-        return;
-    }
+    };
     let (train, _) = realeval::split_every(&cam, 4);
     let res = calibrate(&train, None, &Options::default()).unwrap();
     let u = &res.uncertainty;

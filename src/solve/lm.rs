@@ -122,6 +122,20 @@ pub fn solve_spd(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
         .unwrap_or_else(|_| DVector::zeros(b.len()))
 }
 
+/// The damping after an accepted step whose gain ratio (actual / predicted decrease) is `rho`:
+/// a third when the model predicted well (> 0.75), doubled when poorly (< 0.25), never below
+/// 1e-12.
+pub fn next_lambda(lambda: f64, rho: f64) -> f64 {
+    let f = if rho > 0.75 {
+        1.0 / 3.0
+    } else if rho < 0.25 {
+        2.0
+    } else {
+        1.0
+    };
+    (lambda * f).max(1e-12)
+}
+
 /// Minimise `½‖r(x)‖²` from `x0`.
 pub fn minimize<P: LsqProblem + ?Sized>(p: &P, x0: DVector<f64>, o: &LmOptions) -> LmReport {
     let n = p.n_params();
@@ -219,14 +233,7 @@ pub fn minimize<P: LsqProblem + ?Sized>(p: &P, x0: DVector<f64>, o: &LmOptions) 
                 r = rnew;
                 j = jnew;
                 cost = cnew;
-                lambda *= if rho > 0.75 {
-                    1.0 / 3.0
-                } else if rho < 0.25 {
-                    2.0
-                } else {
-                    1.0
-                };
-                lambda = lambda.max(1e-12);
+                lambda = next_lambda(lambda, rho);
                 if rel <= o.ftol {
                     term = Termination::CostConverged;
                     break 'outer;

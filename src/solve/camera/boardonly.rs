@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::geom::{pose_from_slice, pose_to_vec, Intrinsics, N_INTR};
 use super::problem::{BoardModel, Layout, Obs, Reproj};
-use crate::solve::lm::{solve_spd, LmOptions, LsqProblem};
+use crate::solve::lm::{next_lambda, solve_spd, LmOptions, LsqProblem};
 
 /// The outcome of [`fit`].
 #[derive(Debug, Clone)]
@@ -262,14 +262,7 @@ pub fn fit(
                     };
                     let rel = (cost - cnew) / cost;
                     (xk, xp, lin, cost) = (nk, np, nl, cnew);
-                    lambda *= if rho > 0.75 {
-                        1.0 / 3.0
-                    } else if rho < 0.25 {
-                        2.0
-                    } else {
-                        1.0
-                    };
-                    lambda = lambda.max(1e-12);
+                    lambda = next_lambda(lambda, rho);
                     if rel <= o.ftol || small {
                         break 'outer;
                     }
