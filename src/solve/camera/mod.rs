@@ -872,8 +872,8 @@ pub fn calibrate(
         .collect();
     let kept_obs: Vec<&[Obs]> = kept_obs.iter().map(Vec::as_slice).collect();
     // The chosen model's intrinsics refitted on every kept view (the model was chosen on up to
-    // 20 of them): on a real UR3e set (66 views of a 6×5 board) the principal point from 20
-    // views moved 15 px between halves of the set, and X's rotation with it.
+    // 20 of them): on a real UR3e set (66 training views of a 6×5 board) X then moves 1.97 mm
+    // between random halves of the views on average, 2.62 mm with the intrinsics of 20.
     let k1_fit = boardonly::fit(&kept_obs, &t_list, &k1, model.mask(), &LmOptions::default());
     if let Some(f) = &k1_fit {
         k1 = f.k;
