@@ -307,6 +307,23 @@ pub fn motion_poses(views: &[View], mount: Mount) -> Vec<Isometry3<f64>> {
         .collect()
 }
 
+/// Reprojection RMS (px per corner) of views the intrinsics `k` were not fitted on: each view's
+/// board pose fitted with `k` held, from the given start (`views`: corners, start pose).
+fn validation_rms<'a>(
+    k: &Intrinsics,
+    views: impl Iterator<Item = (&'a [Obs], Isometry3<f64>)>,
+) -> f64 {
+    let (mut se, mut nc) = (0.0, 0usize);
+    for (ob, init) in views {
+        let (_, r, res) = pnp(k, ob, init);
+        if r.is_finite() {
+            se += res.norm_squared();
+            nc += res.len() / 2;
+        }
+    }
+    (se / nc.max(1) as f64).sqrt()
+}
+
 /// Board-in-camera pose of one view with the intrinsics held (returns pose and RMS px).
 fn pnp(k: &Intrinsics, obs: &[Obs], init: Isometry3<f64>) -> (Isometry3<f64>, f64, DVector<f64>) {
     let p = Reproj {
@@ -776,19 +793,15 @@ pub fn calibrate(
             let k = p.intrinsics(&rep.x);
             let train_rms = rms(&rep.residuals);
             // Validation: other views' poses fitted with k held.
-            let mut se = 0.0;
-            let mut nc = 0usize;
-            for &v in &val {
-                let init = view_h(&per_view[v])
-                    .and_then(|h| zhang::pose_from_h(&k_matrix(&k), &h))
-                    .unwrap_or_else(Isometry3::identity);
-                let (_, r, res) = pnp(&k, &per_view[v], init);
-                if r.is_finite() {
-                    se += res.norm_squared();
-                    nc += res.len() / 2;
-                }
-            }
-            let vr = (se / nc.max(1) as f64).sqrt();
+            let vr = validation_rms(
+                &k,
+                val.iter().map(|&v| {
+                    let init = view_h(&per_view[v])
+                        .and_then(|h| zhang::pose_from_h(&k_matrix(&k), &h))
+                        .unwrap_or_else(Isometry3::identity);
+                    (per_view[v].as_slice(), init)
+                }),
+            );
             (m, k, train_rms, vr, intrinsics_cov(&rep, m.mask()))
         })
         .collect();
@@ -1249,15 +1262,8 @@ fn refit_intrinsics(
         .iter()
         .filter_map(|(m, k)| {
             let f = boardonly::fit(&ob, &ps, k, m.mask(), &LmOptions::default())?;
-            let (mut se, mut nc) = (0.0, 0usize);
-            for &v in &out {
-                let (_, r, res) = pnp(&f.k, per_view[v], poses[v]);
-                if r.is_finite() {
-                    se += res.norm_squared();
-                    nc += res.len() / 2;
-                }
-            }
-            Some((f.k, (se / nc.max(1) as f64).sqrt()))
+            let vr = validation_rms(&f.k, out.iter().map(|&v| (per_view[v], poses[v])));
+            Some((f.k, vr))
         })
         .collect();
     let best = fits.iter().map(|f| f.1).fold(f64::INFINITY, f64::min);
