@@ -117,13 +117,16 @@ fn check(
             r.split.dx_mm
         );
     }
-    // Bootstrap and stated covariance within 50 % (translation).
-    let (bt, _) = r.bootstrap.unwrap();
-    for (a, (b, st)) in bt.iter().zip(&r.sigma_mm).enumerate() {
+    // Bootstrap and stated covariance within 50 %, translation and rotation (issue 31's goal;
+    // the rotation met since the lens model's share is weighed by how often the rule chooses
+    // each model: kuka_1 rx / ry were 0.38 / 0.48, the UR3e's ry 1.52).
+    let (bt, br) = r.bootstrap.unwrap();
+    let stated = r.sigma_mm.iter().chain(&r.sigma_deg);
+    for (a, (b, st)) in bt.iter().chain(&br).zip(stated).enumerate() {
         let q = b / st;
         assert!(
             (0.5..=1.5).contains(&q),
-            "{name}: bootstrap / stated σ {q:.2} (axis {a})"
+            "{name}: bootstrap / stated σ {q:.2} (coordinate {a}: x y z rx ry rz)"
         );
     }
 }
@@ -245,8 +248,19 @@ fn real_ur3e_sigma_names_the_undecided_lens_model() {
             u.x_mm[a]
         );
     }
+    // The model term is weighed by how often the calibration's rule chooses each model on
+    // resamples of the views: the chosen model first, the shares add to 1, and the others are
+    // chosen in most (measured: k1 28 %, k1-k2-p1-p2 70 %, k1-k2-p1-p2-k3 2 % of 40 resamples).
+    assert_eq!(p.model_shares[0].0, res.distortion);
+    let total: f64 = p.model_shares.iter().map(|s| s.1).sum();
+    assert!((total - 1.0).abs() < 1e-9, "{:?}", p.model_shares);
+    assert!(p.model_shares[0].1 < 0.9, "{:?}", p.model_shares);
     let lines = calfile::sigma_parts_lines(&res);
     eprintln!("{lines}");
+    assert!(
+        lines.contains("chosen in resamples of the views"),
+        "{lines}"
+    );
     assert!(lines.contains("do not decide the lens model"), "{lines}");
     assert!(lines.contains("about the camera's x axis"), "{lines}");
 }

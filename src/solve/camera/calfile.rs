@@ -272,7 +272,8 @@ pub fn report_json(
 }
 
 /// X's stated 1σ and, when known, its parts (they add in quadrature): the estimate's own fit,
-/// the board-only intrinsics, the choice among equally plausible distortion models.
+/// the board-only intrinsics, the choice among plausible distortion models (with the share of
+/// resamples of the views in which the calibration's rule chooses each).
 fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
     let mut v = json!({"xyz_mm": u.x_mm, "rot_deg_about_own_axes": u.x_deg});
     if let Some(p) = &u.x_parts {
@@ -280,7 +281,8 @@ fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
             "fit": {"xyz_mm": p.fit_mm, "rot_deg": p.fit_deg},
             "intrinsics": {"xyz_mm": p.intrinsics_mm, "rot_deg": p.intrinsics_deg},
             "distortion_model": {"xyz_mm": p.distortion_model_mm, "rot_deg": p.distortion_model_deg,
-                                 "plausible_models": p.plausible_models.iter().map(|m| dist_name(*m)).collect::<Vec<_>>()},
+                                 "plausible_models": p.plausible_models.iter().map(|m| dist_name(*m)).collect::<Vec<_>>(),
+                                 "chosen_in_resamples": p.model_shares.iter().map(|(m, w)| json!({"model": dist_name(*m), "share": w})).collect::<Vec<_>>()},
         });
     }
     if let Some((n, mm, deg)) = u.bootstrap {
@@ -289,7 +291,7 @@ fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
     v
 }
 
-/// When the choice among equally plausible distortion models dominates X's rotation 1σ: which
+/// When the choice among plausible distortion models dominates X's rotation 1σ: which
 /// models, how much, and what would decide it (one sentence; the console and the session's
 /// warnings).
 pub fn lens_model_note(res: &CameraResult) -> Option<String> {
@@ -299,14 +301,20 @@ pub fn lens_model_note(res: &CameraResult) -> Option<String> {
         return None;
     }
     let others: Vec<String> = p.plausible_models.iter().map(|m| dist_name(*m)).collect();
+    let shares: Vec<String> = p
+        .model_shares
+        .iter()
+        .map(|(m, w)| format!("{} {:.0} %", dist_name(*m), 100.0 * w))
+        .collect();
     Some(format!(
         "these views do not decide the lens model: {} fit them as well as the chosen {} \
-         (validation error within {:.0} %), and X's rotation about the camera's {} axis depends \
-         on it (1σ {deg:.2} deg from that alone). Views with the board near the image corners \
-         and edges, tilted, decide it.",
+         (validation error within {:.0} %; chosen in resamples of the views: {}), and X's \
+         rotation about the camera's {} axis depends on it (1σ {deg:.2} deg from that alone). \
+         Views with the board near the image corners and edges, tilted, decide it.",
         others.join(", "),
         dist_name(res.distortion),
         (camera::DIST_MODEL_PLAUSIBLE - 1.0) * 100.0,
+        shares.join(", "),
         ["x", "y", "z"][axis],
     ))
 }
