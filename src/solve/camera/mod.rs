@@ -760,11 +760,7 @@ pub fn calibrate(
     } else {
         (0..n).collect()
     };
-    let sub_obs: Vec<Obs> = sub
-        .iter()
-        .enumerate()
-        .flat_map(|(s, &v)| per_view[v].iter().map(move |o| Obs { view: s, ..*o }))
-        .collect();
+    let sub_obs: Vec<&[Obs]> = sub.iter().map(|&v| per_view[v].as_slice()).collect();
     let init_poses: Vec<Isometry3<f64>> = sub
         .iter()
         .map(|&v| {
@@ -780,23 +776,9 @@ pub fn calibrate(
     // One distortion model per core (collected in the models' order).
     let fits: Vec<(DistModel, Intrinsics, f64, f64, DMatrix<f64>)> = models
         .into_par_iter()
-        .map(|m| {
-            let p = Reproj {
-                obs: &sub_obs,
-                flange: &[],
-                layout: Layout::Views(nsub),
-                intr_free: m.mask(),
-                intr_fixed: k0,
-                board: BoardModel::default(),
-                arm: None,
-            };
-            let rep = minimize(
-                &p,
-                p.pack(&k0, &init_poses, 1.0, [0.0; 2]),
-                &LmOptions::default(),
-            );
-            let k = p.intrinsics(&rep.x);
-            let train_rms = rms(&rep.residuals);
+        .filter_map(|m| {
+            let b = boardonly::fit(&sub_obs, &init_poses, &k0, m.mask(), &LmOptions::default())?;
+            let k = b.k;
             // Validation: other views' poses fitted with k held.
             let vr = validation_rms(
                 &k,
@@ -807,7 +789,7 @@ pub fn calibrate(
                     (per_view[v].as_slice(), init)
                 }),
             );
-            (m, k, train_rms, vr, intrinsics_cov(&rep, m.mask()))
+            Some((m, k, b.rms, vr, b.cov))
         })
         .collect();
     let best_val = fits.iter().map(|f| f.3).fold(f64::INFINITY, f64::min);
@@ -1237,21 +1219,6 @@ fn estimate(
         intrinsics: *k,
         train_rms_px: heldout_rms(data, k, x, target, 1.0, [0.0; 2]),
         heldout_rms_px: heldout.map(|h| heldout_rms(h, k, x, target, 1.0, [0.0; 2])),
-    }
-}
-
-/// Covariance of the free intrinsics (`mask`, the leading parameters of `rep`): the
-/// board-only fit's `σ² (JᵀJ)⁻¹` block (empty when it cannot be formed).
-fn intrinsics_cov(rep: &crate::solve::lm::LmReport, mask: [bool; N_INTR]) -> DMatrix<f64> {
-    let m = mask.iter().filter(|f| **f).count();
-    let (r, n) = (rep.jacobian.nrows(), rep.jacobian.ncols());
-    if r <= n || n < m {
-        return DMatrix::zeros(0, 0);
-    }
-    let s2 = 2.0 * rep.cost / (r - n) as f64;
-    match (rep.jacobian.transpose() * &rep.jacobian).try_inverse() {
-        Some(inv) => inv.view((0, 0), (m, m)) * s2,
-        None => DMatrix::zeros(0, 0),
     }
 }
 
