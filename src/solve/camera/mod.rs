@@ -17,8 +17,8 @@
 //! 6. The written candidate chosen by cross-validation ([`select`]); X's 1σ from the model
 //!    covariance or the view jackknife, plus what the board-only intrinsics' uncertainty and
 //!    the choice among plausible distortion models (weighed by how often resamples of the
-//!    views choose each) do to X; a view bootstrap that
-//!    re-estimates the intrinsics and re-chooses the model; seed 004's incremental Tsai–Lenz.
+//!    views choose each) do to X; a view bootstrap that re-estimates the intrinsics and
+//!    re-chooses the model; seed 004's incremental Tsai–Lenz.
 //!
 //! Eye-to-hand (camera fixed, board on the flange) runs the same code with the inverse flange
 //! poses: then `X` is the camera in the base and the "target" pose is the board in the flange.
@@ -1114,17 +1114,19 @@ pub fn calibrate(
         // resampled: on a real KUKA set three models are within 1 % of each other but the rule
         // keeps the simplest in 46 of 50 resamples; on a real UR3e the tangential model is
         // chosen in most resamples although the full set chooses k1.
+        // When no resample could choose (too few distinct views in every one), every plausible
+        // model is counted as equally likely.
         let shares = if plausible.is_empty() {
-            None
+            vec![]
         } else {
-            model_shares(&kept_obs, ctx.t_list, &plausible_models, model, opts.seed)
+            model_shares(&kept_obs, ctx.t_list, &plausible_models, model, opts.seed).unwrap_or_else(
+                || {
+                    let w = 1.0 / plausible_models.len() as f64;
+                    plausible_models.iter().map(|(m, _)| (*m, w)).collect()
+                },
+            )
         };
-        let share = |m: DistModel| {
-            shares
-                .as_ref()
-                .and_then(|s| s.iter().find(|(a, _)| *a == m))
-                .map_or(0.0, |s| s.1)
-        };
+        let share = |m: DistModel| shares.iter().find(|(a, _)| *a == m).map_or(0.0, |s| s.1);
         let xs: Vec<(Isometry3<f64>, f64)> = plausible.iter().map(|p| (p.2, share(p.0))).collect();
         if let Some((mt, mr)) = model_spread(&ml.x, &xs) {
             for a in 0..3 {
