@@ -101,6 +101,12 @@ fn main() {
             res.rejected_views,
             t1.elapsed().as_secs_f64()
         );
+        println!(
+            "board scale the robot's motion implies: {:.4} ({:.3} mm squares against the declared {} mm)",
+            res.implied_scale,
+            res.implied_scale * set.board.square_mm,
+            set.board.square_mm
+        );
         if let Some((d, m)) = res.pose_noise {
             println!("robot pose noise implied by the data: {d:.4} deg, {m:.3} mm (1σ per axis)");
         }
