@@ -273,7 +273,8 @@ pub fn report_json(
 
 /// X's stated 1σ and, when known, its parts (they add in quadrature): the estimate's own fit,
 /// the board-only intrinsics, the choice among plausible distortion models (with the share of
-/// resamples of the views in which the calibration's rule chooses each).
+/// resamples of the views in which the calibration's rule chooses each), the choice among the
+/// candidate estimators (likewise).
 fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
     let mut v = json!({"xyz_mm": u.x_mm, "rot_deg_about_own_axes": u.x_deg});
     if let Some(p) = &u.x_parts {
@@ -283,6 +284,8 @@ fn hand_eye_std_json(u: &camera::Uncertainty) -> serde_json::Value {
             "distortion_model": {"xyz_mm": p.distortion_model_mm, "rot_deg": p.distortion_model_deg,
                                  "plausible_models": p.plausible_models.iter().map(|m| dist_name(*m)).collect::<Vec<_>>(),
                                  "chosen_in_resamples": p.model_shares.iter().map(|(m, w)| json!({"model": dist_name(*m), "share": w})).collect::<Vec<_>>()},
+            "estimator": {"xyz_mm": p.estimator_mm, "rot_deg": p.estimator_deg,
+                          "chosen_in_resamples": p.estimator_shares.iter().map(|(m, w)| json!({"method": m, "share": w})).collect::<Vec<_>>()},
         });
     }
     if let Some((n, mm, deg)) = u.bootstrap {
@@ -326,15 +329,37 @@ pub fn sigma_parts_lines(res: &CameraResult) -> String {
         return String::new();
     };
     let f3 = |v: [f64; 3], d: usize| format!("{:.d$} {:.d$} {:.d$}", v[0], v[1], v[2]);
+    // The joint ML frees the intrinsics: their uncertainty is in its fit's.
+    let lens = if res.ml.method == "ml" {
+        " (intrinsics free)".to_string()
+    } else {
+        format!(
+            "; intrinsics {} mm, {} deg; distortion model {} mm, {} deg",
+            f3(p.intrinsics_mm, 3),
+            f3(p.intrinsics_deg, 4),
+            f3(p.distortion_model_mm, 3),
+            f3(p.distortion_model_deg, 4),
+        )
+    };
     let mut s = format!(
-        "  of which: fit {} mm, {} deg; intrinsics {} mm, {} deg; distortion model {} mm, {} deg\n",
+        "  of which: fit {} mm, {} deg{lens}; estimator {} mm, {} deg\n",
         f3(p.fit_mm, 3),
         f3(p.fit_deg, 4),
-        f3(p.intrinsics_mm, 3),
-        f3(p.intrinsics_deg, 4),
-        f3(p.distortion_model_mm, 3),
-        f3(p.distortion_model_deg, 4),
+        f3(p.estimator_mm, 3),
+        f3(p.estimator_deg, 4),
     );
+    if p.estimator_shares.len() > 1 {
+        let shares: Vec<String> = p
+            .estimator_shares
+            .iter()
+            .map(|(m, w)| format!("{m} {:.0} %", 100.0 * w))
+            .collect();
+        s += &format!(
+            "  resamples of the views write: {} (X of each on every view; the spread is the \
+             estimator part)\n",
+            shares.join(", ")
+        );
+    }
     if let Some(n) = lens_model_note(res) {
         s += &format!("  note: {n}\n");
     }

@@ -193,7 +193,9 @@ pub struct Uncertainty {
     pub target_deg: [f64; 3],
     /// Bootstrap: std of X translation (mm) and rotation (deg) magnitudes, when run.
     pub bootstrap: Option<(usize, [f64; 3], [f64; 3])>,
-    /// What X's 1σ is made of, when the written estimate holds the board-only intrinsics.
+    /// What X's 1σ is made of: when the internal cross-validation ran (the estimator part),
+    /// and the intrinsics' and lens model's parts when the written estimate holds the
+    /// board-only intrinsics.
     pub x_parts: Option<SigmaParts>,
 }
 
@@ -217,17 +219,25 @@ pub struct SigmaParts {
     /// chooses when the views are resampled ([`model_shares`]): the weights of
     /// `distortion_model_*`.
     pub model_shares: Vec<(DistModel, f64)>,
+    /// X's spread over the candidate estimators that resamples of the views choose instead of
+    /// the written one ([`select::choice_shares`]).
+    pub estimator_mm: [f64; 3],
+    pub estimator_deg: [f64; 3],
+    /// Every candidate that resamples of the views write, the written one first, with its
+    /// share of the resamples: the weights of `estimator_*`.
+    pub estimator_shares: Vec<(String, f64)>,
 }
 
 impl SigmaParts {
-    /// The part that dominates the largest rotation 1σ: `"fit"`, `"intrinsics"` or
-    /// `"distortion model"`, with that axis (0–2) and value (deg).
+    /// The part that dominates the largest rotation 1σ: `"fit"`, `"intrinsics"`,
+    /// `"distortion model"` or `"estimator"`, with that axis (0–2) and value (deg).
     pub fn dominant_rotation(&self) -> (&'static str, usize, f64) {
         let mut best = ("fit", 0, 0.0);
         for (name, v) in [
             ("fit", self.fit_deg),
             ("intrinsics", self.intrinsics_deg),
             ("distortion model", self.distortion_model_deg),
+            ("estimator", self.estimator_deg),
         ] {
             for (a, x) in v.iter().enumerate() {
                 if *x > best.2 {
@@ -992,10 +1002,13 @@ pub fn calibrate(
     let mut pose_noise = None;
     let mut chosen = select::Candidate::Ml;
     let mut all_fits: Vec<(select::Candidate, Option<select::Fit>)> = vec![];
+    // Every candidate's CV errors per view (empty when the CV does not run).
+    let mut per: Vec<(select::Candidate, Option<select::PerView>)> = vec![];
+    let robot_dominates = best.train_rms_px > select::ROBOT_DOMINATES_RATIO * k1_rms;
     if !bc.scale && !bc.bend && views.len() >= 8 {
         // The candidates' cross-validations and fits are independent: one per core (the
         // order of the results, hence the choice, is the same as one after the other).
-        let per: Vec<_> = select::Candidate::all()
+        per = select::Candidate::all()
             .into_par_iter()
             .map(|c| (c, ctx.cv_views(c, 5)))
             .collect();
@@ -1003,7 +1016,6 @@ pub fn calibrate(
             .iter()
             .map(|(c, v)| (c.name(), select::cv_of(v.as_deref())))
             .collect();
-        let robot_dominates = best.train_rms_px > select::ROBOT_DOMINATES_RATIO * k1_rms;
         chosen = select::choose(&per, robot_dominates).unwrap_or(chosen);
         candidates.push(ml_free.clone());
         all_fits = [
@@ -1143,6 +1155,52 @@ pub fn calibrate(
         }
         unc.x_parts = Some(parts);
     }
+    // The estimator itself: resamples of the views choose other candidates (the same per-view
+    // CV errors drawn with the views, [`select::choice_shares`]), whose X on every view may be
+    // millimetres from the written one. X's distance to the X of a candidate drawn with those
+    // shares ([`model_spread`]) is added in quadrature, as the lens model's is.
+    if !per.is_empty() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed ^ 0x5e1e_c7ed);
+        let n = views.len();
+        let picks: Vec<Vec<usize>> = (0..SELECTION_RESAMPLES)
+            .map(|_| (0..n).map(|_| rng.random_range(0..n)).collect())
+            .collect();
+        let mut shares = select::choice_shares(&per, robot_dominates, &picks);
+        // The written candidate first, then the others by share.
+        shares.sort_by(|a, b| {
+            (a.0 != chosen)
+                .cmp(&(b.0 != chosen))
+                .then(b.1.total_cmp(&a.1))
+        });
+        let alternatives: Vec<(Isometry3<f64>, f64)> = shares
+            .par_iter()
+            .filter(|(c, _)| *c != chosen)
+            .filter_map(|(c, w)| {
+                let x = match c {
+                    select::Candidate::Ml => candidates.first().map(|e| e.x),
+                    c => match all_fits.iter().find(|(a, _)| a == c) {
+                        Some((_, f)) => f.as_ref().map(|f| f.x),
+                        None => ctx.fit(*c, &all).map(|f| f.x),
+                    },
+                }?;
+                Some((x, *w))
+            })
+            .collect();
+        let mut parts = unc.x_parts.take().unwrap_or_else(|| SigmaParts {
+            fit_mm: unc.x_mm,
+            fit_deg: unc.x_deg,
+            ..Default::default()
+        });
+        if let Some((st, sr)) = model_spread(&ml.x, &alternatives) {
+            for a in 0..3 {
+                unc.x_mm[a] = unc.x_mm[a].hypot(st[a]);
+                unc.x_deg[a] = unc.x_deg[a].hypot(sr[a]);
+            }
+            (parts.estimator_mm, parts.estimator_deg) = (st, sr);
+        }
+        parts.estimator_shares = shares.iter().map(|(c, w)| (c.name(), *w)).collect();
+        unc.x_parts = Some(parts);
+    }
     if opts.bootstrap > 0 {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
         // The resamples are drawn in order (the same ones as one fit after the other), the
@@ -1154,9 +1212,20 @@ pub fn calibrate(
                     .collect()
             })
             .collect();
+        // Each resample writes the candidate its views choose (the same per-view CV errors
+        // drawn with the views), as the stated 1σ's estimator part assumes.
         let xs: Vec<Isometry3<f64>> = picks
             .par_iter()
-            .filter_map(|pick| match chosen {
+            .map(|pick| {
+                let c = if per.is_empty() {
+                    chosen
+                } else {
+                    select::choose(&select::resampled(&per, pick), robot_dominates)
+                        .unwrap_or(chosen)
+                };
+                (c, pick)
+            })
+            .filter_map(|(c, pick)| match c {
                 select::Candidate::Ml => {
                     let bv: Vec<View> = pick.iter().map(|&i| views[i].clone()).collect();
                     let bo = obs_of(&bv, &board);
@@ -1268,6 +1337,10 @@ fn refit_intrinsics(
 
 /// Resamples of the views drawn to weigh the plausible distortion models ([`model_shares`]).
 pub const MODEL_SHARE_RESAMPLES: usize = 40;
+
+/// Resamples of the views drawn to see how often each candidate estimator is chosen
+/// ([`select::choice_shares`]; no refit, only the per-view CV errors redrawn).
+pub const SELECTION_RESAMPLES: usize = 200;
 
 /// How often each of `models` (the plausible distortion models, `chosen` among them) is the one
 /// the calibration's rule chooses when the views are resampled with replacement: the intrinsics

@@ -407,6 +407,51 @@ pub fn choose(scores: &[(Candidate, Option<PerView>)], robot_dominates: bool) ->
     Some(tied.first().copied().unwrap_or(best))
 }
 
+/// The CV errors of `scores` on the views `pick` (repeats allowed), paired by view as
+/// [`choose`] pairs them.
+pub fn resampled(
+    scores: &[(Candidate, Option<PerView>)],
+    pick: &[usize],
+) -> Vec<(Candidate, Option<PerView>)> {
+    scores
+        .iter()
+        .map(|(c, v)| {
+            let v = v.as_ref().and_then(|v| {
+                pick.iter()
+                    .map(|&i| v.get(i).copied())
+                    .collect::<Option<PerView>>()
+            });
+            (*c, v)
+        })
+        .collect()
+}
+
+/// How often each candidate is the one [`choose`] writes when the views are resampled
+/// (`picks`, each a resample of the view indices): the same per-view CV errors, drawn with
+/// the views. Candidates never chosen are left out; the shares add to 1 (empty when no
+/// resample chooses). Halves of a real KUKA set (RWHE-Calib `kuka_2`, 21 training views) write
+/// the joint ML, the ML with the board-only intrinsics or the per-view corrections, whose X
+/// are millimetres apart: the written X carries that choice's uncertainty too.
+pub fn choice_shares(
+    scores: &[(Candidate, Option<PerView>)],
+    robot_dominates: bool,
+    picks: &[Vec<usize>],
+) -> Vec<(Candidate, f64)> {
+    let mut won: Vec<(Candidate, usize)> = vec![];
+    for pick in picks {
+        if let Some(c) = choose(&resampled(scores, pick), robot_dominates) {
+            match won.iter_mut().find(|(a, _)| *a == c) {
+                Some(w) => w.1 += 1,
+                None => won.push((c, 1)),
+            }
+        }
+    }
+    let total: usize = won.iter().map(|w| w.1).sum();
+    won.into_iter()
+        .map(|(c, k)| (c, k as f64 / total as f64))
+        .collect()
+}
+
 /// Root mean square deviation (not unbiased) of X about `centre`: translation mm, rotation deg
 /// (local, `centre⁻¹ x`).
 pub(super) fn spread(xs: &[Isometry3<f64>], centre: &Isometry3<f64>) -> ([f64; 3], [f64; 3]) {
@@ -499,5 +544,42 @@ mod tests {
             p.dedup();
             assert_eq!(p.len(), Candidate::all().len());
         }
+    }
+
+    /// Resamples of the views choose a candidate as often as its CV errors, redrawn with the
+    /// views, make it the written one: a candidate better by far on every view wins every
+    /// resample; one better on some views and worse on others shares them.
+    #[test]
+    fn choice_shares_follow_the_views_that_favour_each_candidate() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let n = 16;
+        let picks: Vec<Vec<usize>> = (0..200)
+            .map(|_| (0..n).map(|_| rng.random_range(0..n)).collect())
+            .collect();
+        let base: Vec<f64> = (0..n).map(|i| 4.0 + (i % 5) as f64).collect();
+        let park = Candidate::Closed(Method::ParkMartin);
+        // The ML 30 % lower on every view: always written.
+        let far: Vec<f64> = base.iter().map(|b| b * 0.7).collect();
+        let scores = vec![(park, views(&base)), (Candidate::Ml, views(&far))];
+        let s = choice_shares(&scores, false, &picks);
+        assert_eq!(s, vec![(Candidate::Ml, 1.0)]);
+        // Lower by half on half of the views, higher by a third on the others: on the full set
+        // it is 8 % lower, about one standard error; resamples go either way.
+        let mixed: Vec<f64> = base
+            .iter()
+            .enumerate()
+            .map(|(i, b)| b * if i % 2 == 0 { 0.5 } else { 1.34 })
+            .collect();
+        let scores = vec![(park, views(&base)), (Candidate::Ml, views(&mixed))];
+        let s = choice_shares(&scores, false, &picks);
+        let share = |c: Candidate| s.iter().find(|a| a.0 == c).map_or(0.0, |a| a.1);
+        assert!(
+            (share(park) + share(Candidate::Ml) - 1.0).abs() < 1e-12,
+            "{s:?}"
+        );
+        assert!(share(park) > 0.2 && share(Candidate::Ml) > 0.2, "{s:?}");
+        // Nothing scored: no shares.
+        assert!(choice_shares(&[(park, None)], false, &picks).is_empty());
     }
 }
