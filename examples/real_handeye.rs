@@ -207,6 +207,10 @@ fn main() {
             r.sigma_mm.map(|v| (v * 1000.0).round() / 1000.0),
             r.sigma_deg.map(|v| (v * 10000.0).round() / 10000.0)
         );
+        print!(
+            "{}",
+            robocal::solve::camera::calfile::sigma_parts_lines(&r.result)
+        );
         if let Some((bt, br)) = r.bootstrap {
             let rat: Vec<f64> = (0..3)
                 .map(|a| bt[a] / r.sigma_mm[a])

@@ -352,7 +352,13 @@ pub fn sigma_parts_lines(res: &CameraResult) -> String {
         let shares: Vec<String> = p
             .estimator_shares
             .iter()
-            .map(|(m, w)| format!("{m} {:.0} %", 100.0 * w))
+            .map(|(m, w)| {
+                if *w < 0.01 {
+                    format!("{m} < 1 %")
+                } else {
+                    format!("{m} {:.0} %", 100.0 * w)
+                }
+            })
             .collect();
         s += &format!(
             "  resamples of the views write: {} (X of each on every view; the spread is the \
