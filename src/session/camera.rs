@@ -228,7 +228,11 @@ pub fn calibrate_stage(
         s.warnings
             .push(format!("view {id}: no usable board ({why})"));
     }
-    if let Some(n) = crate::solve::camera::calfile::lens_model_note(&res) {
+    use crate::solve::camera::calfile::{estimator_note, lens_model_note};
+    for n in [lens_model_note(&res), estimator_note(&res)]
+        .into_iter()
+        .flatten()
+    {
         s.warnings.push(format!("camera: {n}"));
     }
     work.camera.calibrated = Some(res);

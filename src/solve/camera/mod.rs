@@ -1767,6 +1767,27 @@ mod tests {
             assert!(dt < tt, "ML {dt} mm not better than Tsai–Lenz {tt} mm");
             assert!((res.ml.intrinsics.fx - 900.0).abs() < 2.0);
             assert!(res.closed_form.len() == 5);
+            // Exact flange poses: every resample of the views writes the same estimator, the
+            // estimator part is zero and there is no note about it.
+            let p = res.uncertainty.x_parts.as_ref().expect("the CV ran");
+            assert_eq!(p.estimator_shares.len(), 1, "{:?}", p.estimator_shares);
+            assert_eq!(p.estimator_shares[0].0, res.ml.method);
+            assert_eq!(p.estimator_mm, [0.0; 3]);
+            assert!(calfile::estimator_note(&res).is_none());
+            // Were the resamples split and the estimator part the largest, the note would say
+            // which estimators, how often, and along which axis.
+            let mut split = res.clone();
+            let q = split.uncertainty.x_parts.as_mut().unwrap();
+            q.estimator_shares = vec![("ml".into(), 0.52), ("park-martin".into(), 0.48)];
+            q.estimator_mm = [0.1, 2.5, 0.2];
+            q.fit_mm = [0.5, 0.5, 0.5];
+            let note = calfile::estimator_note(&split).expect("a note");
+            assert!(note.contains("ml 52 %, park-martin 48 %"), "{note}");
+            assert!(note.contains("along the camera's y axis"), "{note}");
+            assert!(note.contains("1σ 2.50 mm"), "{note}");
+            // Below 1 mm (and no rotation part beyond 0.1°) it is not worth a note.
+            split.uncertainty.x_parts.as_mut().unwrap().estimator_mm = [0.1, 0.9, 0.2];
+            assert!(calfile::estimator_note(&split).is_none());
         }
     }
 }
