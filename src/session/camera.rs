@@ -229,11 +229,14 @@ pub fn calibrate_stage(
             .push(format!("view {id}: no usable board ({why})"));
     }
     use crate::solve::camera::calfile::{estimator_note, lens_model_note};
-    for n in [lens_model_note(&res), estimator_note(&res)]
-        .into_iter()
-        .flatten()
-    {
+    if let Some(n) = lens_model_note(&res) {
         s.warnings.push(format!("camera: {n}"));
+    }
+    // The diagnosis that follows may calibrate the arm (`arm_kinematics`), which decides it.
+    if let Some(n) = estimator_note(&res) {
+        s.warnings.push(format!(
+            "camera (calibration stage, before the diagnosis): {n}"
+        ));
     }
     work.camera.calibrated = Some(res);
     Ok(())

@@ -356,11 +356,6 @@ pub fn estimator_note(res: &CameraResult) -> Option<String> {
         .map(|(a, v)| (a, v, "deg"))
     });
     let (axis, v, unit) = worst?;
-    let shares: Vec<String> = p
-        .estimator_shares
-        .iter()
-        .map(|(m, w)| format!("{m} {:.0} %", 100.0 * w))
-        .collect();
     let what = if unit == "mm" {
         format!(
             "X's translation along the camera's {} axis",
@@ -377,8 +372,23 @@ pub fn estimator_note(res: &CameraResult) -> Option<String> {
          {what} depends on it (1σ {v:.2} {unit} from that alone). The \
          flange poses' own error is what the estimators treat differently: more views, spread \
          over the workspace with large rotations between them, or a calibrated arm, decide it.",
-        shares.join(", "),
+        estimator_shares_text(&p.estimator_shares),
     ))
+}
+
+/// `"park-martin 82 %, daniilidis 9 %, tsai-lenz < 1 %"`.
+fn estimator_shares_text(shares: &[(String, f64)]) -> String {
+    shares
+        .iter()
+        .map(|(m, w)| {
+            if *w < 0.01 {
+                format!("{m} < 1 %")
+            } else {
+                format!("{m} {:.0} %", 100.0 * w)
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The lines under the console table that say what X's 1σ is made of and, when the lens model
@@ -408,21 +418,10 @@ pub fn sigma_parts_lines(res: &CameraResult) -> String {
         f3(p.estimator_deg, 4),
     );
     if p.estimator_shares.len() > 1 {
-        let shares: Vec<String> = p
-            .estimator_shares
-            .iter()
-            .map(|(m, w)| {
-                if *w < 0.01 {
-                    format!("{m} < 1 %")
-                } else {
-                    format!("{m} {:.0} %", 100.0 * w)
-                }
-            })
-            .collect();
         s += &format!(
             "  resamples of the views write: {} (X of each on every view; the spread is the \
              estimator part)\n",
-            shares.join(", ")
+            estimator_shares_text(&p.estimator_shares)
         );
     }
     for n in [lens_model_note(res), estimator_note(res)]
