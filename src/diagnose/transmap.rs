@@ -392,12 +392,21 @@ pub fn fit_map(
     let nb = loo.len().max(1) as f64;
     let mean = Mat::from_fn(k, 1, |i, _| loo.iter().map(|v| v[(i, 0)]).sum::<f64>() / nb);
     let jack = (nb - 1.0) / nb;
+    // The ridge's own error about the true map (MSE, not the posterior): its variance
+    // σ² M⁻¹ G M⁻¹ and its shrinkage bias λ² τ² M⁻², `M = G + λI`, with the coefficients'
+    // prior variance τ² estimated from the data (empirical Bayes, [`prior_variance`]). When
+    // λ = σ²/τ² this is the posterior σ² M⁻¹; a ridge the gap rule chose far heavier than the
+    // data's own τ² says is biased toward zero, and the bias counts.
+    let tau2 = prior_variance(&sys.g, &sys.b, sigma2);
+    let ig = &inv * &sys.g;
+    let var = (&ig * &inv) * faer::Scale(sigma2);
+    let ii = &inv * &inv;
     let cov = Mat::from_fn(k, k, |a, b| {
         let j: f64 = loo
             .iter()
             .map(|v| (v[(a, 0)] - mean[(a, 0)]) * (v[(b, 0)] - mean[(b, 0)]))
             .sum();
-        sigma2 * inv[(a, b)] + jack * j
+        var[(a, b)] + lambda * lambda * tau2 * ii[(a, b)] + jack * j
     });
     tracing::debug!(
         "transmission map: joints {:?}, {} harmonics, ridge {:e}, σ² {sigma2:e}, {} jackknife blocks",
@@ -435,6 +444,59 @@ pub fn fit_map(
         effects,
         cov,
     })
+}
+
+/// The coefficients' prior variance τ² that maximises the marginal likelihood of the
+/// residual under `r = A x + e`, `x ~ N(0, τ² I)`, `e ~ N(0, σ² I)`, from the normal equations
+/// `G = AᵀA`, `b = Aᵀr`: along each eigenvector `v` of `G` (eigenvalue `g`),
+/// `z = vᵀb / √g ~ N(0, σ² + τ² g)`. Golden-section search on `ln τ²`; 0 when no prior
+/// variance beats none.
+fn prior_variance(g: &Mat<f64>, b: &Mat<f64>, sigma2: f64) -> f64 {
+    let k = g.nrows();
+    if k == 0 || sigma2.is_nan() || sigma2 <= 0.0 {
+        return 0.0;
+    }
+    let gm = nalgebra::DMatrix::from_fn(k, k, |i, j| g[(i, j)]);
+    let eig = nalgebra::SymmetricEigen::new(gm);
+    let gmax = eig.eigenvalues.max();
+    let terms: Vec<(f64, f64)> = (0..k)
+        .filter(|&i| eig.eigenvalues[i] > 1e-12 * gmax.max(0.0))
+        .map(|i| {
+            let gi = eig.eigenvalues[i];
+            let vb: f64 = (0..k).map(|r| eig.eigenvectors[(r, i)] * b[(r, 0)]).sum();
+            (gi, vb * vb / gi)
+        })
+        .collect();
+    if terms.is_empty() {
+        return 0.0;
+    }
+    let nll = |t2: f64| -> f64 {
+        terms
+            .iter()
+            .map(|(gi, z2)| {
+                let v = sigma2 + t2 * gi;
+                v.ln() + z2 / v
+            })
+            .sum()
+    };
+    // τ² between σ²/g_max · 1e-6 and σ²/g_min · 1e6 (log scale).
+    let gmin = terms.iter().map(|t| t.0).fold(f64::INFINITY, f64::min);
+    let (mut lo, mut hi) = ((sigma2 / gmax * 1e-6).ln(), (sigma2 / gmin * 1e6).ln());
+    let phi = (5f64.sqrt() - 1.0) / 2.0;
+    for _ in 0..100 {
+        let (a, c) = (hi - phi * (hi - lo), lo + phi * (hi - lo));
+        if nll(a.exp()) < nll(c.exp()) {
+            hi = c;
+        } else {
+            lo = a;
+        }
+    }
+    let t2 = ((lo + hi) / 2.0).exp();
+    if nll(t2) < nll(0.0) {
+        t2
+    } else {
+        0.0
+    }
 }
 
 #[cfg(test)]
@@ -564,6 +626,63 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The empirical-Bayes prior variance recovers the coefficients' spread: 60 coefficients
+    /// drawn with τ = 0.3 behind 400 noisy rows (σ = 0.5) give τ² within 25 % of their mean
+    /// square; without any
+    /// signal τ² is (nearly) zero. And the ridge's stated MSE covers its shrinkage: with a
+    /// ridge 100× heavier than σ²/τ², the coefficients' error stays within 3σ of the MSE
+    /// standard deviation, where the posterior σ²(G + λI)⁻¹ alone is far too small.
+    #[test]
+    fn prior_variance_recovers_the_coefficients_spread() {
+        let (m, k) = (400, 60);
+        let (tau, sigma) = (0.3, 0.5);
+        let mut u = noise(11, 0.5);
+        let mut gauss = || {
+            // Box–Muller on the LCG.
+            let u1 = (u() + 0.5).clamp(1e-12, 1.0);
+            let u2 = u() + 0.5;
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let a = Mat::<f64>::from_fn(m, k, |_, _| gauss());
+        let x = Mat::<f64>::from_fn(k, 1, |_, _| tau * gauss());
+        let e = Mat::<f64>::from_fn(m, 1, |_, _| sigma * gauss());
+        let g = a.transpose() * &a;
+        // The drawn coefficients' own mean square (what the data can tell).
+        let drawn = (0..k).map(|i| x[(i, 0)].powi(2)).sum::<f64>() / k as f64;
+        for (signal, want) in [(true, drawn), (false, 0.0)] {
+            let y = if signal { &a * &x + &e } else { e.clone() };
+            let b = a.transpose() * &y;
+            let t2 = prior_variance(&g, &b, sigma * sigma);
+            if signal {
+                assert!((t2 / want - 1.0).abs() < 0.25, "τ² {t2} vs {want}");
+            } else {
+                assert!(t2 < 0.1 * tau * tau, "τ² {t2} without signal");
+            }
+        }
+        // A ridge far heavier than the data's σ²/τ².
+        let y = &a * &x + &e;
+        let b = a.transpose() * &y;
+        let lambda = 100.0 * sigma * sigma / (tau * tau);
+        let mut mm = g.clone();
+        for i in 0..k {
+            mm[(i, i)] += lambda;
+        }
+        let inv = mm.llt(Side::Lower).unwrap().inverse();
+        let xr = &inv * &b;
+        let t2 = prior_variance(&g, &b, sigma * sigma);
+        let mse = (&inv * &g * &inv) * faer::Scale(sigma * sigma)
+            + (&inv * &inv) * faer::Scale(lambda * lambda * t2);
+        let post = &inv * faer::Scale(sigma * sigma);
+        let z = |c: &Mat<f64>| {
+            (0..k)
+                .map(|i| (xr[(i, 0)] - x[(i, 0)]).powi(2) / c[(i, i)])
+                .sum::<f64>()
+                / k as f64
+        };
+        assert!(z(&mse) < 3.0, "mean squared z under the MSE: {}", z(&mse));
+        assert!(z(&post) > 10.0, "the posterior alone: {}", z(&post));
     }
 
     /// Geometric errors and noise only: no setting predicts the folds 5 % better than zero,
