@@ -502,7 +502,7 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
     };
     let _ = write!(
         h,
-        "<h2>Camera calibration</h2><section id=\"camera\"><p>{} training views with a board, {} held-out views{}; distortion model <code>{}</code> (chosen by validation error); {} views and {} corners rejected by residual. Intervals are 95 % (1.96 × the stated 1σ: the final fit's covariance or its view jackknife; for the hand-eye, plus what the intrinsics' uncertainty and an undecided lens model do to it).</p>",
+        "<h2>Camera calibration</h2><section id=\"camera\"><p>{} training views with a board, {} held-out views{}; distortion model <code>{}</code> (chosen by validation error); {} views and {} corners rejected by residual. Intervals are 95 % (1.96 × the stated 1σ: the final fit's covariance or its view jackknife; for the calibration stage's hand-eye (and the deployed one when the diagnosis adds nothing), plus what the intrinsics' uncertainty, an undecided lens model and the choice among the estimators do to it).</p>",
         c.views_train,
         c.views_heldout,
         if c.views_without_board > 0 {
