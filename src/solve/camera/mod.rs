@@ -1048,6 +1048,8 @@ pub fn calibrate(
             None => ctx.fit(c, &all),
         },
     };
+    // The joint ML's X on every view (an alternative to the written candidate below).
+    let ml_free_x = ml_free.x;
     let (ml, residuals) = match &chosen_fit {
         None => {
             let residuals = ids
@@ -1177,7 +1179,7 @@ pub fn calibrate(
             .filter(|(c, _)| *c != chosen)
             .filter_map(|(c, w)| {
                 let x = match c {
-                    select::Candidate::Ml => candidates.first().map(|e| e.x),
+                    select::Candidate::Ml => Some(ml_free_x),
                     c => match all_fits.iter().find(|(a, _)| a == c) {
                         Some((_, f)) => f.as_ref().map(|f| f.x),
                         None => ctx.fit(*c, &all).map(|f| f.x),
