@@ -386,6 +386,9 @@ fn main() -> anyhow::Result<()> {
                 "    the geometric fit on the same split: train {geo_train:.4}, held-out {geo:.4} mm, gap {:.1} % (what the split itself costs, before any effect)",
                 100.0 * (geo / geo_train - 1.0)
             );
+            if let Some(line) = d.near_heldout_line() {
+                println!("    {line}");
+            }
             if let Some(s) = d
                 .policy_choice
                 .as_ref()

@@ -279,6 +279,7 @@ impl CameraDiagnosis {
             n_heldout_excluded: 0,
             train_rms: px(Some(self.baseline.train_rms_px), Some(last.train_rms_px)),
             heldout_rms: px(self.baseline.heldout_rms_px, last.heldout_rms_px),
+            train_rms_near_heldout: None,
             effects,
             nonparametric_used: false,
             rounds: self.rounds.clone(),

@@ -238,6 +238,9 @@ pub fn run_loaded(
         f(d.heldout_rms_geometric),
         f(d.heldout_rms_final)
     );
+    if let Some(line) = d.near_heldout_line() {
+        s.push_str(&format!("  {line}\n"));
+    }
     for st in &d.steps {
         s.push_str(&format!(
             "  + {}: train {:.4} → {:.4} mm, held-out {} → {} mm\n",

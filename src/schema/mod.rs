@@ -460,6 +460,12 @@ pub struct DiagnosisFile {
     pub train_rms: StageRms,
     /// Held-out RMS at each stage of the diagnosis.
     pub heldout_rms: StageRms,
+    /// The training RMS where the held-out poses are: for every held-out pose the training
+    /// poses nearest it in joint space, averaged over the held-out poses. The held-out RMS
+    /// against it is the gap the fit makes where the held-out poses lie (kinematic diagnosis
+    /// with held-out poses only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_rms_near_heldout: Option<NearHeldoutRms>,
     /// Accepted effects in the order they were added.
     pub effects: Vec<DiagnosedEffect>,
     /// Whether a data-driven (nonparametric) correction was added.
@@ -483,6 +489,17 @@ pub struct DiagnosisFile {
     /// Camera: the hand-eye after the accepted effects.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hand_eye_after: Option<PoseMmQuat>,
+}
+
+/// `train_rms_near_heldout` of `diagnosis.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NearHeldoutRms {
+    /// Training poses averaged around every held-out pose.
+    pub neighbours: usize,
+    /// The geometric fit's training RMS near the held-out poses (mm).
+    pub base_model_mm: Option<f64>,
+    /// The final model's training RMS near the held-out poses (mm).
+    pub final_mm: Option<f64>,
 }
 
 impl SchemaFile for DiagnosisFile {
@@ -734,6 +751,7 @@ mod tests {
                 ..Default::default()
             },
             heldout_rms: StageRms::default(),
+            train_rms_near_heldout: None,
             effects: vec![DiagnosedEffect {
                 kind: "laser_scale".into(),
                 joint: None,

@@ -245,6 +245,7 @@ impl LaserDiagnosis {
                 final_mm: self.spread_after_mm.and_then(fin),
                 ..Default::default()
             },
+            train_rms_near_heldout: None,
             effects,
             nonparametric_used: false,
             rounds: vec![last_round],
