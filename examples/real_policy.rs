@@ -389,6 +389,13 @@ fn main() -> anyhow::Result<()> {
             if let Some(line) = d.near_heldout_line() {
                 println!("    {line}");
             }
+            for w in d
+                .warnings
+                .iter()
+                .filter(|w| w.starts_with("where the held-out"))
+            {
+                println!("    {w}");
+            }
             if let Some(s) = d
                 .policy_choice
                 .as_ref()

@@ -347,8 +347,10 @@ impl Diagnosis {
         let n = self.near_heldout?;
         let (g, f) = (self.heldout_rms_geometric?, self.heldout_rms_final?);
         Some(format!(
-            "Where the held-out poses are: the {} training poses nearest each one (joint space) have RMS {:.4} mm (geometric) → {:.4} mm (final); the held-out RMS is {:+.1} % / {:+.1} % from them (against all training poses {:+.1} % / {:+.1} %).",
+            "Where the held-out poses are: the {} training poses nearest each one (joint space; the nearest {:.1}° away, median, against {:.1}° between neighbouring training poses) have RMS {:.4} mm (geometric) → {:.4} mm (final); the held-out RMS is {:+.1} % / {:+.1} % from them (against all training poses {:+.1} % / {:+.1} %).",
             n.neighbours,
+            n.heldout_spacing_deg,
+            n.train_spacing_deg,
             n.geometric_mm,
             n.final_mm,
             100.0 * (g / n.geometric_mm - 1.0),
@@ -1556,10 +1558,12 @@ pub fn diagnose(
             .and_then(|n| n.rms(&region::per_pose_err2(&residuals(st, train))))
     };
     let near_heldout = match (near(&geometric), near(&state)) {
-        (Some(g), Some(f)) => Some(region::NearHeldout {
+        (Some(g), Some(f)) => neighbours.as_ref().map(|n| region::NearHeldout {
             neighbours: region::NEIGHBOURS,
             geometric_mm: g,
             final_mm: f,
+            heldout_spacing_deg: n.heldout_spacing.to_degrees(),
+            train_spacing_deg: n.train_spacing.to_degrees(),
         }),
         _ => None,
     };
@@ -1733,6 +1737,8 @@ impl Diagnosis {
             },
             train_rms_near_heldout: self.near_heldout.map(|n| schema::NearHeldoutRms {
                 neighbours: n.neighbours,
+                heldout_spacing_deg: fin(n.heldout_spacing_deg),
+                train_spacing_deg: fin(n.train_spacing_deg),
                 base_model_mm: fin(n.geometric_mm),
                 final_mm: fin(n.final_mm),
             }),
@@ -2267,7 +2273,10 @@ mod tests {
         assert!(h > 1.3 * d.train_rms_final, "{h} vs {}", d.train_rms_final);
         assert!((h / n.final_mm - 1.0).abs() < 0.15, "{h} vs {}", n.final_mm);
         let w = d.warnings.join("\n");
-        assert!(w.contains("did not learn the training poses"), "{w}");
+        assert!(
+            w.contains("as well as the training poses beside them"),
+            "{w}"
+        );
         let file = d.to_file();
         let near = file.train_rms_near_heldout.as_ref().unwrap();
         assert_eq!(near.neighbours, region::NEIGHBOURS);

@@ -500,6 +500,12 @@ pub struct NearHeldoutRms {
     pub base_model_mm: Option<f64>,
     /// The final model's training RMS near the held-out poses (mm).
     pub final_mm: Option<f64>,
+    /// Median distance from a held-out pose to its nearest training pose in joint space (deg).
+    #[serde(default)]
+    pub heldout_spacing_deg: Option<f64>,
+    /// Median distance from a training pose to its nearest other training pose (deg).
+    #[serde(default)]
+    pub train_spacing_deg: Option<f64>,
 }
 
 impl SchemaFile for DiagnosisFile {
