@@ -658,7 +658,7 @@ fn md_diagnosis(m: &mut String, d: &Found<DiagnosisFile>) {
         (v.train_rms.with_unit(), v.heldout_rms.with_unit());
     let _ = writeln!(
         m,
-        "| RMS ({unit}) | nominal | base model | final |\n|---|---:|---:|---:|\n| train ({}) | {} | {} | {} |\n| held-out ({}) | {} | {} | {} |\n",
+        "| RMS ({unit}) | nominal | base model | final |\n|---|---:|---:|---:|\n| train ({}) | {} | {} | {} |\n| held-out ({}) | {} | {} | {} |",
         v.n_train,
         f3(tn),
         f3(tb),
@@ -668,6 +668,17 @@ fn md_diagnosis(m: &mut String, d: &Found<DiagnosisFile>) {
         f3(hb),
         f3(hf),
     );
+    if let Some(n) = &v.train_rms_near_heldout {
+        // The training error where the held-out poses are (diagnose::region).
+        let _ = writeln!(
+            m,
+            "| train, the {} poses nearest each held-out pose | — | {} | {} |",
+            n.neighbours,
+            f3(n.base_model_mm),
+            f3(n.final_mm)
+        );
+    }
+    m.push('\n');
     if let (Some(b), Some(a)) = (&v.hand_eye_before, &v.hand_eye_after) {
         let xyz = |x: &[f64; 3]| format!("[{:.3}, {:.3}, {:.3}]", x[0], x[1], x[2]);
         let _ = writeln!(
