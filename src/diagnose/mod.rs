@@ -2233,10 +2233,11 @@ mod tests {
         assert!(d.heldout_rms_final.unwrap() < 0.015);
     }
 
-    /// Training error 0.01 mm where q1 < 0 and 0.06 mm where q1 > 0 (noise only, no effect);
-    /// the held-out poses all have q1 > 0. Against all training poses the held-out RMS is far
-    /// above the 15 % limit; against the training poses nearest them it is not, and the
-    /// warning says the held-out poses lie where the model is less accurate.
+    /// A gear ripple of joint 2 and noise of 0.01 mm where q1 < 0, 0.06 mm where q1 > 0; the
+    /// held-out poses all have q1 > 0. Against all training poses the held-out RMS is far
+    /// above the 15 % limit; against the training poses nearest them it is not: the ripple's
+    /// step is named "not overfitting", never flagged, and the warning says the held-out poses
+    /// lie where the model is less accurate.
     #[test]
     fn a_gap_from_where_the_heldout_poses_lie_is_told_apart_from_overfitting() {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
