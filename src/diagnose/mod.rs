@@ -2169,30 +2169,22 @@ mod tests {
     /// other, on the same joint, and the held-out error falls to the noise. The joints
     /// sweep ±170°: over a narrow range (±80° was tried) neighbouring harmonics are far from
     /// orthogonal and the greedy chain takes ×4 + eccentricity for the ×5.
+    /// A true gear ripple of `joint` at `harmonic` cycles per turn, `sin_deg sin kq +
+    /// cos_deg cos kq` (degrees).
+    fn ripple(joint: usize, harmonic: u32, sin_deg: f64, cos_deg: f64) -> Effect {
+        Effect {
+            block: Block::Ripple(effects::Ripple { joint, harmonic }),
+            coefs: vec![sin_deg.to_radians(), cos_deg.to_radians()],
+            std: vec![f64::NAN; 2],
+            tau_std: f64::NAN,
+        }
+    }
+
     #[test]
     fn several_ripple_harmonics_on_one_joint_are_found() {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
         model.fix_point_redundancies();
-        let truth = [
-            Effect {
-                block: Block::Ripple(effects::Ripple {
-                    joint: 2,
-                    harmonic: 5,
-                }),
-                coefs: vec![0.012f64.to_radians(), -0.006f64.to_radians()],
-                std: vec![f64::NAN; 2],
-                tau_std: f64::NAN,
-            },
-            Effect {
-                block: Block::Ripple(effects::Ripple {
-                    joint: 2,
-                    harmonic: 17,
-                }),
-                coefs: vec![0.004f64.to_radians(), 0.008f64.to_radians()],
-                std: vec![f64::NAN; 2],
-                tau_std: f64::NAN,
-            },
-        ];
+        let truth = [ripple(2, 5, 0.012, -0.006), ripple(2, 17, 0.004, 0.008)];
         let mut noise = lcg_noise(5, 0.01);
         let mut pose = |k: u64| {
             let f = k as f64;
@@ -2243,15 +2235,7 @@ mod tests {
         let mut model = KinematicModel::preset("denso-vs060").unwrap();
         model.fix_point_redundancies();
         // A gear ripple the chain finds, so that its step is judged as well.
-        let truth = [Effect {
-            block: Block::Ripple(effects::Ripple {
-                joint: 2,
-                harmonic: 17,
-            }),
-            coefs: vec![0.01f64.to_radians(), 0.006f64.to_radians()],
-            std: vec![f64::NAN; 2],
-            tau_std: f64::NAN,
-        }];
+        let truth = [ripple(2, 17, 0.01, 0.006)];
         let mut noise = lcg_noise(11, 1.0);
         let mut pose = |k: u64| {
             let f = k as f64;
