@@ -12,8 +12,10 @@
 //! [`near_train_rms`] weighs the training residual by where the held-out poses are: for every
 //! held-out pose, the mean squared 3-D error of the [`NEIGHBOURS`] training poses nearest it in
 //! joint space, averaged over the held-out poses. The held-out RMS against it is the gap the
-//! fit itself makes; the geometric fit's own figure says how much of that is the robot or the
-//! setup changing between the training and the held-out poses rather than the effects.
+//! fit itself makes; the geometric fit's own figure says how much of that the effects do not
+//! cause (the robot or the setup changed, or an error varies faster than the poses sample it),
+//! and the distance from a held-out pose to its nearest training pose, against the training
+//! poses' own spacing, says whether the model extrapolates there ([`NearHeldout::sentence`]).
 use rayon::prelude::*;
 
 use crate::solve::obs::PoseObs;
