@@ -1568,9 +1568,8 @@ pub fn diagnose(
         _ => None,
     };
     let overfit = overfit_warnings(&steps, near);
-    let beyond = |h: f64, t: f64| h > (1.0 + OVERFIT_GAP) * t && h - t > OVERFIT_MIN_MM;
     let final_gap = heldout_rms_final.is_some_and(|h| {
-        beyond(h, train_rms_final) || near_heldout.is_some_and(|n| beyond(h, n.final_mm))
+        gap_beyond(h, train_rms_final) || near_heldout.is_some_and(|n| gap_beyond(h, n.final_mm))
     });
     let gap_note = match (&near_heldout, heldout_rms_geometric, heldout_rms_final) {
         (Some(n), Some(g), Some(f)) if final_gap || !overfit.is_empty() => {
@@ -1614,6 +1613,12 @@ pub fn diagnose(
     })
 }
 
+/// Whether held-out RMS `h` is beyond the overfitting limit above the reference RMS `t`
+/// (more than [`OVERFIT_GAP`] and more than [`OVERFIT_MIN_MM`] above it).
+fn gap_beyond(h: f64, t: f64) -> bool {
+    h > (1.0 + OVERFIT_GAP) * t && h - t > OVERFIT_MIN_MM
+}
+
 /// Steps whose held-out RMS exceeds their training RMS by more than [`OVERFIT_GAP`] (and by
 /// more than 0.01 mm): the fit learned the training poses, not the robot. With `near` (the
 /// training RMS near the held-out poses of a model, [`region`]), the held-out RMS is judged
@@ -1622,7 +1627,6 @@ pub fn diagnose(
 /// model is less accurate), and a step whose held-out poses are beyond the limit above their
 /// neighbours is, whatever its plain gap.
 pub fn overfit_warnings(steps: &[Step], near: impl Fn(&State) -> Option<f64>) -> Vec<String> {
-    let beyond = |h: f64, t: f64| h > (1.0 + OVERFIT_GAP) * t && h - t > OVERFIT_MIN_MM;
     let mut out = Vec::new();
     let mut region_only: Vec<(String, f64, f64)> = Vec::new();
     for s in steps {
@@ -1631,8 +1635,8 @@ pub fn overfit_warnings(steps: &[Step], near: impl Fn(&State) -> Option<f64>) ->
         };
         let t = s.train_rms_after;
         let m = near(&s.state_after);
-        let plain = beyond(h, t);
-        let flagged = m.map_or(plain, |m| beyond(h, m));
+        let plain = gap_beyond(h, t);
+        let flagged = m.map_or(plain, |m| gap_beyond(h, m));
         let label = s.effect.block.label();
         if flagged {
             let near_part = m

@@ -9,7 +9,7 @@
 //! RMS, but only 6 % worse than the training poses nearest them. Series B shows the second
 //! (14 % plain, 42 % against the nearest training poses).
 //!
-//! [`near_train_rms`] weighs the training residual by where the held-out poses are: for every
+//! [`Neighbours::rms`] weighs the training residual by where the held-out poses are: for every
 //! held-out pose, the mean squared 3-D error of the [`NEIGHBOURS`] training poses nearest it in
 //! joint space, averaged over the held-out poses. The held-out RMS against it is the gap the
 //! fit itself makes; the geometric fit's own figure says how much of that the effects do not
@@ -138,16 +138,6 @@ impl Neighbours {
     }
 }
 
-/// [`Neighbours::rms`] of the `k` training poses nearest each held-out pose.
-pub fn near_train_rms(
-    train: &[PoseObs],
-    train_err2: &[f64],
-    held: &[PoseObs],
-    k: usize,
-) -> Option<f64> {
-    Neighbours::new(train, held, k)?.rms(train_err2)
-}
-
 /// Squared 3-D error per pose of a stacked residual (x, y, z per pose).
 pub fn per_pose_err2(r: &nalgebra::DVector<f64>) -> Vec<f64> {
     r.as_slice()
@@ -241,11 +231,13 @@ mod tests {
         let held: Vec<PoseObs> = (0..20)
             .map(|i| pose(1000 + i, -0.8 + 0.03 * i as f64))
             .collect();
-        let near = near_train_rms(&train, &err2, &held, NEIGHBOURS).unwrap();
+        let near = Neighbours::new(&train, &held, NEIGHBOURS)
+            .and_then(|n| n.rms(&err2))
+            .unwrap();
         assert!((near - 0.1).abs() < 1e-12, "{near}");
         // Too few training poses, or none held out: no figure.
-        assert!(near_train_rms(&train[..3], &err2[..3], &held, NEIGHBOURS).is_none());
-        assert!(near_train_rms(&train, &err2, &[], NEIGHBOURS).is_none());
+        assert!(Neighbours::new(&train[..3], &held, NEIGHBOURS).is_none());
+        assert!(Neighbours::new(&train, &[], NEIGHBOURS).is_none());
     }
 
     #[test]
