@@ -128,7 +128,16 @@ async fn check(py: &PathBuf, noise: bool) {
             "mean grey {m} vs render {render_mean}"
         );
     }
-    assert!(sim.frames_sent() >= 3);
+    // Counted after the part's last byte is written: awaited, not read once (see camera_sim).
+    let t0 = std::time::Instant::now();
+    while sim.frames_sent() < 3 && t0.elapsed().as_secs_f64() < 5.0 {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(
+        sim.frames_sent() >= 3,
+        "{} parts counted",
+        sim.frames_sent()
+    );
 
     let res = out.last().unwrap();
     assert_eq!(res["found"], true, "OpenCV found no chessboard: {res}");
