@@ -1271,6 +1271,14 @@ fn bad_input_camera_calibration_values_predict_applies_are_checked() {
     let o = run(&["predict", "--calibration", s(&ok), "--data", s(&data)]);
     assert_eq!(o.code, Some(0), "{}", o.text);
     assert!(o.text.starts_with("id,corner,u_px,v_px"), "{}", o.text);
+    // A plausible flange map is read and applied: the predictions move.
+    let mapped = cam(&|c: &mut Value| {
+        c["flange_map"] = json!({"centre_mm": [0, 0, 500],
+            "matrix": [[0.004, 0.002, 0], [0, -0.001, 0.003], [0.001, 0, -0.003]]})
+    });
+    let m = run(&["predict", "--calibration", s(&mapped), "--data", s(&data)]);
+    assert_eq!(m.code, Some(0), "{}", m.text);
+    assert_ne!(m.text, o.text, "the flange map moves the predicted corners");
     for (f, needle) in [
         (
             &(|c: &mut Value| c["target_bend_mm"] = json!([400.0, 0.0])) as &dyn Fn(&mut Value),
@@ -1283,6 +1291,21 @@ fn bad_input_camera_calibration_values_predict_applies_are_checked() {
         (
             &|c: &mut Value| c["intrinsics"]["fx"] = json!(0.0),
             "intrinsics",
+        ),
+        // A flange map that is not trace-free (a hand-edited scale), or 20 % per metre.
+        (
+            &|c: &mut Value| {
+                c["flange_map"] = json!({"centre_mm": [0, 0, 500],
+                    "matrix": [[0.01, 0, 0], [0, 0, 0], [0, 0, 0]]})
+            },
+            "flange_map",
+        ),
+        (
+            &|c: &mut Value| {
+                c["flange_map"] = json!({"centre_mm": [0, 0, 500],
+                    "matrix": [[0, 0.2, 0], [0, 0, 0], [0, 0, 0]]})
+            },
+            "flange_map",
         ),
     ] {
         let p = cam(f);

@@ -66,7 +66,7 @@ fn cases() -> Vec<Case> {
 
 /// Held-out reprojection RMS (px) of the `id,corner,u_px,v_px` rows against the detections of
 /// `held`, over the corners both have; and how many corners were compared.
-fn rms_against_detections(rows_csv: &Path, held: &Path) -> (f64, usize) {
+pub fn rms_against_detections(rows_csv: &Path, held: &Path) -> (f64, usize) {
     let det = load(held, &Overrides::default(), false).unwrap();
     let mut seen: HashMap<(u64, usize), [f64; 2]> = HashMap::new();
     for v in &det.data.views {

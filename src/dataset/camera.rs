@@ -112,6 +112,32 @@ pub struct CameraCalBlock {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     /// Sag (mm) at the corner radius along x and y (see `solve::camera::problem`).
     pub target_bend_mm: Option<[f64; 2]>,
+    /// The map of the flange positions the camera diagnosis found (`flange_map`): the hand-eye
+    /// holds for flange poses read through it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flange_map: Option<FlangeMapBlock>,
+}
+
+/// `camera.flange_map`: a flange at reported position `p` (mm, base frame) is at
+/// `p + matrix · (p − centre_mm)`, its orientation unchanged (`matrix` row-major, trace-free,
+/// unitless: 0.001 is 1 mm per metre).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlangeMapBlock {
+    pub centre_mm: [f64; 3],
+    pub matrix: [[f64; 3]; 3],
+}
+
+impl FlangeMapBlock {
+    /// `f` read through the map.
+    pub fn apply(&self, f: &nalgebra::Isometry3<f64>) -> nalgebra::Isometry3<f64> {
+        let m = nalgebra::Matrix3::from_fn(|r, c| self.matrix[r][c]);
+        let c = nalgebra::Vector3::from(self.centre_mm);
+        let mut g = *f;
+        let p = f.translation.vector;
+        g.translation.vector = p + m * (p - c);
+        g
+    }
 }
 
 fn typed<T: for<'de> Deserialize<'de>>(

@@ -12,7 +12,11 @@
 //!   (a rank-revealing analysis of the reprojection Jacobian, [`crate::solve::identifiability`],
 //!   fixes the rest: joint 1's parameters go into the board pose, the last joint's zero and
 //!   offset into the hand-eye), so the hand-eye stops absorbing them;
-//! * `distortion` — the full `k1, k2, p1, p2, k3` model when a simpler one was chosen.
+//! * `distortion` — the full `k1, k2, p1, p2, k3` model when a simpler one was chosen;
+//! * `flange_map` — eye-in-hand, the arm's reported flange positions off by a linear map over
+//!   the workspace the views sample (`p → p + S·(p − c)`, `S` trace-free, eight parameters,
+//!   [`crate::solve::camera::problem::FlangeMap`]): the arm's pose error to first order, for
+//!   records without joint angles (and beside `arm_kinematics` when they have them).
 //!
 //! An effect is accepted when its nested-model F statistic is large (F > 25 on the training
 //! corners) and, with a held-out set, the held-out reprojection error falls by ≥ 2 %; the best
@@ -25,7 +29,10 @@ use crate::dataset::Dataset;
 use crate::model::KinematicModel;
 use crate::schema;
 use crate::solve::camera::geom::{Intrinsics, N_INTR};
-use crate::solve::camera::problem::{changed_model, ArmModel, BoardModel, Layout, Obs, Reproj};
+use crate::solve::camera::problem::{
+    changed_model, map_flange, ArmModel, BoardModel, FlangeMap, Layout, Obs, Reproj,
+    FLANGE_MAP_NAMES, FLANGE_MAP_PARAMS,
+};
 use crate::solve::camera::{
     self, bend_centre, motion_poses, CameraData, CameraError, DistModel, Estimate, Mount, Options,
 };
@@ -89,6 +96,8 @@ pub struct CameraDiagnosis {
     pub bend_mm: [f64; 2],
     /// The arm's identified kinematics (`arm_kinematics`), when that effect was accepted.
     pub arm: Option<ArmFit>,
+    /// The flange-position map (`flange_map`), when that effect was accepted.
+    pub flange_map: Option<FlangeMapFit>,
     /// Training / held-out views scored.
     pub n_train: usize,
     pub n_heldout: usize,
@@ -102,6 +111,11 @@ pub struct CameraDiagnosis {
 /// robot's, not the camera model's (a real arm 1 mm off leaves 10–30× the board-only RMS; a
 /// simulated cell whose flange poses are exact leaves ~1×).
 pub const ROBOT_DOMINATES_RATIO: f64 = 5.0;
+
+/// Above this ratio of the final training RMS to the board-only RMS (the robot's pose error is
+/// then at least three quarters of the residual's variance), a diagnosis that accepted an
+/// effect states X's 1σ as the larger of the model covariance and the view jackknife.
+pub const JACKKNIFE_RATIO: f64 = 2.0;
 
 impl CameraDiagnosis {
     /// Final training RMS over the board-only RMS (what the camera model alone leaves).
@@ -141,7 +155,80 @@ impl CameraDiagnosis {
             self.square_mm,
             fitted,
         ))
+        .chain(
+            self.flange_map
+                .as_ref()
+                .map(|m| m.note(&self.calibration.uncertainty.x_mm, &self.uncertainty.x_mm)),
+        )
         .collect()
+    }
+}
+
+/// The accepted flange-position map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlangeMapFit {
+    /// The point left in place (mm, base frame).
+    pub centre: [f64; 3],
+    /// `S` ([`crate::solve::camera::problem::flange_map_matrix`]), row-major, trace-free.
+    pub matrix: [[f64; 3]; 3],
+    /// Largest and RMS shift `|S·(p − c)|` over the training views' flange positions (mm).
+    pub max_shift_mm: f64,
+    pub rms_shift_mm: f64,
+}
+
+impl FlangeMapFit {
+    fn new(centre: nalgebra::Vector3<f64>, sv: &[f64], flanges: &[Isometry3<f64>]) -> Self {
+        let m = crate::solve::camera::problem::flange_map_matrix(sv);
+        let shifts: Vec<f64> = flanges
+            .iter()
+            .map(|f| (m * (f.translation.vector - centre)).norm())
+            .collect();
+        let n = shifts.len().max(1) as f64;
+        FlangeMapFit {
+            centre: [centre.x, centre.y, centre.z],
+            matrix: std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])),
+            max_shift_mm: shifts.iter().copied().fold(0.0, f64::max),
+            rms_shift_mm: (shifts.iter().map(|v| v * v).sum::<f64>() / n).sqrt(),
+        }
+    }
+
+    /// What the map says about the arm (a `diagnosis.json` warning and a console line), with
+    /// X's translation 1σ before (the calibration's) and after (the diagnosis') in mm.
+    pub fn note(&self, sigma_before: &[f64; 3], sigma_after: &[f64; 3]) -> String {
+        let f = |v: &[f64; 3]| format!("[{:.2}, {:.2}, {:.2}]", v[0], v[1], v[2]);
+        let max = |v: &[f64; 3]| v.iter().copied().fold(0.0, f64::max);
+        let x = if max(sigma_after) > 1.5 * max(sigma_before) {
+            format!(
+                "the pair predicts the camera, but X alone is less determined (translation 1σ \
+                 {} mm, {} mm before), because over views of one board a shift of X and the map \
+                 trade",
+                f(sigma_after),
+                f(sigma_before)
+            )
+        } else {
+            format!(
+                "X's translation 1σ {} mm ({} mm before)",
+                f(sigma_after),
+                f(sigma_before)
+            )
+        };
+        format!(
+            "flange positions: the arm's reported positions are off by a linear map over the \
+             workspace of the views, {:.2} mm RMS and up to {:.2} mm from their centre \
+             ({:.0}, {:.0}, {:.0}) mm; the hand-eye is fitted with it and the calibration \
+             carries it (camera.flange_map): {x}; it holds for this arm in this workspace only: \
+             calibrate the arm (joint angles `q` in the records for arm_kinematics, or a \
+             tracker) to remove it at its source",
+            self.rms_shift_mm, self.max_shift_mm, self.centre[0], self.centre[1], self.centre[2],
+        )
+    }
+
+    /// The calibration file's form.
+    pub fn block(&self) -> crate::dataset::camera::FlangeMapBlock {
+        crate::dataset::camera::FlangeMapBlock {
+            centre_mm: self.centre,
+            matrix: self.matrix,
+        }
     }
 }
 
@@ -306,6 +393,7 @@ enum Cand {
     Bend,
     Arm,
     Distortion,
+    Map,
 }
 
 impl Cand {
@@ -315,6 +403,7 @@ impl Cand {
             Cand::Bend => "target_flatness",
             Cand::Arm => "arm_kinematics",
             Cand::Distortion => "distortion",
+            Cand::Map => "flange_map",
         }
     }
 }
@@ -329,6 +418,8 @@ struct St {
     scale: f64,
     bend: [f64; 2],
     deltas: Vec<f64>,
+    /// The flange map's parameters (empty when off).
+    map: Vec<f64>,
     on: Vec<Cand>,
 }
 
@@ -340,6 +431,8 @@ struct Ctx<'a> {
     /// Model parameters `arm_kinematics` frees (the identifiable ones).
     arm_params: Vec<usize>,
     centre: [f64; 3],
+    /// The flange map's centre: the training flange positions' mean (mm).
+    map_centre: nalgebra::Vector3<f64>,
     held: Option<(CameraData, Vec<Vec<f64>>)>,
 }
 
@@ -361,6 +454,9 @@ fn problem<'a>(c: &'a Ctx, s: &St, arm: Option<Vec<usize>>) -> Reproj<'a> {
             q: &c.q,
             params,
         }),
+        flange_map: s.on.contains(&Cand::Map).then_some(FlangeMap {
+            centre: c.map_centre,
+        }),
     }
 }
 
@@ -371,6 +467,12 @@ fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
     if arm && s.deltas.len() == c.arm_params.len() {
         let o = p.arm_offset();
         for (k, v) in s.deltas.iter().enumerate() {
+            x0[o + k] = *v;
+        }
+    }
+    if p.flange_map.is_some() && s.map.len() == FLANGE_MAP_PARAMS {
+        let o = p.map_offset();
+        for (k, v) in s.map.iter().enumerate() {
             x0[o + k] = *v;
         }
     }
@@ -390,9 +492,45 @@ fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
         scale,
         bend,
         deltas: if arm { p.arm_deltas(&rep.x) } else { vec![] },
+        map: p.map_params(&rep.x),
         ..s.clone()
     };
     (st, rep)
+}
+
+/// View jackknife 1σ of X (translation mm, rotation deg) of the fit of state `s`: one refit
+/// per training view left out, from `s`.
+fn jackknife(c: &Ctx, s: &St) -> Option<([f64; 3], [f64; 3])> {
+    use rayon::prelude::*;
+    let mut views: Vec<usize> = c.obs.iter().map(|o| o.view).collect();
+    views.dedup();
+    views.sort_unstable();
+    views.dedup();
+    let xs: Vec<Isometry3<f64>> = views
+        .par_iter()
+        .filter_map(|&v| {
+            let c2 = Ctx {
+                obs: c.obs.iter().filter(|o| o.view != v).copied().collect(),
+                g: c.g.clone(),
+                q: c.q.clone(),
+                model: c.model,
+                arm_params: c.arm_params.clone(),
+                centre: c.centre,
+                map_centre: c.map_centre,
+                held: None,
+            };
+            let (s1, r1) = fit(&c2, s);
+            r1.cost.is_finite().then_some(s1.x)
+        })
+        .collect();
+    if xs.len() + 1 < views.len() || xs.len() < 3 {
+        return None;
+    }
+    let mean = crate::solve::camera::geom::mean_pose(&xs);
+    let (st, sr) = crate::solve::camera::select::spread(&xs, &mean);
+    // (n−1)/n · Σ (θ_i − θ̄)² = (n−1) · the mean square deviation.
+    let f = (xs.len() as f64 - 1.0).sqrt();
+    Some((st.map(|v| v * f), sr.map(|v| v * f)))
 }
 
 fn heldout(c: &Ctx, s: &St) -> Option<f64> {
@@ -402,6 +540,11 @@ fn heldout(c: &Ctx, s: &St) -> Option<f64> {
         let m = changed_model(c.model?, &c.arm_params, &s.deltas);
         for (v, qv) in h.views.iter_mut().zip(q) {
             v.flange = m.flange_pose(qv);
+        }
+    }
+    if s.on.contains(&Cand::Map) && s.map.len() == FLANGE_MAP_PARAMS {
+        for v in &mut h.views {
+            v.flange = map_flange(&v.flange, &s.map, &c.map_centre);
         }
     }
     Some(camera::heldout_rms(
@@ -496,6 +639,13 @@ pub fn diagnose_from(
             camera_obs(&views, &data)
         },
         g: motion_poses(&data.views, data.mount),
+        map_centre: {
+            let g = motion_poses(&data.views, data.mount);
+            g.iter()
+                .map(|f| f.translation.vector)
+                .sum::<nalgebra::Vector3<f64>>()
+                / g.len().max(1) as f64
+        },
         q: q.clone().unwrap_or_default(),
         model: model.as_ref().filter(|_| arm_ok),
         arm_params: vec![],
@@ -510,6 +660,7 @@ pub fn diagnose_from(
         scale: 1.0,
         bend: [0.0; 2],
         deltas: vec![],
+        map: vec![],
         on: vec![],
     };
     let (s0, mut rep) = fit(&ctx, &st);
@@ -544,6 +695,16 @@ pub fn diagnose_from(
     }
     if base.distortion != DistModel::K1K2P1P2K3 {
         cands.push(Cand::Distortion);
+    }
+    if train.mount == Mount::Flange {
+        cands.push(Cand::Map);
+    } else {
+        untestable.push((
+            Cand::Map.kind().to_string(),
+            "eye-to-hand: the camera sees the board on the flange, whose position error the \
+             board pose absorbs"
+                .to_string(),
+        ));
     }
     loop {
         // The candidates rejected on top of the final model are the ones reported.
@@ -655,11 +816,23 @@ pub fn diagnose_from(
         heldout_rms_px: cur_held,
     });
     let n_heldout = held.map_or(0, |h| h.views.len());
-    let uncertainty = if effects.is_empty() {
+    let mut uncertainty = if effects.is_empty() {
         base.uncertainty.clone()
     } else {
         uncertainty_of(&stds(&rep, &st.mask), &st.mask, base.uncertainty.bootstrap)
     };
+    // Where the robot's pose error dominates the residual, the corners of one view share it and
+    // the model covariance (every corner independent) is too small: X's 1σ is then the larger
+    // of it and the view jackknife of the final fit, per coordinate (as the calibration's).
+    let dominated = rms(&rep.residuals) > JACKKNIFE_RATIO * base.intrinsics_rms_px;
+    if !effects.is_empty() && dominated {
+        if let Some((jt, jr)) = jackknife(&ctx, &st) {
+            for a in 0..3 {
+                uncertainty.x_mm[a] = uncertainty.x_mm[a].max(jt[a]);
+                uncertainty.x_deg[a] = uncertainty.x_deg[a].max(jr[a]);
+            }
+        }
+    }
     Ok(CameraDiagnosis {
         uncertainty,
         baseline: base.ml.clone(),
@@ -686,6 +859,8 @@ pub fn diagnose_from(
             }
             _ => None,
         },
+        flange_map: (st.on.contains(&Cand::Map) && st.map.len() == FLANGE_MAP_PARAMS)
+            .then(|| FlangeMapFit::new(ctx.map_centre, &st.map, &ctx.g)),
         untestable,
         square_mm: train.board.square_mm,
     })
@@ -948,12 +1123,212 @@ fn effect_params(
             .enumerate()
             .map(|(k, nm)| p((*nm).into(), s.k.dist[k], f64::NAN, "1"))
             .collect(),
+        // In mm per m of distance from the centre (the matrix entries × 1000).
+        Cand::Map => {
+            let i0 = arm_index(s) + if has(Cand::Arm) { s.deltas.len() } else { 0 };
+            FLANGE_MAP_NAMES
+                .iter()
+                .enumerate()
+                .map(|(k, nm)| {
+                    let v = s.map.get(k).copied().unwrap_or(f64::NAN);
+                    p((*nm).into(), 1e3 * v, 1e3 * sd(Some(i0), k), "mm/m")
+                })
+                .collect()
+        }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Eye-in-hand views of a board from a shell of viewpoints (`n` views, `phase` shifts the
+    /// azimuths), corners with 0.05 px noise; the flange poses as reported by an arm whose
+    /// positions are off by the trace-free map `s` about `c` (the true flange is the reported
+    /// one read through the map).
+    fn mapped_views(
+        n: usize,
+        phase: f64,
+        s: &[f64],
+        c: nalgebra::Vector3<f64>,
+        seed: u64,
+    ) -> CameraData {
+        use nalgebra::{Translation3, UnitQuaternion, Vector3};
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let k = Intrinsics {
+            fx: 900.0,
+            fy: 900.0,
+            cx: 320.0,
+            cy: 240.0,
+            dist: [-0.05, 0.0, 0.0, 0.0, 0.0],
+        };
+        let board = crate::solve::camera::detect::BoardSpec {
+            cols: 8,
+            rows: 5,
+            square_mm: 30.0,
+        };
+        let x = Isometry3::from_parts(
+            Translation3::new(0.0, 50.0, 40.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.01, -0.02, 0.03)),
+        );
+        let target = Isometry3::from_parts(
+            Translation3::new(-576.9, -223.3, 0.0),
+            UnitQuaternion::identity(),
+        );
+        let centre = target * nalgebra::Point3::new(135.0, 90.0, 0.0);
+        let inv = (nalgebra::Matrix3::identity()
+            + crate::solve::camera::problem::flange_map_matrix(s))
+        .try_inverse()
+        .unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 0.05).unwrap();
+        let views =
+            (0..n)
+                .map(|v| {
+                    let az = phase + v as f64 * 0.9;
+                    let pol = 0.15 + 0.3 * ((v % 3) as f64) / 2.0;
+                    let r = 450.0 + 50.0 * (v % 5) as f64;
+                    let eye = centre
+                        + Vector3::new(
+                            r * pol.sin() * az.cos(),
+                            r * pol.sin() * az.sin(),
+                            r * pol.cos(),
+                        );
+                    let z = (centre - eye).normalize();
+                    let xa = Vector3::new(-az.sin(), az.cos(), 0.0);
+                    let xa = (xa - z * xa.dot(&z)).normalize();
+                    let rot = nalgebra::Rotation3::from_matrix_unchecked(
+                        nalgebra::Matrix3::from_columns(&[xa, z.cross(&xa), z]),
+                    );
+                    let cam = Isometry3::from_parts(
+                        Translation3::from(eye.coords),
+                        UnitQuaternion::from_rotation_matrix(&rot),
+                    );
+                    let truth = cam * x.inverse();
+                    let mut reported = truth;
+                    reported.translation.vector = c + inv * (truth.translation.vector - c);
+                    let corners = crate::solve::camera::board_points(&board)
+                        .iter()
+                        .map(|p| {
+                            let uv = crate::solve::camera::geom::project(
+                                &k,
+                                &(cam.inverse() * target * nalgebra::Point3::from(*p)).coords,
+                            )
+                            .unwrap();
+                            Some([
+                                uv[0] + noise.sample(&mut rng),
+                                uv[1] + noise.sample(&mut rng),
+                            ])
+                        })
+                        .collect();
+                    camera::View {
+                        id: seed * 1000 + v as u64,
+                        flange: reported,
+                        corners,
+                    }
+                })
+                .collect();
+        CameraData {
+            width: 640,
+            height: 480,
+            board,
+            mount: Mount::Flange,
+            views,
+        }
+    }
+
+    fn no_robot() -> Dataset {
+        Dataset {
+            header: crate::dataset::Header {
+                format: crate::dataset::DATASET_FORMAT.into(),
+                created: None,
+                robot: crate::dataset::RobotBlock {
+                    model: crate::dataset::NO_ROBOT_MODEL.into(),
+                    serial: None,
+                    chain: None,
+                    flange: None,
+                    extra: Default::default(),
+                },
+                tool: None,
+                tracker: None,
+                range_sensor: None,
+                plan: None,
+                notes: None,
+                extra: Default::default(),
+            },
+            records: vec![],
+        }
+    }
+
+    /// An arm whose reported positions are off by a linear map (up to ~2.5 mm over the shell,
+    /// no joint angles recorded): the diagnosis names `flange_map`, recovers the map, predicts
+    /// the held-out views to the detection noise, and the calibration block reads the flanges
+    /// through the same map. Exact flange poses: no map.
+    #[test]
+    fn a_linear_error_of_the_flange_positions_is_named_and_recovered() {
+        let s = [0.002, -0.003, 0.004, 0.001, -0.001, 0.0025, -0.002, 0.0015];
+        let c = nalgebra::Vector3::new(-450.0, -130.0, 420.0);
+        let train = mapped_views(24, 0.0, &s, c, 1);
+        let held = mapped_views(10, 0.45, &s, c, 2);
+        let d = diagnose(&train, Some(&held), &no_robot(), Some(&no_robot())).unwrap();
+        let kinds: Vec<&str> = d.effects.iter().map(|e| e.kind.as_str()).collect();
+        assert!(kinds.contains(&"flange_map"), "{kinds:?}");
+        let (before, after) = (
+            d.baseline.heldout_rms_px.unwrap(),
+            d.last().heldout_rms_px.unwrap(),
+        );
+        eprintln!("held-out {before:.4} -> {after:.4} px; effects {kinds:?}");
+        assert!(before > 0.5 && after < 0.1, "{before} -> {after}");
+        let m = d.flange_map.as_ref().unwrap();
+        // The map is fitted about the training flanges' mean, not `c`: the difference is a
+        // constant shift the board pose takes; `S` itself is the same.
+        let truth = crate::solve::camera::problem::flange_map_matrix(&s);
+        for r in 0..3 {
+            for k in 0..3 {
+                assert!(
+                    (m.matrix[r][k] - truth[(r, k)]).abs() < 3e-4,
+                    "S[{r}][{k}] {} vs {}",
+                    m.matrix[r][k],
+                    truth[(r, k)]
+                );
+            }
+        }
+        assert!(m.max_shift_mm > 1.0, "{m:?}");
+        assert!(d.findings().iter().any(|f| f.contains("flange positions")));
+        // The file block reads a flange exactly as the fit did.
+        let f = train.views[3].flange;
+        let sv: Vec<f64> = [
+            (0, 0),
+            (0, 1),
+            (0, 2),
+            (1, 0),
+            (1, 1),
+            (1, 2),
+            (2, 0),
+            (2, 1),
+        ]
+        .iter()
+        .map(|&(r, k)| m.matrix[r][k])
+        .collect();
+        let a = m.block().apply(&f);
+        let b = map_flange(&f, &sv, &nalgebra::Vector3::from(m.centre));
+        assert!((a.translation.vector - b.translation.vector).norm() < 1e-9);
+        // Exact flange poses: the map is not accepted.
+        let zero = [0.0; FLANGE_MAP_PARAMS];
+        let d0 = diagnose(
+            &mapped_views(24, 0.0, &zero, c, 1),
+            Some(&mapped_views(10, 0.45, &zero, c, 2)),
+            &no_robot(),
+            Some(&no_robot()),
+        )
+        .unwrap();
+        assert!(
+            d0.flange_map.is_none(),
+            "{:?}",
+            d0.effects.iter().map(|e| &e.kind).collect::<Vec<_>>()
+        );
+    }
 
     #[test]
     fn robot_dominance_is_said_only_far_above_the_board_only_rms() {

@@ -2,7 +2,8 @@
 //! diagnosis of [`crate::diagnose::camera`]. Writes `DIR/diagnosis.json`
 //! (`robocal-diagnosis/2`, [`crate::schema::DiagnosisFile`], RMS in `_px` fields) and
 //! `DIR/calibration.json` (the final camera calibration with the effects found: board scale
-//! and bend in the camera block, the arm's identified kinematics in `params`).
+//! and bend in the camera block, the arm's identified kinematics in `params`, the flange map in
+//! `camera.flange_map`).
 use std::path::Path;
 
 use anyhow::Context as _;
@@ -53,6 +54,14 @@ pub fn run_loaded(
     let mut cal = crate::solve::camera::calfile::calibration_file(train, &res);
     if let Some(arm) = &d.arm {
         arm.write_into(&mut cal);
+    }
+    if let Some(m) = &d.flange_map {
+        let mut b = cal
+            .camera()
+            .map_err(|e| anyhow::anyhow!("calibration: {e}"))?
+            .context("calibration: no camera block")?;
+        b.flange_map = Some(m.block());
+        cal.set_camera(&b);
     }
     crate::dataset::write_calibration(out.join("calibration.json"), &cal)
         .with_context(|| format!("writing {}", out.join("calibration.json").display()))?;

@@ -311,5 +311,32 @@ fn check_camera_block(cal: &CalibrationFile, file: &Path) -> Result<(), DatasetE
             ));
         }
     }
+    if let Some(m) = &b.flange_map {
+        let entries = m.matrix.iter().flatten();
+        let trace = m.matrix[0][0] + m.matrix[1][1] + m.matrix[2][2];
+        if m.centre_mm.iter().any(|v| !v.is_finite() || v.abs() > 1e5)
+            || entries
+                .clone()
+                .any(|v| !v.is_finite() || v.abs() > MAX_FLANGE_MAP)
+            || trace.abs() > 1e-9
+        {
+            return Err(err(
+                file,
+                "camera.flange_map".into(),
+                format!(
+                    "centre {:?} mm, matrix {:?}: the map of an arm's flange positions is \
+                     trace-free with entries within ±{MAX_FLANGE_MAP} ({} mm per metre) and a \
+                     finite centre within 100 m; a corrupted or hand-edited value",
+                    m.centre_mm,
+                    m.matrix,
+                    1e3 * MAX_FLANGE_MAP
+                ),
+            ));
+        }
+    }
     Ok(())
 }
+
+/// Largest plausible entry of `camera.flange_map.matrix`: an arm whose reported positions are
+/// off by more than 5 cm per metre is not calibrated by a camera, it is broken or mis-declared.
+pub const MAX_FLANGE_MAP: f64 = 0.05;

@@ -55,6 +55,7 @@ fn linearize(
                 intr_fixed: *k_fixed,
                 board: BoardModel::default(),
                 arm: None,
+                flange_map: None,
             };
             let mut x = DVector::zeros(m + 6);
             x.rows_mut(0, m).copy_from(xk);
@@ -452,6 +453,7 @@ mod tests {
             intr_fixed: k0,
             board: BoardModel::default(),
             arm: None,
+            flange_map: None,
         };
         let rep = minimize(&p, p.pack(&k0, &p0, 1.0, [0.0; 2]), &LmOptions::default());
         let kd = p.intrinsics(&rep.x);

@@ -83,6 +83,7 @@ pub fn calibration_file(train: &Loaded, res: &CameraResult) -> CalibrationFile {
         target: train.target.clone(),
         target_scale: (res.board_scale != 1.0).then_some(res.board_scale),
         target_bend_mm: (res.board_bend_mm != [0.0; 2]).then_some(res.board_bend_mm),
+        flange_map: None,
     };
     let mut cal = CalibrationFile::new(train.dataset.header.robot.clone(), vec![]);
     cal.set_camera(&block);
@@ -222,6 +223,15 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
         views,
     };
     apply_arm(&cal, &mut cd, &ds).with_context(|| format!("{}", cal_path.display()))?;
+    // The flange map the camera diagnosis found (`flange_map`): the hand-eye holds for the
+    // flange poses read through it, as in the diagnosis' own held-out figure.
+    if let Some(m) = cal.camera().ok().flatten().and_then(|b| b.flange_map) {
+        if mount == Mount::Flange {
+            for v in &mut cd.views {
+                v.flange = m.apply(&v.flange);
+            }
+        }
+    }
     Ok(camera::predict(&cd, &k, &x, &target, bend))
 }
 

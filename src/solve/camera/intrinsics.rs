@@ -64,6 +64,7 @@ pub fn calibrate_intrinsics(
         intr_fixed: k0,
         board: BoardModel::default(),
         arm: None,
+        flange_map: None,
     };
     let opts = LmOptions {
         max_iter: 200,

@@ -349,6 +349,7 @@ fn pnp(k: &Intrinsics, obs: &[Obs], init: Isometry3<f64>) -> (Isometry3<f64>, f6
         intr_fixed: *k,
         board: BoardModel::default(),
         arm: None,
+        flange_map: None,
     };
     let x0 = p.pack(k, &[init], 1.0, [0.0; 2]);
     let rep = minimize(&p, x0, &LmOptions::default());
@@ -439,6 +440,7 @@ pub fn predict_residuals(
             centre: bend_centre(&data.board),
         },
         arm: None,
+        flange_map: None,
     };
     let r = crate::solve::lm::LsqProblem::residuals(&p, &p.pack(k, &[*x, *target], scale, bend));
     let ids = corner_ids(&data.views);
@@ -600,6 +602,7 @@ fn ml_fit(
         intr_fixed: *k,
         board,
         arm: None,
+        flange_map: None,
     };
     let opts = LmOptions {
         max_iter: 200,
@@ -638,6 +641,7 @@ pub fn fit_with_x_held(
         intr_fixed: *k,
         board: BoardModel::default(),
         arm: None,
+        flange_map: None,
     };
     let o = p.pose_offset(0);
     let h = crate::solve::lm::Held::new(&p, p.pack(k, &[*x, *b0], 1.0, [0.0; 2]), o..o + 6);

@@ -9,6 +9,9 @@
 //! Optional extra parameters (what the camera diagnosis adds): the board scale `s`
 //! (`P → s·P`) and a board bend `(c_x, c_y)`: the sag `z = c_x·((x−x₀)/R)² + c_y·((y−y₀)/R)²`
 //! about the board centre (mm at distance `R` from it; a bow about one axis or a bowl).
+//! And, eye-in-hand, a map of the flange positions ([`FlangeMap`]): the robot's reported
+//! position `p` read as `p + S·(p − c)` with `S` a trace-free 3×3 matrix (eight parameters):
+//! the part of the arm's pose error that is linear over the workspace the views sample.
 #![allow(clippy::type_complexity)]
 use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 
@@ -82,6 +85,40 @@ pub fn changed_model(
     m
 }
 
+/// A map of the flange positions: the flange at reported position `p` is taken at
+/// `p + S·(p − centre)`, `S` trace-free (its eight parameters in [`flange_map_matrix`]'s order;
+/// the trace, a uniform scale, is the board's scale and is left to it). The orientations are
+/// kept. It is the arm's position error to first order over the workspace the views sample:
+/// a scale along some directions, a shear, a small rotation of the positions against the
+/// orientations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlangeMap {
+    /// The point the map leaves in place (mm, base frame): the training flange positions' mean.
+    pub centre: Vector3<f64>,
+}
+
+/// Number of parameters of a [`FlangeMap`].
+pub const FLANGE_MAP_PARAMS: usize = 8;
+
+/// The trace-free matrix `S` of a [`FlangeMap`] from its parameters
+/// `[s_xx, s_xy, s_xz, s_yx, s_yy, s_yz, s_zx, s_zy]` (`s_zz = −s_xx − s_yy`).
+pub fn flange_map_matrix(s: &[f64]) -> nalgebra::Matrix3<f64> {
+    nalgebra::Matrix3::new(s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], -s[0] - s[4])
+}
+
+/// The parameters' names, in order (file and report).
+pub const FLANGE_MAP_NAMES: [&str; FLANGE_MAP_PARAMS] = [
+    "s_xx", "s_xy", "s_xz", "s_yx", "s_yy", "s_yz", "s_zx", "s_zy",
+];
+
+/// `f` with its position mapped: `p + S·(p − centre)`.
+pub fn map_flange(f: &Isometry3<f64>, s: &[f64], centre: &Vector3<f64>) -> Isometry3<f64> {
+    let mut g = *f;
+    let p = f.translation.vector;
+    g.translation.vector = p + flange_map_matrix(s) * (p - centre);
+    g
+}
+
 /// The problem.
 pub struct Reproj<'a> {
     pub obs: &'a [Obs],
@@ -95,6 +132,9 @@ pub struct Reproj<'a> {
     pub board: BoardModel,
     /// Arm parameter changes (free after the board parameters), when given.
     pub arm: Option<ArmModel<'a>>,
+    /// A map of the flange positions (its [`FLANGE_MAP_PARAMS`] free after the arm's), when
+    /// given ([`Layout::HandEye`] only).
+    pub flange_map: Option<FlangeMap>,
 }
 
 impl Reproj<'_> {
@@ -135,6 +175,20 @@ impl Reproj<'_> {
     /// Offset of the arm parameter changes.
     pub fn arm_offset(&self) -> usize {
         self.board_offset() + self.board.scale as usize + 2 * self.board.bend as usize
+    }
+    /// Offset of the flange map's parameters.
+    pub fn map_offset(&self) -> usize {
+        self.arm_offset() + self.arm.as_ref().map_or(0, |a| a.params.len())
+    }
+    /// The flange map's parameters at `x` (empty without a map).
+    pub fn map_params(&self, x: &DVector<f64>) -> Vec<f64> {
+        let o = self.map_offset();
+        let n = if self.flange_map.is_some() {
+            FLANGE_MAP_PARAMS
+        } else {
+            0
+        };
+        (0..n).map(|k| x[o + k]).collect()
     }
     /// Arm parameter changes (mm / rad) at `x`, one per entry of [`ArmModel::params`].
     pub fn arm_deltas(&self, x: &DVector<f64>) -> Vec<f64> {
@@ -183,6 +237,9 @@ impl Reproj<'_> {
         if let Some(a) = &self.arm {
             v.extend(std::iter::repeat_n(0.0, a.params.len()));
         }
+        if self.flange_map.is_some() {
+            v.extend([0.0; FLANGE_MAP_PARAMS]);
+        }
         DVector::from_vec(v)
     }
 
@@ -219,6 +276,19 @@ impl Reproj<'_> {
                     })
                     .collect()
             });
+        // The flange map: `S` and the columns' basis matrices.
+        let mo = self.map_offset();
+        let map = self.flange_map.map(|m| {
+            let sv = self.map_params(x);
+            let basis: Vec<nalgebra::Matrix3<f64>> = (0..FLANGE_MAP_PARAMS)
+                .map(|k| {
+                    let mut e = [0.0; FLANGE_MAP_PARAMS];
+                    e[k] = 1.0;
+                    flange_map_matrix(&e)
+                })
+                .collect();
+            (m.centre, flange_map_matrix(&sv), basis)
+        });
         // Every pose block's rotation, left Jacobian and (quaternion-route) rotation matrix,
         // once per evaluation rather than once per corner (the same arithmetic).
         let blocks_pre: Vec<(PoseJac, nalgebra::Matrix3<f64>)> = (0..self.n_poses())
@@ -231,6 +301,7 @@ impl Reproj<'_> {
             .collect();
         for (i, o) in self.obs.iter().enumerate() {
             let mut d_arm: Vec<Vector3<f64>> = vec![];
+            let mut d_map: Vec<Vector3<f64>> = vec![];
             // Board point with scale and bend.
             let (qx, qy) = if self.board.bend || c != [0.0; 2] {
                 (((o.pt.x - x0) / rr).powi(2), ((o.pt.y - y0) / rr).powi(2))
@@ -255,27 +326,52 @@ impl Reproj<'_> {
                     let (ox, ob) = (self.pose_offset(0), self.pose_offset(1));
                     let ((pjx, rqx), (pjb, rqb)) = (&blocks_pre[0], &blocks_pre[1]);
                     let (y1, jb) = pjb.transform_jac(&p);
-                    let f = match &arm_frames {
+                    let f0 = match &arm_frames {
                         Some(af) => &af[o.view].0,
                         None => &self.flange[o.view],
+                    };
+                    // The mapped flange: position p + S (p − c), orientation kept.
+                    let mapped;
+                    let f = match &map {
+                        Some((c, sm, _)) => {
+                            mapped = {
+                                let mut g = *f0;
+                                let p0 = f0.translation.vector;
+                                g.translation.vector = p0 + sm * (p0 - c);
+                                g
+                            };
+                            &mapped
+                        }
+                        None => f0,
                     };
                     let y2 = f.inverse_transform_vector(&(y1 - f.translation.vector));
                     let (y3, jx) = pjx.inv_transform_jac(&y2);
                     let rf = f.rotation.to_rotation_matrix();
                     let chain = rqx.transpose() * rf.matrix().transpose();
+                    // The map scales a change of the reported position by (I + S).
+                    let i_s = map
+                        .as_ref()
+                        .map_or(nalgebra::Matrix3::identity(), |(_, sm, _)| {
+                            nalgebra::Matrix3::identity() + sm
+                        });
                     if let Some(af) = &arm_frames {
                         // δF: position δp, rotation δθ (base frame): F⁻¹y changes by
-                        // −F_R⁻¹ (δθ × (y − p) + δp).
-                        let (fp, js) = &af[o.view];
-                        let rel = y1 - fp.translation.vector;
+                        // −F_R⁻¹ (δθ × (y − p) + δp), p the (mapped) flange position.
+                        let js = &af[o.view].1;
+                        let rel = y1 - f.translation.vector;
                         d_arm = js
                             .column_iter()
                             .map(|c| {
-                                let dp = Vector3::new(c[0], c[1], c[2]);
+                                let dp = i_s * Vector3::new(c[0], c[1], c[2]);
                                 let dw = Vector3::new(c[3], c[4], c[5]);
                                 -(chain * (dw.cross(&rel) + dp))
                             })
                             .collect();
+                    }
+                    if let Some((c, _, basis)) = &map {
+                        // δp = E_k (p₀ − c) for parameter k.
+                        let rel0 = f0.translation.vector - c;
+                        d_map = basis.iter().map(|e| -(chain * (e * rel0))).collect();
                     }
                     (y3, vec![(ox, jx), (ob, chain * jb)], chain * rqb)
                 }
@@ -321,6 +417,11 @@ impl Reproj<'_> {
                 j[(2 * i, ao + k)] = d[0];
                 j[(2 * i + 1, ao + k)] = d[1];
             }
+            for (k, dpc) in d_map.iter().enumerate() {
+                let d = jp * dpc;
+                j[(2 * i, mo + k)] = d[0];
+                j[(2 * i + 1, mo + k)] = d[1];
+            }
         }
         (r, j)
     }
@@ -328,7 +429,12 @@ impl Reproj<'_> {
 
 impl LsqProblem for Reproj<'_> {
     fn n_params(&self) -> usize {
-        self.arm_offset() + self.arm.as_ref().map_or(0, |a| a.params.len())
+        self.map_offset()
+            + if self.flange_map.is_some() {
+                FLANGE_MAP_PARAMS
+            } else {
+                0
+            }
     }
     fn residuals(&self, x: &DVector<f64>) -> DVector<f64> {
         self.eval(x, false).0
@@ -397,6 +503,7 @@ mod tests {
                 intr_fixed: k,
                 board,
                 arm: None,
+                flange_map: None,
             };
             let poses: Vec<Isometry3<f64>> = match layout {
                 Layout::HandEye => vec![x_he, b],
@@ -435,11 +542,20 @@ mod tests {
                 q: &qs,
                 params,
             }),
+            // With the flange map on top: its own columns and its effect on the arm's.
+            flange_map: Some(FlangeMap {
+                centre: Vector3::new(-390.0, -140.0, 540.0),
+            }),
         };
         let mut x0 = p.pack(&k, &[x_he, b], 1.002, [0.3, -0.2]);
         let ao = p.arm_offset();
         for kk in 0..np {
             x0[ao + kk] = 0.001 * (kk as f64 + 1.0);
+        }
+        let mo = p.map_offset();
+        assert_eq!(p.n_params(), mo + FLANGE_MAP_PARAMS);
+        for kk in 0..FLANGE_MAP_PARAMS {
+            x0[mo + kk] = 0.004 * (kk as f64 - 3.5);
         }
         let (_, ja) = p.residuals_jacobian(&x0);
         let jn = numeric_jacobian(|x| p.residuals(x), &x0, 1e-7);

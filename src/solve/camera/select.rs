@@ -454,7 +454,7 @@ pub fn choice_shares(
 
 /// Root mean square deviation (not unbiased) of X about `centre`: translation mm, rotation deg
 /// (local, `centre⁻¹ x`).
-pub(super) fn spread(xs: &[Isometry3<f64>], centre: &Isometry3<f64>) -> ([f64; 3], [f64; 3]) {
+pub(crate) fn spread(xs: &[Isometry3<f64>], centre: &Isometry3<f64>) -> ([f64; 3], [f64; 3]) {
     let (mut st, mut sr) = ([0.0; 3], [0.0; 3]);
     for x in xs {
         let t = x.translation.vector - centre.translation.vector;
