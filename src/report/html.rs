@@ -620,6 +620,23 @@ fn camera_section(h: &mut String, c: &crate::session::camera::CameraSummary) {
             b[0], b[1]
         );
     }
+    if let Some(m) = &d.flange_map {
+        let largest = m
+            .matrix
+            .iter()
+            .flatten()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
+        let c = m.centre_mm;
+        let _ = write!(
+            h,
+            "<tr><td>flange positions read through a linear map (largest entry, about the centre)</td>\
+             <td>{:.2} mm/m about ({:.0}, {:.0}, {:.0}) mm</td><td>—</td><td>none</td></tr>",
+            1e3 * largest,
+            c[0],
+            c[1],
+            c[2]
+        );
+    }
     h.push_str("</table>");
     // Held-out pixels.
     let _ = write!(

@@ -597,6 +597,27 @@ fn md_calibration(m: &mut String, c: &Found<CalibrationFile>) {
             h.quat[3],
             ci(h.std_deg)
         );
+        if let Some(fm) = &b.flange_map {
+            let r = |k: usize| {
+                format!(
+                    "[{:.2}, {:.2}, {:.2}]",
+                    1e3 * fm.matrix[k][0],
+                    1e3 * fm.matrix[k][1],
+                    1e3 * fm.matrix[k][2]
+                )
+            };
+            let _ = writeln!(
+                m,
+                "Flange positions read through a linear map (camera.flange_map): p + S·(p − c), \
+                 c = ({:.1}, {:.1}, {:.1}) mm, S = [{}, {}, {}] mm/m; the hand-eye holds with it.",
+                fm.centre_mm[0],
+                fm.centre_mm[1],
+                fm.centre_mm[2],
+                r(0),
+                r(1),
+                r(2)
+            );
+        }
     }
     let free: Vec<_> = v.params.iter().filter(|p| p.free).collect();
     let fixed = v.params.len() - free.len();
