@@ -120,3 +120,35 @@ pub fn record_skip(target: &Path, what: &str) {
         let _ = writeln!(f, "{}", what.replace('\n', " "));
     }
 }
+
+/// `robocal import handeye` options for the real KUKA set (RWHE-Calib `kuka_1` in `dir`: row-major
+/// 4×4 in metres, 28×17 inner corners of 20 mm) read in `direction`, written to `out`, every 4th
+/// view to `heldout` when given.
+pub fn kuka1_import_options(
+    dir: &Path,
+    out: &Path,
+    heldout: Option<&Path>,
+    direction: robocal::import::handeye::Direction,
+) -> robocal::import::handeye::HandeyeOptions {
+    robocal::import::handeye::HandeyeOptions {
+        images: dir.to_path_buf(),
+        poses: dir.join("RobotPosesVec.txt"),
+        reading: robocal::import::handeye::Reading {
+            layout: robocal::import::handeye::Layout::Matrix4 { col_major: false },
+            unit: robocal::import::generic::LengthUnit::M,
+            direction,
+        },
+        target: robocal::dataset::TargetHeader {
+            kind: "chessboard".into(),
+            cols: 28,
+            rows: 17,
+            square_mm: 20.0,
+            marker_mm: None,
+            dictionary: None,
+        },
+        mount: robocal::solve::camera::Mount::Flange,
+        out: out.to_path_buf(),
+        heldout_every: if heldout.is_some() { 4 } else { 0 },
+        heldout: heldout.map(Path::to_path_buf),
+    }
+}

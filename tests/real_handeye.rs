@@ -405,27 +405,12 @@ fn real_kuka1_camera_diagnosis_names_the_flange_map_and_predict_reproduces_it() 
     }
     let tmp = tempfile::tempdir().unwrap();
     let (train, held) = (tmp.path().join("k1.jsonl"), tmp.path().join("k1-h.jsonl"));
-    let o = robocal::import::handeye::HandeyeOptions {
-        images: dir.clone(),
-        poses: dir.join("RobotPosesVec.txt"),
-        reading: robocal::import::handeye::Reading {
-            layout: robocal::import::handeye::Layout::Matrix4 { col_major: false },
-            unit: robocal::import::generic::LengthUnit::M,
-            direction: robocal::import::handeye::Direction::BaseFlange,
-        },
-        target: robocal::dataset::TargetHeader {
-            kind: "chessboard".into(),
-            cols: 28,
-            rows: 17,
-            square_mm: 20.0,
-            marker_mm: None,
-            dictionary: None,
-        },
-        mount: robocal::solve::camera::Mount::Flange,
-        out: train.clone(),
-        heldout_every: 4,
-        heldout: Some(held.clone()),
-    };
+    let o = crate::common::kuka1_import_options(
+        &dir,
+        &train,
+        Some(&held),
+        robocal::import::handeye::Direction::BaseFlange,
+    );
     robocal::import::handeye::import_handeye(&o, false).unwrap();
     let out = tmp.path().join("diag");
     assert_eq!(crate::common::diagnose_cli(&train, &held, &out), 0);

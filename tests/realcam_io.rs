@@ -267,27 +267,7 @@ fn real_kuka1_imports_and_wrong_direction_is_refused() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("kuka1.jsonl");
-    let opts = |direction| robocal::import::handeye::HandeyeOptions {
-        images: dir.clone(),
-        poses: dir.join("RobotPosesVec.txt"),
-        reading: robocal::import::handeye::Reading {
-            layout: robocal::import::handeye::Layout::Matrix4 { col_major: false },
-            unit: robocal::import::generic::LengthUnit::M,
-            direction,
-        },
-        target: robocal::dataset::TargetHeader {
-            kind: "chessboard".into(),
-            cols: 28,
-            rows: 17,
-            square_mm: 20.0,
-            marker_mm: None,
-            dictionary: None,
-        },
-        mount: robocal::solve::camera::Mount::Flange,
-        out: out.clone(),
-        heldout_every: 0,
-        heldout: None,
-    };
+    let opts = |direction| crate::common::kuka1_import_options(&dir, &out, None, direction);
     use robocal::import::handeye::Direction;
     let r = robocal::import::handeye::import_handeye(&opts(Direction::BaseFlange), false).unwrap();
     let d = r
