@@ -498,15 +498,15 @@ fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
     (st, rep)
 }
 
-/// View jackknife 1σ of X (translation mm, rotation deg) of the fit of state `s`: one refit
-/// per training view left out, from `s`.
-fn jackknife(c: &Ctx, s: &St) -> Option<([f64; 3], [f64; 3])> {
+/// View jackknife 1σ of X (translation mm, rotation deg) and of the flange map's parameters
+/// (empty without a map) of the fit of state `s`: one refit per training view left out, from `s`.
+fn jackknife(c: &Ctx, s: &St) -> Option<([f64; 3], [f64; 3], Vec<f64>)> {
     use rayon::prelude::*;
     let mut views: Vec<usize> = c.obs.iter().map(|o| o.view).collect();
     views.dedup();
     views.sort_unstable();
     views.dedup();
-    let xs: Vec<Isometry3<f64>> = views
+    let fits: Vec<St> = views
         .par_iter()
         .filter_map(|&v| {
             let c2 = Ctx {
@@ -520,17 +520,43 @@ fn jackknife(c: &Ctx, s: &St) -> Option<([f64; 3], [f64; 3])> {
                 held: None,
             };
             let (s1, r1) = fit(&c2, s);
-            r1.cost.is_finite().then_some(s1.x)
+            r1.cost.is_finite().then_some(s1)
         })
         .collect();
-    if xs.len() + 1 < views.len() || xs.len() < 3 {
+    if fits.len() + 1 < views.len() || fits.len() < 3 {
         return None;
     }
+    let xs: Vec<Isometry3<f64>> = fits.iter().map(|f| f.x).collect();
     let mean = crate::solve::camera::geom::mean_pose(&xs);
     let (st, sr) = crate::solve::camera::select::spread(&xs, &mean);
     // (n−1)/n · Σ (θ_i − θ̄)² = (n−1) · the mean square deviation.
-    let f = (xs.len() as f64 - 1.0).sqrt();
-    Some((st.map(|v| v * f), sr.map(|v| v * f)))
+    let n = fits.len() as f64;
+    let f = (n - 1.0).sqrt();
+    let map_sd = (0..s.map.len())
+        .map(|k| {
+            let m = fits.iter().map(|t| t.map[k]).sum::<f64>() / n;
+            let ms = fits.iter().map(|t| (t.map[k] - m).powi(2)).sum::<f64>() / n;
+            ms.sqrt() * f
+        })
+        .collect();
+    Some((st.map(|v| v * f), sr.map(|v| v * f), map_sd))
+}
+
+/// `name = value ± std unit, …` of an effect's parameters.
+fn summary_of(params: &[schema::EffectParameter]) -> String {
+    params
+        .iter()
+        .map(|p| {
+            format!(
+                "{} = {:.5} ± {:.5} {}",
+                p.name,
+                p.value,
+                p.std.unwrap_or(f64::NAN),
+                p.unit
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn heldout(c: &Ctx, s: &St) -> Option<f64> {
@@ -765,19 +791,7 @@ pub fn diagnose_from(
         let (dmm, ddeg) = crate::solve::camera::geom::pose_error(&st.x, &s1.x);
         let std = stds(&r1, &s1.mask);
         let params = effect_params(c, &s1, &std, &ctx, r1.jacobian.ncols());
-        let summary = params
-            .iter()
-            .map(|p| {
-                format!(
-                    "{} = {:.5} ± {:.5} {}",
-                    p.name,
-                    p.value,
-                    p.std.unwrap_or(f64::NAN),
-                    p.unit
-                )
-            })
-            .collect::<Vec<_>>()
-            .join(", ");
+        let summary = summary_of(&params);
         let df = r1.jacobian.ncols() - rep.jacobian.ncols();
         effects.push(CameraEffect {
             kind: c.kind().into(),
@@ -826,10 +840,18 @@ pub fn diagnose_from(
     // of it and the view jackknife of the final fit, per coordinate (as the calibration's).
     let dominated = rms(&rep.residuals) > JACKKNIFE_RATIO * base.intrinsics_rms_px;
     if !effects.is_empty() && dominated {
-        if let Some((jt, jr)) = jackknife(&ctx, &st) {
+        if let Some((jt, jr, map_sd)) = jackknife(&ctx, &st) {
             for a in 0..3 {
                 uncertainty.x_mm[a] = uncertainty.x_mm[a].max(jt[a]);
                 uncertainty.x_deg[a] = uncertainty.x_deg[a].max(jr[a]);
+            }
+            // The map's parameters: the larger of their model 1σ and the jackknife's too.
+            if let Some(e) = effects.iter_mut().find(|e| e.kind == Cand::Map.kind()) {
+                for (p, sd) in e.parameters.iter_mut().zip(&map_sd) {
+                    let sd = p.std.unwrap_or(0.0).max(1e3 * sd);
+                    *p = schema::EffectParameter::new(&p.name, &p.unit, p.value, sd);
+                }
+                e.summary = summary_of(&e.parameters);
             }
         }
     }
