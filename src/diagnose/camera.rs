@@ -503,7 +503,6 @@ fn fit(c: &Ctx, s: &St) -> (St, LmReport) {
 fn jackknife(c: &Ctx, s: &St) -> Option<([f64; 3], [f64; 3], Vec<f64>)> {
     use rayon::prelude::*;
     let mut views: Vec<usize> = c.obs.iter().map(|o| o.view).collect();
-    views.dedup();
     views.sort_unstable();
     views.dedup();
     let fits: Vec<St> = views
@@ -644,6 +643,7 @@ pub fn diagnose_from(
     // The arm model the camera sees: base and tool at identity (the board pose and the
     // hand-eye take their place).
     let model = model.map(|m| changed_model(&m, &[], &[]));
+    let flanges = motion_poses(&data.views, data.mount);
     let mut ctx = Ctx {
         obs: {
             // Same corners as the final fit (its rejected ones stay out).
@@ -664,14 +664,12 @@ pub fn diagnose_from(
                 .collect();
             camera_obs(&views, &data)
         },
-        g: motion_poses(&data.views, data.mount),
-        map_centre: {
-            let g = motion_poses(&data.views, data.mount);
-            g.iter()
-                .map(|f| f.translation.vector)
-                .sum::<nalgebra::Vector3<f64>>()
-                / g.len().max(1) as f64
-        },
+        map_centre: flanges
+            .iter()
+            .map(|f| f.translation.vector)
+            .sum::<nalgebra::Vector3<f64>>()
+            / flanges.len().max(1) as f64,
+        g: flanges,
         q: q.clone().unwrap_or_default(),
         model: model.as_ref().filter(|_| arm_ok),
         arm_params: vec![],
