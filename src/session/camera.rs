@@ -335,8 +335,8 @@ pub fn validate_stage(
     )
     .context("plotting the held-out views")?;
     // Calibrated alone, but with what the deployed calibration says about the arm and the
-    // board (its identified arm kinematics and board scale): the hand-eyes then differ only by
-    // noise when that model is complete.
+    // board (its identified arm kinematics or flange map, and board scale): the hand-eyes then
+    // differ only by noise when that model is complete.
     let mut held_data = held.data.clone();
     let dcal_path = dir.join("diagnose").join("calibration.json");
     let dcal =
@@ -345,6 +345,14 @@ pub fn validate_stage(
         .with_context(|| format!("{}", dcal_path.display()))?;
     if let Some(sc) = dcal.camera().ok().flatten().and_then(|b| b.target_scale) {
         held_data.board.square_mm *= sc;
+    }
+    // And its flange map (`flange_map`), as `robocal predict` reads the flanges.
+    if let Some(m) = dcal.camera().ok().flatten().and_then(|b| b.flange_map) {
+        if held_data.mount == cam::Mount::Flange {
+            for v in &mut held_data.views {
+                v.flange = m.apply(&v.flange);
+            }
+        }
     }
     let deployed = c
         .diagnosed
