@@ -128,18 +128,6 @@ pub struct FlangeMapBlock {
     pub matrix: [[f64; 3]; 3],
 }
 
-impl FlangeMapBlock {
-    /// `f` read through the map.
-    pub fn apply(&self, f: &nalgebra::Isometry3<f64>) -> nalgebra::Isometry3<f64> {
-        let m = nalgebra::Matrix3::from_fn(|r, c| self.matrix[r][c]);
-        let c = nalgebra::Vector3::from(self.centre_mm);
-        let mut g = *f;
-        let p = f.translation.vector;
-        g.translation.vector = p + m * (p - c);
-        g
-    }
-}
-
 fn typed<T: for<'de> Deserialize<'de>>(
     m: &Map<String, Value>,
     key: &str,

@@ -1331,7 +1331,7 @@ mod tests {
         .iter()
         .map(|&(r, k)| m.matrix[r][k])
         .collect();
-        let a = m.block().apply(&f);
+        let a = crate::solve::camera::calfile::read_through_map(&m.block(), &f);
         let b = map_flange(&f, &sv, &nalgebra::Vector3::from(m.centre));
         assert!((a.translation.vector - b.translation.vector).norm() < 1e-9);
         // Exact flange poses: the map is not accepted.

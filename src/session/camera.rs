@@ -347,13 +347,7 @@ pub fn validate_stage(
         held_data.board.square_mm *= sc;
     }
     // And its flange map (`flange_map`), as `robocal predict` reads the flanges.
-    if let Some(m) = dcal.camera().ok().flatten().and_then(|b| b.flange_map) {
-        if held_data.mount == cam::Mount::Flange {
-            for v in &mut held_data.views {
-                v.flange = m.apply(&v.flange);
-            }
-        }
-    }
+    crate::solve::camera::calfile::apply_flange_map(&dcal, &mut held_data);
     let deployed = c
         .diagnosed
         .as_ref()

@@ -153,6 +153,32 @@ pub fn arm_model(cal: &CalibrationFile) -> anyhow::Result<Option<crate::model::K
     Ok(Some(m))
 }
 
+/// The views' flange poses read through the calibration's flange map (`camera.flange_map`, what
+/// the camera diagnosis' `flange_map` found), eye-in-hand, after [`apply_arm`]: the poses its
+/// hand-eye holds for. Without a map, or eye-to-hand, nothing changes.
+pub fn apply_flange_map(cal: &CalibrationFile, data: &mut camera::CameraData) {
+    if data.mount != Mount::Flange {
+        return;
+    }
+    if let Some(m) = cal.camera().ok().flatten().and_then(|b| b.flange_map) {
+        for v in &mut data.views {
+            v.flange = read_through_map(&m, &v.flange);
+        }
+    }
+}
+
+/// Flange `f` read through the file's map `m`.
+pub fn read_through_map(
+    m: &crate::dataset::camera::FlangeMapBlock,
+    f: &Isometry3<f64>,
+) -> Isometry3<f64> {
+    super::problem::shift_flange(
+        f,
+        &nalgebra::Matrix3::from_fn(|r, c| m.matrix[r][c]),
+        &nalgebra::Vector3::from(m.centre_mm),
+    )
+}
+
 /// Flange poses of the views through the calibration's arm model (from each record's `q`),
 /// when the calibration carries one: the poses its hand-eye was identified with. Views whose
 /// record has no `q` keep theirs. Returns whether the arm model was used.
@@ -223,15 +249,7 @@ pub fn predict_rows(cal_path: &Path, data: &Path) -> anyhow::Result<Vec<(u64, us
         views,
     };
     apply_arm(&cal, &mut cd, &ds).with_context(|| format!("{}", cal_path.display()))?;
-    // The flange map the camera diagnosis found (`flange_map`): the hand-eye holds for the
-    // flange poses read through it, as in the diagnosis' own held-out figure.
-    if let Some(m) = cal.camera().ok().flatten().and_then(|b| b.flange_map) {
-        if mount == Mount::Flange {
-            for v in &mut cd.views {
-                v.flange = m.apply(&v.flange);
-            }
-        }
-    }
+    apply_flange_map(&cal, &mut cd);
     Ok(camera::predict(&cd, &k, &x, &target, bend))
 }
 

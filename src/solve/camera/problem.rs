@@ -113,9 +113,20 @@ pub const FLANGE_MAP_NAMES: [&str; FLANGE_MAP_PARAMS] = [
 
 /// `f` with its position mapped: `p + S·(p − centre)`.
 pub fn map_flange(f: &Isometry3<f64>, s: &[f64], centre: &Vector3<f64>) -> Isometry3<f64> {
+    shift_flange(f, &flange_map_matrix(s), centre)
+}
+
+/// `f` with its position `p` moved to `p + m·(p − centre)`, its orientation kept: the one
+/// place a flange map is applied (the fit, the diagnosis' held-out views, and the calibration
+/// file's `camera.flange_map` through [`super::calfile::read_through_map`]).
+pub fn shift_flange(
+    f: &Isometry3<f64>,
+    m: &nalgebra::Matrix3<f64>,
+    centre: &Vector3<f64>,
+) -> Isometry3<f64> {
     let mut g = *f;
     let p = f.translation.vector;
-    g.translation.vector = p + flange_map_matrix(s) * (p - centre);
+    g.translation.vector = p + m * (p - centre);
     g
 }
 
@@ -334,12 +345,7 @@ impl Reproj<'_> {
                     let mapped;
                     let f = match &map {
                         Some((c, sm, _)) => {
-                            mapped = {
-                                let mut g = *f0;
-                                let p0 = f0.translation.vector;
-                                g.translation.vector = p0 + sm * (p0 - c);
-                                g
-                            };
+                            mapped = shift_flange(f0, sm, c);
                             &mapped
                         }
                         None => f0,
